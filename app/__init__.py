@@ -1,0 +1,1 @@
+"""ugvmap: imagery → map tiles, road network → routes, for unmanned ground vehicles."""

@@ -1,0 +1,121 @@
+"""The ``ugvmap`` command line: database, ingest jobs, exports and the server.
+
+Each capability registers its commands on the groups defined here (``ingest``, ...), so this
+module stays a table of contents.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from app.db import embedded
+from app.settings import get_settings
+
+
+class CliError(click.ClickException):
+    """A user-facing error: printed as one clear line, exit status 1, no traceback."""
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+def main() -> None:
+    """ugvmap: imagery to map tiles, road network to routes, for unmanned ground vehicles."""
+
+
+@main.group()
+def db() -> None:
+    """Local PostGIS cluster and schema migrations."""
+
+
+def _cluster() -> embedded.Cluster:
+    settings = get_settings()
+    if not settings.embedded:
+        click.echo("DATABASE_URL is set: using that database, no local cluster to manage.")
+        sys.exit(0)
+    return embedded.cluster_from(settings)
+
+
+@db.command("start")
+def db_start() -> None:
+    """Initialise (first time) and start the embedded PostGIS cluster under .data/postgres."""
+    cluster = _cluster()
+    try:
+        embedded.start(cluster)
+    except embedded.EmbeddedDbError as exc:
+        raise CliError(str(exc)) from exc
+    click.echo(f"database {embedded.status(cluster)}")
+
+
+@db.command("stop")
+def db_stop() -> None:
+    """Stop the embedded cluster (data is kept)."""
+    cluster = _cluster()
+    try:
+        embedded.stop(cluster)
+    except embedded.EmbeddedDbError as exc:
+        raise CliError(str(exc)) from exc
+    click.echo(f"database {embedded.status(cluster)}")
+
+
+@db.command("status")
+def db_status() -> None:
+    """Say whether the embedded cluster is running."""
+    click.echo(f"database {embedded.status(_cluster())}")
+
+
+@db.command("upgrade")
+@click.argument("revision", default="head")
+def db_upgrade(revision: str) -> None:
+    """Migrate the schema to REVISION (default: head)."""
+    from sqlalchemy.exc import OperationalError
+
+    from app.db import migrate
+
+    url = get_settings().database_url
+    try:
+        migrate.upgrade(url, revision)
+    except OperationalError as exc:
+        raise CliError(f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
+    click.echo(f"schema at {revision}")
+
+
+@db.command("downgrade")
+@click.argument("revision")
+def db_downgrade(revision: str) -> None:
+    """Migrate the schema down to REVISION (``base`` removes every table)."""
+    from app.db import migrate
+
+    migrate.downgrade(get_settings().database_url, revision)
+    click.echo(f"schema at {revision}")
+
+
+@main.group()
+def ingest() -> None:
+    """Batch jobs that write rasters and road networks into the store."""
+
+
+@main.command()
+@click.option("--host", default="127.0.0.1", show_default=True)
+@click.option("--port", default=8000, show_default=True, type=int)
+@click.option("--workers", default=1, show_default=True, type=int)
+def serve(host: str, port: int, workers: int) -> None:
+    """Serve the web map, tiles, features and routes over HTTP."""
+    import uvicorn
+
+    from app.logs import logging_config
+
+    settings = get_settings()
+    uvicorn.run(
+        "app.main:create_app",
+        factory=True,
+        host=host,
+        port=port,
+        workers=workers,
+        log_config=logging_config(settings.log_level),
+        access_log=False,
+    )
+
+
+if __name__ == "__main__":
+    main()

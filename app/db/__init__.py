@@ -1,0 +1,1 @@
+"""Database: models, sessions, the embedded local PostGIS cluster and migrations."""

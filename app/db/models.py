@@ -1,0 +1,221 @@
+"""SQLAlchemy models of the catalogue (layers, sources, jobs, tokens) and the road network.
+
+The Alembic migrations are the source of truth for the schema; these models mirror them and a
+test compares the two so they cannot drift apart. Geometry SRIDs: raster footprints are stored
+in EPSG:3857 (the tile grid they are queried against); the road network is stored in EPSG:4326
+(what OGC API Features, GeoJSON and route clients speak), with lengths from geography.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from geoalchemy2 import Geometry
+from sqlalchemy import (
+    BigInteger,
+    Boolean,
+    CheckConstraint,
+    DateTime,
+    Float,
+    ForeignKey,
+    Integer,
+    SmallInteger,
+    Text,
+    func,
+)
+from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+SLUG_RE = "^[a-z0-9][a-z0-9_-]{0,63}$"
+LAYER_KINDS = ("orthophoto", "ipm-mosaic", "raster")
+NODE_KINDS = ("junction", "endpoint", "node")
+ONEWAY_VALUES = ("none", "forward", "backward")
+JOB_STATUSES = ("queued", "running", "succeeded", "failed")
+TOKEN_ROLES = ("viewer", "editor", "admin")
+
+
+class Base(DeclarativeBase):
+    pass
+
+
+def _now() -> Any:
+    return mapped_column(DateTime(timezone=True), nullable=False, server_default=func.now())
+
+
+class Layer(Base):
+    __tablename__ = "layers"
+    __table_args__ = (
+        CheckConstraint(f"slug ~ '{SLUG_RE}'", name="layers_slug_format"),
+        CheckConstraint(f"kind IN {LAYER_KINDS}", name="layers_kind_known"),
+        CheckConstraint("minzoom BETWEEN 0 AND 30 AND maxzoom BETWEEN 0 AND 30 "
+                        "AND minzoom <= maxzoom", name="layers_zoom_range"),
+        CheckConstraint("resolution_m IS NULL OR resolution_m > 0", name="layers_resolution_pos"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    slug: Mapped[str] = mapped_column(Text, unique=True, nullable=False)
+    title: Mapped[str] = mapped_column(Text, nullable=False)
+    kind: Mapped[str] = mapped_column(Text, nullable=False, server_default="orthophoto")
+    crs: Mapped[str] = mapped_column(Text, nullable=False, server_default="EPSG:3857")
+    resolution_m: Mapped[float | None] = mapped_column(Float)
+    minzoom: Mapped[int] = mapped_column(SmallInteger, nullable=False, server_default="0")
+    maxzoom: Mapped[int] = mapped_column(SmallInteger, nullable=False, server_default="22")
+    bounds: Mapped[Any] = mapped_column(
+        Geometry("POLYGON", srid=4326, spatial_index=True), nullable=True
+    )
+    attribution: Mapped[str | None] = mapped_column(Text)
+    overview_uri: Mapped[str | None] = mapped_column(Text)
+    version: Mapped[int] = mapped_column(Integer, nullable=False, server_default="1")
+    created_at: Mapped[datetime] = _now()
+    updated_at: Mapped[datetime] = _now()
+
+
+class RasterSource(Base):
+    __tablename__ = "raster_sources"
+    __table_args__ = (
+        CheckConstraint("width > 0 AND height > 0", name="raster_sources_size_pos"),
+        CheckConstraint("band_count > 0", name="raster_sources_bands_pos"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    layer_id: Mapped[int] = mapped_column(
+        ForeignKey("layers.id", ondelete="CASCADE"), nullable=False, index=True
+    )
+    name: Mapped[str] = mapped_column(Text, nullable=False)
+    uri: Mapped[str] = mapped_column(Text, nullable=False, unique=True)
+    footprint: Mapped[Any] = mapped_column(
+        Geometry("MULTIPOLYGON", srid=3857, spatial_index=True), nullable=False
+    )
+    acquired_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    ingested_at: Mapped[datetime] = _now()
+    priority: Mapped[int] = mapped_column(Integer, nullable=False, server_default="0")
+    width: Mapped[int] = mapped_column(Integer, nullable=False)
+    height: Mapped[int] = mapped_column(Integer, nullable=False)
+    band_count: Mapped[int] = mapped_column(SmallInteger, nullable=False)
+    dtype: Mapped[str] = mapped_column(Text, nullable=False)
+    resolution_m: Mapped[float] = mapped_column(Float, nullable=False)
+    checksum: Mapped[str | None] = mapped_column(Text)
+    meta: Mapped[dict[str, Any]] = mapped_column(JSONB, nullable=False, server_default="{}")
+
+
+class Network(Base):
+    __tablename__ = "networks"
+    __table_args__ = (CheckConstraint(f"name ~ '{SLUG_RE}'", name="networks_name_format"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(Text, unique=True, nullable=False)
+    title: Mapped[str | None] = mapped_column(Text)
+    description: Mapped[str | None] = mapped_column(Text)
+    version: Mapped[int] = mapped_column(BigInteger, nullable=False, server_default="0")
+    created_at: Mapped[datetime] = _now()
+    updated_at: Mapped[datetime] = _now()
+
+
+class RoadNode(Base):
+    __tablename__ = "road_nodes"
+    __table_args__ = (CheckConstraint(f"kind IN {NODE_KINDS}", name="road_nodes_kind_known"),)
+
+    id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
+    network_id: Mapped[int] = mapped_column(
+        ForeignKey("networks.id", ondelete="CASCADE"), nullable=False, index=True
+    )
+    geom: Mapped[Any] = mapped_column(
+        Geometry("POINT", srid=4326, spatial_index=True), nullable=False
+    )
+    kind: Mapped[str] = mapped_column(Text, nullable=False, server_default="node")
+    traffic_light: Mapped[bool] = mapped_column(Boolean, nullable=False, server_default="false")
+    external_id: Mapped[str | None] = mapped_column(Text)
+
+
+class RoadSegment(Base):
+    __tablename__ = "road_segments"
+    __table_args__ = (
+        CheckConstraint("lanes_forward BETWEEN 0 AND 16", name="road_segments_lanes_fwd_range"),
+        CheckConstraint("lanes_backward BETWEEN 0 AND 16", name="road_segments_lanes_bwd_range"),
+        CheckConstraint("speed_limit_kph IS NULL OR speed_limit_kph BETWEEN 1 AND 200",
+                        name="road_segments_speed_range"),
+        CheckConstraint(f"oneway IN {ONEWAY_VALUES}", name="road_segments_oneway_known"),
+        CheckConstraint("length_m >= 0", name="road_segments_length_nonneg"),
+        CheckConstraint("width_m IS NULL OR width_m > 0", name="road_segments_width_pos"),
+        CheckConstraint("version >= 1", name="road_segments_version_pos"),
+    )
+
+    id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
+    network_id: Mapped[int] = mapped_column(
+        ForeignKey("networks.id", ondelete="CASCADE"), nullable=False, index=True
+    )
+    source_node: Mapped[int] = mapped_column(
+        ForeignKey("road_nodes.id", ondelete="CASCADE"), nullable=False, index=True
+    )
+    target_node: Mapped[int] = mapped_column(
+        ForeignKey("road_nodes.id", ondelete="CASCADE"), nullable=False, index=True
+    )
+    geom: Mapped[Any] = mapped_column(
+        Geometry("LINESTRING", srid=4326, spatial_index=True), nullable=False
+    )
+    length_m: Mapped[float] = mapped_column(Float, nullable=False)
+    lanes_forward: Mapped[int] = mapped_column(SmallInteger, nullable=False, server_default="1")
+    lanes_backward: Mapped[int] = mapped_column(SmallInteger, nullable=False, server_default="1")
+    speed_limit_kph: Mapped[float | None] = mapped_column(Float)
+    oneway: Mapped[str] = mapped_column(Text, nullable=False, server_default="none")
+    road_class: Mapped[str] = mapped_column(Text, nullable=False, server_default="unclassified")
+    is_junction: Mapped[bool] = mapped_column(Boolean, nullable=False, server_default="false")
+    name: Mapped[str | None] = mapped_column(Text)
+    surface: Mapped[str | None] = mapped_column(Text)
+    width_m: Mapped[float | None] = mapped_column(Float)
+    external_id: Mapped[str | None] = mapped_column(Text)
+    attrs: Mapped[dict[str, Any]] = mapped_column(JSONB, nullable=False, server_default="{}")
+    version: Mapped[int] = mapped_column(Integer, nullable=False, server_default="1")
+    updated_at: Mapped[datetime] = _now()
+    updated_by: Mapped[str | None] = mapped_column(Text)
+
+
+class SegmentEdit(Base):
+    __tablename__ = "segment_edits"
+
+    id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
+    network_id: Mapped[int] = mapped_column(
+        ForeignKey("networks.id", ondelete="CASCADE"), nullable=False, index=True
+    )
+    segment_id: Mapped[int] = mapped_column(BigInteger, nullable=False, index=True)
+    action: Mapped[str] = mapped_column(Text, nullable=False, server_default="update")
+    version_from: Mapped[int | None] = mapped_column(Integer)
+    version_to: Mapped[int | None] = mapped_column(Integer)
+    edited_by: Mapped[str] = mapped_column(Text, nullable=False)
+    edited_at: Mapped[datetime] = _now()
+    old: Mapped[dict[str, Any] | None] = mapped_column(JSONB)
+    new: Mapped[dict[str, Any] | None] = mapped_column(JSONB)
+
+
+class IngestJob(Base):
+    __tablename__ = "ingest_jobs"
+    __table_args__ = (
+        CheckConstraint(f"status IN {JOB_STATUSES}", name="ingest_jobs_status_known"),
+        CheckConstraint("progress BETWEEN 0 AND 1", name="ingest_jobs_progress_range"),
+    )
+
+    id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
+    kind: Mapped[str] = mapped_column(Text, nullable=False)
+    target: Mapped[str | None] = mapped_column(Text)
+    params: Mapped[dict[str, Any]] = mapped_column(JSONB, nullable=False, server_default="{}")
+    status: Mapped[str] = mapped_column(Text, nullable=False, server_default="queued")
+    progress: Mapped[float] = mapped_column(Float, nullable=False, server_default="0")
+    message: Mapped[str | None] = mapped_column(Text)
+    error: Mapped[str | None] = mapped_column(Text)
+    created_at: Mapped[datetime] = _now()
+    started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+
+
+class ApiToken(Base):
+    __tablename__ = "api_tokens"
+    __table_args__ = (CheckConstraint(f"role IN {TOKEN_ROLES}", name="api_tokens_role_known"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(Text, nullable=False)
+    token_hash: Mapped[str] = mapped_column(Text, nullable=False, unique=True)
+    role: Mapped[str] = mapped_column(Text, nullable=False)
+    created_at: Mapped[datetime] = _now()
+    last_used_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    revoked_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))

@@ -1,0 +1,25 @@
+"""The HTTP service: composes each capability's router and the shared middleware.
+
+Like titiler's application module, this file only wires things together; every endpoint
+lives in the folder of its capability.
+"""
+
+from __future__ import annotations
+
+from fastapi import FastAPI
+
+from app.errors import install_error_handlers
+from app.health.router import router as health_router
+from app.logs import RequestLogMiddleware
+
+
+def create_app() -> FastAPI:
+    app = FastAPI(
+        title="ugvmap",
+        version="0.1.0",
+        description="Map tiles, road network and routes for unmanned ground vehicles.",
+    )
+    app.include_router(health_router)
+    install_error_handlers(app)
+    app.add_middleware(RequestLogMiddleware)
+    return app

@@ -1,0 +1,59 @@
+"""Runtime settings, read from the environment (prefix ``UGVMAP_``) with ``DATABASE_URL`` as-is.
+
+Everything defaults to a self-contained local setup: an embedded PostGIS cluster under
+``.data/postgres`` and a raster store under ``.data/rasters``, so ``make demo`` works on a
+fresh machine; ``DATABASE_URL`` points the whole service at any other PostGIS instead.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="UGVMAP_", extra="ignore")
+
+    database_url_override: str | None = Field(default=None, validation_alias="DATABASE_URL")
+    data_dir: Path = Path(".data")
+    pg_port: int = 54329
+    pg_database: str = "ugvmap"
+    raster_store: str | None = None
+    log_level: str = "INFO"
+    db_connect_timeout_s: int = 3
+
+    @property
+    def embedded(self) -> bool:
+        """True when no ``DATABASE_URL`` is given and the local cluster is ours to run."""
+        return not self.database_url_override
+
+    @property
+    def database_url(self) -> str:
+        if self.database_url_override:
+            return normalize_url(self.database_url_override)
+        return f"postgresql+psycopg://postgres@127.0.0.1:{self.pg_port}/{self.pg_database}"
+
+    @property
+    def pg_data_dir(self) -> Path:
+        return (self.data_dir / "postgres").resolve()
+
+    @property
+    def raster_store_uri(self) -> str:
+        """Where COGs are written: a directory by default, any GDAL-writable prefix if set."""
+        return self.raster_store or str((self.data_dir / "rasters").resolve())
+
+
+def normalize_url(url: str) -> str:
+    """Accept libpq-style ``postgresql://`` URLs and use the psycopg 3 driver for them."""
+    for prefix in ("postgresql://", "postgres://", "postgresql+psycopg2://"):
+        if url.startswith(prefix):
+            return "postgresql+psycopg://" + url[len(prefix) :]
+    return url
+
+
+@lru_cache(maxsize=1)
+def get_settings() -> Settings:
+    return Settings()

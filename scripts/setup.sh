@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# One-time (and idempotent) setup for `make demo` / `make test` on Debian/Ubuntu:
+# system packages (PostgreSQL 15 + PostGIS + pgRouting, GDAL tools, browser for the UI tests),
+# then the Python environment in .venv. Re-running it does nothing that is already done.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+APT_PACKAGES=(postgresql-15 postgresql-15-postgis-3 postgresql-15-pgrouting gdal-bin)
+
+missing=()
+for pkg in "${APT_PACKAGES[@]}"; do
+    dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
+done
+if ! python3 -c 'import venv, ensurepip' >/dev/null 2>&1; then
+    missing+=(python3-venv)
+fi
+
+if ((${#missing[@]})); then
+    if [[ $(id -u) -eq 0 ]] && command -v apt-get >/dev/null; then
+        echo "setup: installing ${missing[*]}"
+        # We run our own cluster; don't let the package create and start a default one.
+        if [[ ! -e /etc/postgresql-common/createcluster.conf ]]; then
+            mkdir -p /etc/postgresql-common
+            echo "create_main_cluster = false" > /etc/postgresql-common/createcluster.conf
+        fi
+        export DEBIAN_FRONTEND=noninteractive
+        apt-get update -qq
+        apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+    else
+        echo "setup: missing system packages: ${missing[*]}" >&2
+        echo "setup: run  sudo apt-get install ${missing[*]}  and re-run, or set DATABASE_URL" >&2
+        echo "setup: to an existing PostGIS database (the packages are then only needed for tests)." >&2
+        exit 1
+    fi
+fi
+
+PYTHON=${PYTHON:-$(command -v python3.11 || command -v python3)}
+stamp=.venv/.ugvmap-installed
+want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+if [[ ! -x .venv/bin/python ]]; then
+    "$PYTHON" -m venv .venv
+fi
+if [[ ! -f $stamp || $(cat "$stamp") != "$want" ]]; then
+    echo "setup: installing Python packages into .venv"
+    .venv/bin/python -m pip install -q --upgrade pip
+    .venv/bin/python -m pip install -q -e ".[dev]"
+    echo "$want" > "$stamp"
+fi
+echo "setup: ok"

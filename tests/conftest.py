@@ -1,0 +1,138 @@
+"""Test fixtures: a throwaway PostGIS database per test session, the real app, a live server.
+
+Integration tests never mock the database: the session gets its own database, created on the
+embedded cluster (or the server DATABASE_URL points at), migrated to head, and dropped at the end.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import psycopg
+import pytest
+from sqlalchemy.engine import make_url
+
+from app.db import embedded, migrate
+from app.db.session import get_engine
+from app.settings import get_settings
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+def _libpq(url: str) -> str:
+    u = make_url(url)
+    parts = [f"host={u.host or '127.0.0.1'}", f"port={u.port or 5432}",
+             f"user={u.username or 'postgres'}", f"dbname={u.database}"]
+    if u.password:
+        parts.append(f"password={u.password}")
+    return " ".join(parts)
+
+
+@pytest.fixture(scope="session")
+def database_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """URL of a fresh, migrated database that lives exactly as long as the test session."""
+    settings = get_settings()
+    if settings.embedded:
+        embedded.start(embedded.cluster_from(settings))
+    base = make_url(settings.database_url)
+    name = f"ugvmap_test_{uuid.uuid4().hex[:10]}"
+    admin = _libpq(base.set(database="postgres").render_as_string(hide_password=False))
+    with psycopg.connect(admin, autocommit=True) as conn:
+        conn.execute(f'CREATE DATABASE "{name}"')
+    url = base.set(database=name).render_as_string(hide_password=False)
+    embedded.ensure_database(admin, name)
+    migrate.upgrade(url)
+    previous = {k: os.environ.get(k) for k in ("DATABASE_URL", "UGVMAP_RASTER_STORE")}
+    os.environ["DATABASE_URL"] = url
+    os.environ["UGVMAP_RASTER_STORE"] = str(tmp_path_factory.mktemp("rasters"))
+    get_settings.cache_clear()
+    get_engine.cache_clear()
+    try:
+        yield url
+    finally:
+        get_engine(url).dispose()
+        get_engine.cache_clear()
+        for key, value in previous.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+        get_settings.cache_clear()
+        with psycopg.connect(admin, autocommit=True) as conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@pytest.fixture(scope="session")
+def app(database_url: str):
+    from app.main import create_app
+
+    return create_app()
+
+
+@pytest.fixture()
+def client(app) -> Iterator:
+    from fastapi.testclient import TestClient
+
+    with TestClient(app) as c:
+        yield c
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def running_server(env: dict[str, str], workers: int = 1,
+                   timeout_s: float = 30.0) -> Iterator[str]:
+    """Run ``ugvmap serve`` as a real subprocess and yield its base URL."""
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", "serve", "--port", str(port), "--workers", str(workers)],
+        cwd=REPO, env={**os.environ, **env}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+    )
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                httpx.get(f"{base}/healthz", timeout=1.0)
+                break
+            except httpx.TransportError:
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    out = proc.stdout.read().decode() if proc.stdout else ""
+                    raise RuntimeError(f"server did not start:\n{out}") from None
+                time.sleep(0.1)
+        yield base
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+@pytest.fixture(scope="session")
+def live_server(database_url: str) -> Iterator[str]:
+    """The real app served by uvicorn on a free localhost port, on the test database."""
+    with running_server({"DATABASE_URL": database_url,
+                         "UGVMAP_RASTER_STORE": os.environ["UGVMAP_RASTER_STORE"]}) as base:
+        yield base
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"shared sample data not found at {SHARED_DATA}")
+    return SHARED_DATA

@@ -1,0 +1,100 @@
+"""Liveness, readiness, request logging, and recovery from a database outage."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from app.db import embedded
+from tests.conftest import free_port, running_server
+
+
+def test_healthz_and_readyz(client) -> None:
+    assert client.get("/healthz").json() == {"status": "ok"}
+    ready = client.get("/readyz")
+    assert ready.status_code == 200
+    assert ready.json()["status"] == "ready"
+
+
+def test_openapi_docs_served(client) -> None:
+    assert client.get("/docs").status_code == 200
+    assert "/readyz" in client.get("/openapi.json").json()["paths"]
+
+
+def test_one_structured_log_line_per_request(client, caplog) -> None:
+    caplog.set_level("INFO", logger="ugvmap.request")
+    client.get("/healthz?probe=1")
+    lines = [r for r in caplog.records if r.name == "ugvmap.request"]
+    assert len(lines) == 1
+    fields = lines[0].fields
+    assert fields["path"] == "/healthz" and fields["status"] == 200
+    assert fields["query"] == "probe=1" and fields["duration_ms"] >= 0
+    from app.logs import JsonFormatter
+
+    assert json.loads(JsonFormatter().format(lines[0]))["status"] == 200
+
+
+def _wait_status(url: str, status: int, timeout_s: float = 20.0) -> httpx.Response:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        resp = httpx.get(url, timeout=10)
+        if resp.status_code == status or time.monotonic() > deadline:
+            return resp
+        time.sleep(0.3)
+
+
+@pytest.mark.slow
+def test_readyz_follows_database_outage_without_restart() -> None:
+    """A private cluster is stopped under a running server: 503 with a reason, then 200 again."""
+    root = Path(tempfile.mkdtemp(prefix="ugvmap-pg-"))
+    os.chmod(root, 0o755)
+    cluster = embedded.Cluster(root / "postgres", free_port(), "ugvmap")
+    try:
+        embedded.start(cluster)
+        url = f"postgresql://postgres@127.0.0.1:{cluster.port}/ugvmap"
+        from app.db import migrate
+
+        migrate.upgrade(url)
+        with running_server({"DATABASE_URL": url}) as base:
+            assert _wait_status(f"{base}/readyz", 200).status_code == 200
+            embedded.stop(cluster)
+            down = _wait_status(f"{base}/readyz", 503)
+            assert down.status_code == 503
+            assert "database unreachable" in down.json()["reason"]
+            embedded.start(cluster)
+            assert _wait_status(f"{base}/readyz", 200).status_code == 200
+    finally:
+        embedded.stop(cluster)
+        shutil.rmtree(root, ignore_errors=True)
+
+
+def test_readyz_503_when_schema_not_migrated(database_url: str) -> None:
+    """A reachable but empty database is not ready, and says how to fix it."""
+    import uuid
+
+    import psycopg
+    from sqlalchemy.engine import make_url
+
+    from tests.conftest import _libpq
+
+    base = make_url(database_url)
+    name = f"ugvmap_empty_{uuid.uuid4().hex[:8]}"
+    admin = _libpq(base.set(database="postgres").render_as_string(hide_password=False))
+    with psycopg.connect(admin, autocommit=True) as conn:
+        conn.execute(f'CREATE DATABASE "{name}"')
+    try:
+        url = base.set(database=name).render_as_string(hide_password=False)
+        with running_server({"DATABASE_URL": url}) as srv:
+            resp = httpx.get(f"{srv}/readyz")
+            assert resp.status_code == 503
+            assert "ugvmap db upgrade" in resp.json()["reason"]
+    finally:
+        with psycopg.connect(admin, autocommit=True) as conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')

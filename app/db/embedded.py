@@ -138,6 +138,14 @@ def init(cluster: Cluster) -> None:
 
 
 def is_running(cluster: Cluster) -> bool:
+    """Whether *this* cluster's postmaster runs (not merely something on its port)."""
+    if not cluster.initialized:
+        return False
+    proc = _run([str(pg_bindir() / "pg_ctl"), "-D", str(cluster.data_dir), "status"])
+    return proc.returncode == 0
+
+
+def accepts_connections(cluster: Cluster) -> bool:
     try:
         with psycopg.connect(_dsn(cluster, "postgres"), connect_timeout=2):
             return True
@@ -153,20 +161,27 @@ def start(cluster: Cluster, timeout_s: float = 30.0) -> None:
     """Initialise on first use, start if stopped, and make sure the database has PostGIS."""
     init(cluster)
     if not is_running(cluster):
+        if accepts_connections(cluster):
+            raise EmbeddedDbError(
+                f"port {cluster.port} is taken by another PostgreSQL server, not the one in "
+                f"{cluster.data_dir}; stop it or choose another port with UGVMAP_PG_PORT."
+            )
         if os.geteuid() == 0 and cluster.log_file.parent.exists():
             shutil.chown(cluster.log_file.parent, "postgres", "postgres")
         proc = _run(
             [str(pg_bindir() / "pg_ctl"), "-D", str(cluster.data_dir), "-l",
              str(cluster.log_file), "-w", "-t", str(int(timeout_s)), "start"]
         )
-        deadline = time.monotonic() + timeout_s
-        while not is_running(cluster):
-            if time.monotonic() > deadline:
-                log = cluster.log_file.read_text()[-2000:] if cluster.log_file.exists() else ""
-                raise EmbeddedDbError(
-                    f"PostgreSQL did not start on port {cluster.port}: {proc.stderr.strip()}\n{log}"
-                )
-            time.sleep(0.2)
+        if proc.returncode != 0:
+            log = cluster.log_file.read_text()[-2000:] if cluster.log_file.exists() else ""
+            raise EmbeddedDbError(
+                f"PostgreSQL did not start on port {cluster.port}: {proc.stderr.strip()}\n{log}"
+            )
+    deadline = time.monotonic() + timeout_s
+    while not accepts_connections(cluster):
+        if time.monotonic() > deadline:
+            raise EmbeddedDbError(f"PostgreSQL on port {cluster.port} does not accept connections")
+        time.sleep(0.2)
     ensure_database(_dsn(cluster, "postgres"), cluster.database)
 
 

@@ -99,6 +99,7 @@ def _register_network_commands() -> None:
     from app.network import cli as network_cli
 
     ingest.add_command(network_cli.ingest_network)
+    main.add_command(network_cli.tokens)
 
 
 _register_network_commands()

@@ -100,6 +100,7 @@ def _register_network_commands() -> None:
 
     ingest.add_command(network_cli.ingest_network)
     main.add_command(network_cli.tokens)
+    main.add_command(network_cli.export)
 
 
 _register_network_commands()

@@ -72,3 +72,24 @@ def tokens_create(role: str, name: str) -> None:
     with session_scope() as session:
         token = create_token(session, name, role)
     click.echo(token)
+
+
+@click.group("export")
+def export() -> None:
+    """Write stored data to files."""
+
+
+@export.command("network")
+@click.argument("name")
+@click.option("--format", "fmt", type=click.Choice(["geojson", "gpkg", "osm"]), required=True)
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="Output file (for osm: .osm or .osm.pbf).")
+@_user_errors
+def export_network(name: str, fmt: str, out: Path) -> None:
+    """Export network NAME losslessly (import of the file gives the same network)."""
+    from app.db.session import session_scope
+    from ingest.network.exporter import export_network as export_file
+
+    with session_scope() as session:
+        count = export_file(session, name, out, fmt)
+    click.echo(f"wrote {count} segments of {name} to {out}")

@@ -101,6 +101,7 @@ def _register_network_commands() -> None:
     ingest.add_command(network_cli.ingest_network)
     main.add_command(network_cli.tokens)
     main.add_command(network_cli.export)
+    main.add_command(network_cli.network)
 
 
 _register_network_commands()

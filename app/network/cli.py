@@ -93,3 +93,26 @@ def export_network(name: str, fmt: str, out: Path) -> None:
     with session_scope() as session:
         count = export_file(session, name, out, fmt)
     click.echo(f"wrote {count} segments of {name} to {out}")
+
+
+@click.group("network")
+def network() -> None:
+    """Road network maintenance."""
+
+
+@network.command("validate")
+@click.argument("name")
+@_user_errors
+def validate(name: str) -> None:
+    """Check NAME's topology invariants; exit 1 if any is broken."""
+    from app.cli import CliError
+    from app.db.session import session_scope
+    from app.network.integrity import check_network
+
+    with session_scope() as session:
+        report = check_network(session, name)
+    for line in report.lines()[:-1]:
+        click.echo(line)
+    if not report.ok:
+        raise CliError(report.lines()[-1])
+    click.echo(report.lines()[-1])

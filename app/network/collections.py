@@ -7,12 +7,14 @@ All SQL here takes user input only as bound parameters; column lists are constan
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from typing import Any, Literal
 
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
+from app.db.models import SLUG_RE
 from app.network.errors import not_found
 
 Kind = Literal["segments", "nodes"]
@@ -52,12 +54,20 @@ def list_collections(session: Session) -> list[Collection]:
     return [Collection(r.name, r.id, kind, r.title) for r in rows for kind in KINDS]
 
 
+def network_row(session: Session, name: str) -> Any:
+    """(id, title, version) of a network, or None; names that cannot exist (not a slug, e.g.
+    with NUL bytes PostgreSQL would reject) are not even looked up."""
+    if not re.fullmatch(SLUG_RE.strip("^$"), name):
+        return None
+    return session.execute(text("SELECT id, title, version FROM networks WHERE name = :n"),
+                           {"n": name}).first()
+
+
 def resolve(session: Session, collection_id: str) -> Collection:
     """``{network}-segments`` / ``{network}-nodes`` -> Collection, or 404."""
     network, _, kind = collection_id.rpartition("-")
     if kind in KINDS and network:
-        row = session.execute(text("SELECT id, title FROM networks WHERE name = :n"),
-                              {"n": network}).first()
+        row = network_row(session, network)
         if row is not None:
             return Collection(network, row.id, kind, row.title)  # type: ignore[arg-type]
     raise not_found(f"collection {collection_id[:100]!r}")

@@ -11,6 +11,7 @@ from fastapi.responses import Response
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
+from app.network.collections import network_row
 from app.network.errors import bad_request, not_found
 from app.network.tile_cache import Bounds, shared_cache
 from app.network.tokens import SessionDep
@@ -75,8 +76,7 @@ def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
             responses={200: {"content": {MVT: {}}}})
 def network_tile(name: str, z: str, x: str, y: str, session: SessionDep) -> Response:
     zi, xi, yi = parse_tile(z, x, y)
-    network = session.execute(text("SELECT id, version FROM networks WHERE name = :n"),
-                              {"n": name}).first()
+    network = network_row(session, name)
     if network is None:
         raise not_found(f"network {name[:100]!r}")
     cache = shared_cache(get_settings().database_url)

@@ -160,3 +160,24 @@ def test_concurrent_patches_one_winner_per_version(live_server: str) -> None:
     assert {e["new"]["name"] for e in edits} == {f"client {i}" for i in range(clients)}
     final = httpx.get(f"{url}/{fid}").json()["properties"]
     assert final["version"] == clients + 1 and final["name"] == edits[-1]["new"]["name"]
+
+
+def test_cli_token_is_shown_once_and_stored_hashed(client, segment) -> None:
+    from click.testing import CliRunner
+
+    from app.cli import main
+
+    result = CliRunner().invoke(main, ["tokens", "create", "--role", "editor", "--name", "bob"])
+    assert result.exit_code == 0, result.output
+    token = result.output.strip()
+    with session_scope() as s:
+        stored = s.execute(text("SELECT token_hash FROM api_tokens WHERE name = 'bob'")).all()
+        leaked = s.execute(text("SELECT count(*) FROM api_tokens WHERE token_hash = :t"),
+                           {"t": token}).scalar_one()
+    assert len(stored) == 1 and stored[0][0] != token and leaked == 0
+    url, fid = segment
+    r = client.patch(f"{url}/{fid}", json={"surface": "gravel"},
+                     headers={"Authorization": f"Bearer {token}", "If-Match": '"1"'})
+    assert r.status_code == 200 and r.json()["properties"]["updated_by"] == "bob"
+    bad = CliRunner().invoke(main, ["tokens", "create", "--role", "root", "--name", "x"])
+    assert bad.exit_code == 2

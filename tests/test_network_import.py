@@ -125,3 +125,21 @@ def test_reimport_needs_replace_and_bad_input_changes_nothing(database_url: str,
     with pytest.raises(ValueError, match="not valid"), session_scope() as s:
         import_network(s, road, "Robert'); DROP TABLE road_segments;--")
     assert _stored(first.network_id)[:2] == (1, 2)
+
+
+def test_cli_reports_unreadable_files_in_one_line(database_url: str, tmp_path: Path) -> None:
+    from click.testing import CliRunner
+
+    from app.cli import main
+
+    cases = {"garbage.geojson": "{not json", "empty.geojson": '{"type":"FeatureCollection",'
+             '"features":[]}', "bad.osm": "<osm><way id='1'></osm", "x.gpkg": "nope"}
+    for name, content in cases.items():
+        path = tmp_path / name
+        path.write_text(content)
+        result = CliRunner().invoke(main, ["ingest", "network", str(path), "--network", "cli"])
+        assert result.exit_code == 1, (name, result.output)
+        assert result.output.startswith("Error: ") and result.output.count("\n") == 1, \
+            result.output
+    with session_scope() as s:
+        assert s.execute(text("SELECT count(*) FROM networks WHERE name = 'cli'")).scalar() == 0

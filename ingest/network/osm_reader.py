@@ -24,8 +24,10 @@ def read_osm(path: Path) -> tuple[list[RoadLine], list[NodePoint]]:
     lights, and nodes our own OSM export tagged with their ``external_id``."""
     lines: list[RoadLine] = []
     points: list[NodePoint] = []
-    processor = osmium.FileProcessor(str(path), osmium.osm.NODE | osmium.osm.WAY)
-    for obj in processor.with_locations():
+    # The location index sees every node; Python only sees objects with the keys we use.
+    processor = osmium.FileProcessor(str(path), osmium.osm.NODE | osmium.osm.WAY) \
+        .with_locations().with_filter(osmium.filter.KeyFilter("highway", EXTERNAL_ID_TAG))
+    for obj in processor:
         if obj.is_node():
             light = obj.tags.get("highway") == TRAFFIC_SIGNALS
             named = obj.tags.get(EXTERNAL_ID_TAG)

@@ -17,7 +17,8 @@ from typing import Any
 import pyogrio
 import shapely
 
-from ingest.network.model import NodePoint, RoadLine, as_bool, as_road_lines
+from ingest.network.model import NodePoint, RoadLine
+from ingest.network.properties import as_bool, as_road_lines
 
 
 class NetworkFileError(ValueError):

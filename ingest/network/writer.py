@@ -16,13 +16,9 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.db.models import SLUG_RE
-from ingest.network.model import (
-    FeatureLike,
-    ImportSummary,
-    NodePoint,
-    as_road_lines,
-)
+from ingest.network.model import FeatureLike, ImportSummary, NodePoint
 from ingest.network.noding import Topology, build_topology
+from ingest.network.properties import as_road_lines
 
 
 class NetworkExistsError(ValueError):

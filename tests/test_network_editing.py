@@ -6,8 +6,10 @@ import threading
 
 import httpx
 import pytest
+from click.testing import CliRunner
 from sqlalchemy import text
 
+from app.cli import main
 from app.db.session import session_scope
 from tests.network_helpers import bearer, grid_network
 
@@ -112,7 +114,9 @@ def test_geometry_edit_must_keep_its_nodes(client, segment) -> None:
     url, fid = segment
     feature = client.get(f"{url}/{fid}").json()
     coords = feature["geometry"]["coordinates"]
-    bent = [coords[0], [(coords[0][0] + coords[-1][0]) / 2, coords[0][1] + 0.0002], coords[-1]]
+    # The start is 5e-8 degrees off its node: accepted and snapped onto it.
+    bent = [[coords[0][0] + 5e-8, coords[0][1]],
+            [(coords[0][0] + coords[-1][0]) / 2, coords[0][1] + 0.0002], coords[-1]]
     auth = {**bearer("editor"), "If-Match": '"1"'}
     moved = [[coords[0][0] + 0.01, coords[0][1]], coords[-1]]
     r = client.patch(f"{url}/{fid}", json={"geometry": {"type": "LineString",
@@ -122,6 +126,9 @@ def test_geometry_edit_must_keep_its_nodes(client, segment) -> None:
                                                         "coordinates": bent}}, headers=auth)
     assert r.status_code == 200
     assert r.json()["properties"]["length_m"] > feature["properties"]["length_m"]
+    assert r.json()["geometry"]["coordinates"][0] == coords[0]
+    network = url.split("/")[2].removesuffix("-segments")
+    assert CliRunner().invoke(main, ["network", "validate", network]).exit_code == 0
 
 
 @pytest.mark.slow
@@ -163,10 +170,6 @@ def test_concurrent_patches_one_winner_per_version(live_server: str) -> None:
 
 
 def test_cli_token_is_shown_once_and_stored_hashed(client, segment) -> None:
-    from click.testing import CliRunner
-
-    from app.cli import main
-
     result = CliRunner().invoke(main, ["tokens", "create", "--role", "editor", "--name", "bob"])
     assert result.exit_code == 0, result.output
     token = result.output.strip()

@@ -86,3 +86,23 @@ def test_gdal_oapif_driver_reads_the_network(live_server: str, grid, tmp_path: P
                            f"{grid.network}-nodes"], check=True, capture_output=True,
                           text=True, timeout=60).stdout
     assert "Feature Count: 9" in info
+
+
+def test_reads_can_require_a_token(client, grid, monkeypatch: pytest.MonkeyPatch) -> None:
+    from app.settings import get_settings
+    from tests.network_helpers import bearer
+
+    items = f"/collections/{grid.network}-segments/items"
+    tile = f"/networks/{grid.network}/tiles/14/8647/5556.mvt"
+    monkeypatch.setenv("UGVMAP_NETWORK_READ_ROLE", "editor")
+    get_settings.cache_clear()
+    try:
+        assert client.get(items).status_code == 401
+        assert client.get(tile).status_code == 401
+        assert client.get(items, headers=bearer("viewer")).status_code == 403
+        assert client.get(items, headers=bearer("editor")).status_code == 200
+        assert client.get(tile, headers=bearer("admin")).status_code == 200
+    finally:
+        monkeypatch.delenv("UGVMAP_NETWORK_READ_ROLE")
+        get_settings.cache_clear()
+    assert client.get(items).status_code == 200

@@ -45,10 +45,14 @@ def ingest_network(file: Path, network: str, replace: bool) -> None:
     from app.db.session import session_scope
     from ingest.network import import_network
 
-    with tqdm(total=1, desc=f"import {file.name}", disable=not sys.stderr.isatty()) as bar, \
-            session_scope() as session:
-        summary = import_network(session, file, network, replace=replace)
-        bar.update(1)
+    with tqdm(total=3, desc=f"import {file.name}", unit="stage",
+              disable=not sys.stderr.isatty()) as bar, session_scope() as session:
+
+        def stage_done(stage: str) -> None:
+            bar.set_postfix_str(f"{stage} done")
+            bar.update(1)
+
+        summary = import_network(session, file, network, replace=replace, progress=stage_done)
     click.echo(f"network {summary.network}: {summary.segments} segments, {summary.nodes} nodes, "
                f"{summary.total_length_m / 1000:.3f} km from {summary.lines_read} lines "
                f"({summary.crossings_noded} crossings noded, "

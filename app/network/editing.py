@@ -153,12 +153,14 @@ def patch_segment(session: Session, c: colls.Collection, fid: int, expected: int
     if properties.keys() & {"oneway", "lanes_forward", "lanes_backward"}:
         errors = lanes_consistent({**props, **new})
     if geometry is not None:
-        problem = _check_line(geometry, _node_coords(session, props["source_node"]),
-                              _node_coords(session, props["target_node"]))
+        start = _node_coords(session, props["source_node"])
+        end = _node_coords(session, props["target_node"])
+        problem = _check_line(geometry, start, end)
         if problem:
             errors["geometry"] = problem
-        else:
-            new["geometry"] = {"type": "LineString", "coordinates": geometry["coordinates"]}
+        else:  # ends snapped onto the nodes exactly, as validate requires
+            coords = [start, *geometry["coordinates"][1:-1], end]
+            new["geometry"] = {"type": "LineString", "coordinates": coords}
     if errors:
         raise unprocessable(errors)
     return write_change(session, c, feature, new, principal, "update")

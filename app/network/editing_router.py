@@ -20,7 +20,7 @@ from app.network import collections as colls
 from app.network import editing, topology_edits
 from app.network.errors import ApiError, bad_request
 from app.network.features import GEOJSON, etag, parse_fid
-from app.network.tokens import Principal, SessionDep, require_role
+from app.network.tokens import Principal, SessionDep, read_access, require_role
 
 router = APIRouter(tags=["Editing"])
 
@@ -78,7 +78,8 @@ async def patch_item(collection_id: str, fid: str, request: Request,
         s, _segments(s, collection_id), parse_fid(fid), expected, body, principal))
 
 
-@router.get("/collections/{collection_id}/items/{fid}/history")
+@router.get("/collections/{collection_id}/items/{fid}/history",
+            dependencies=[Depends(read_access)])
 def item_history(collection_id: str, fid: str,
                  session: SessionDep) -> dict[str, Any]:
     c = _segments(session, collection_id)

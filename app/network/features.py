@@ -8,15 +8,15 @@ import math
 from typing import Any
 from urllib.parse import urlencode
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
 from app.network import collections as colls
 from app.network.errors import bad_request, not_found
-from app.network.tokens import SessionDep
+from app.network.tokens import SessionDep, read_access
 
-router = APIRouter(tags=["OGC API Features"])
+router = APIRouter(tags=["OGC API Features"], dependencies=[Depends(read_access)])
 
 GEOJSON = "application/geo+json"
 CRS84 = "http://www.opengis.net/def/crs/OGC/1.3/CRS84"

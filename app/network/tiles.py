@@ -6,7 +6,7 @@ zoom 14 so low-zoom tiles stay small; ``nodes`` (kind, traffic light) from zoom 
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Depends
 from fastapi.responses import Response
 from sqlalchemy import text
 from sqlalchemy.orm import Session
@@ -14,10 +14,10 @@ from sqlalchemy.orm import Session
 from app.network.collections import network_row
 from app.network.errors import bad_request, not_found
 from app.network.tile_cache import Bounds, shared_cache
-from app.network.tokens import SessionDep
+from app.network.tokens import SessionDep, read_access
 from app.settings import get_settings
 
-router = APIRouter(tags=["Vector tiles"])
+router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)])
 
 MVT = "application/vnd.mapbox-vector-tile"
 MAX_ZOOM = 24

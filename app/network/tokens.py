@@ -18,6 +18,7 @@ from sqlalchemy.orm import Session
 from app.db.models import TOKEN_ROLES
 from app.db.session import get_session
 from app.network.errors import ApiError
+from app.settings import get_settings
 
 SessionDep = Annotated[Session, Depends(get_session)]
 PREFIX = "ugv_"
@@ -63,6 +64,15 @@ def authenticate(session: Session, authorization: str | None) -> Principal:
     if row is None:
         raise _unauthorized("the token is unknown or revoked")
     return Principal(row.name, row.role)
+
+
+def read_access(request: Request, session: SessionDep) -> None:
+    """Router dependency for reads: public unless ``UGVMAP_NETWORK_READ_ROLE`` names the least
+    role a reader needs (roles rank viewer < editor < admin)."""
+    least = get_settings().network_read_role
+    if least is not None:
+        allowed = TOKEN_ROLES[TOKEN_ROLES.index(least):]
+        require_role(*allowed)(request, session)
 
 
 def require_role(*roles: str):

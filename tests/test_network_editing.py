@@ -139,6 +139,7 @@ def test_concurrent_patches_one_winner_per_version(live_server: str) -> None:
     auth = bearer("editor")
     clients = 20
     wins: dict[int, int] = {}
+    first_try: dict[int, int] = {}
     barrier = threading.Barrier(clients)
 
     def editor(i: int) -> None:
@@ -148,6 +149,7 @@ def test_concurrent_patches_one_winner_per_version(live_server: str) -> None:
             while True:
                 r = http.patch(f"{url}/{fid}", json={"name": f"client {i}"},
                                headers={**auth, "If-Match": f'"{version}"'})
+                first_try.setdefault(i, r.status_code)
                 if r.status_code == 200:
                     wins[i] = int(r.headers["etag"].strip('"'))
                     return
@@ -159,7 +161,9 @@ def test_concurrent_patches_one_winner_per_version(live_server: str) -> None:
         t.start()
     for t in threads:
         t.join()
-    # Each client won exactly once, each version has exactly one winner.
+    # All 20 first tries carried If-Match "1": exactly one of them won.
+    assert sorted(first_try.values()) == [200] + [412] * (clients - 1)
+    # Retrying with the fresh ETag, each client won exactly once, one winner per version.
     assert sorted(wins.values()) == list(range(2, clients + 2))
     edits = httpx.get(f"{url}/{fid}/history").json()["edits"]
     assert [(e["version_from"], e["version_to"]) for e in edits] == \

@@ -1,7 +1,7 @@
 """HTTP side of editing: PATCH (JSON merge patch), history, revert, and admin split/merge.
 
-Reads are public; every write needs ``Authorization: Bearer`` with role editor (attributes)
-or admin (topology changes).
+Every write needs ``Authorization: Bearer`` with role editor (attributes) or admin (topology
+changes); reads are public unless ``UGVMAP_NETWORK_READ_ROLE`` is set.
 """
 
 from __future__ import annotations
@@ -51,8 +51,8 @@ def _segments(session: Session, collection_id: str) -> colls.Collection:
     return c
 
 
-def feature_response(feature: dict[str, Any], status: int = 200) -> JSONResponse:
-    return JSONResponse(feature, status_code=status, media_type=GEOJSON,
+def feature_response(feature: dict[str, Any]) -> JSONResponse:
+    return JSONResponse(feature, media_type=GEOJSON,
                         headers={"ETag": etag(feature["properties"]["version"])})
 
 

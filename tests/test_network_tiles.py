@@ -107,3 +107,25 @@ def test_every_worker_sees_the_edit(database_url: str, grid) -> None:
             segments = mapbox_vector_tile.decode(http.get(tile).content)["segments"]["features"]
             (edited,) = [f for f in segments if f["id"] == feature["id"]]
             assert edited["properties"]["name"] == "Row One"
+
+
+def test_cache_rules_without_a_server() -> None:
+    from app.network.tile_cache import TileCache
+
+    cache = TileCache(max_tiles=2)
+    cache.put((1, 0, 0, 0), 5, (0, 0, 1, 1), b"x")
+    assert cache.get((1, 0, 0, 0), 5) is None  # not listening yet: nothing is cached
+    cache.reset(healthy=True)
+    assert cache.get((1, 14, 0, 0), 5) is None  # first sight of network 1 at version 5
+    cache.put((1, 14, 0, 0), 5, (0, 0, 1, 1), b"a")
+    cache.put((1, 14, 1, 0), 5, (2, 0, 3, 1), b"b")
+    assert cache.get((1, 14, 0, 0), 6) is None  # a newer version is not yet applied
+    assert cache.invalidate(1, 6, (0.5, 0.5, 0.6, 0.6)) == 1
+    assert cache.get((1, 14, 0, 0), 6) is None and cache.get((1, 14, 1, 0), 6) == b"b"
+    cache.put((1, 14, 0, 0), 5, (0, 0, 1, 1), b"stale")  # rendered before version 6
+    assert cache.get((1, 14, 0, 0), 6) is None
+    cache.put((1, 14, 2, 0), 6, (4, 0, 5, 1), b"c")
+    cache.put((1, 14, 3, 0), 6, (6, 0, 7, 1), b"d")  # evicts the least recently used
+    assert cache.get((1, 14, 1, 0), 6) is None and cache.get((1, 14, 3, 0), 6) == b"d"
+    cache.reset(healthy=False)
+    assert cache.get((1, 14, 3, 0), 6) is None

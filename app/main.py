@@ -11,6 +11,7 @@ from fastapi import FastAPI
 from app.errors import install_error_handlers
 from app.health.router import router as health_router
 from app.logs import RequestLogMiddleware
+from app.network.router import include_network
 
 
 def create_app() -> FastAPI:
@@ -20,6 +21,7 @@ def create_app() -> FastAPI:
         description="Map tiles, road network and routes for unmanned ground vehicles.",
     )
     app.include_router(health_router)
+    include_network(app)
     install_error_handlers(app)
     app.add_middleware(RequestLogMiddleware)
     return app

@@ -1,0 +1,183 @@
+"""The ``ingest raster`` job: validate every input, write the COGs, then register them.
+
+Order matters for atomicity:
+
+1. every input is validated first (nothing written if any is bad);
+2. each COG is written under a temporary name and renamed when complete;
+3. all catalogue rows (layer upsert, sources, new bounds/zooms, ``version + 1``) are
+   committed in one transaction, only after every file exists;
+4. if anything fails after step 2, the files this job wrote are deleted again.
+
+A job killed between 2 and 3 leaves at most unregistered files, which are never served:
+tiles are only read from sources the catalogue lists.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import re
+import sys
+import uuid
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import rasterio
+from sqlalchemy import text
+from tqdm import tqdm
+
+from app.db.models import LAYER_KINDS, SLUG_RE
+from app.db.session import session_scope
+from app.settings import get_settings
+from ingest.raster.cog import write_cog
+from ingest.raster.footprint import footprint_3857
+from ingest.raster.sources import Source, SourceError, inspect
+
+EARTH_CIRCUMFERENCE_M = 2 * math.pi * 6378137.0
+
+
+@dataclass(frozen=True)
+class WrittenSource:
+    """One COG in the store, with what the catalogue needs to know about it."""
+
+    name: str
+    uri: str
+    footprint_wkb: bytes
+    width: int
+    height: int
+    band_count: int
+    dtype: str
+    zoom: int
+    minzoom: int
+    resolution_m: float
+    meta: dict
+
+
+@dataclass(frozen=True)
+class IngestReport:
+    layer: str
+    version: int
+    sources: list[WrittenSource]
+
+
+def ground_resolution_m(zoom: int, lat: float) -> float:
+    """Metres per pixel of a 256 px XYZ tile at ``zoom`` and latitude ``lat``."""
+    return EARTH_CIRCUMFERENCE_M / (256 * 2**zoom) * math.cos(math.radians(lat))
+
+
+def band_ranges(path: str, dtype: str) -> list[list[float]] | None:
+    """Per-band display range (2nd-98th percentile) for non-8-bit data, from an overview."""
+    if dtype == "uint8":
+        return None
+    with rasterio.open(path) as ds:
+        scale = max(1, math.ceil(max(ds.width, ds.height) / 1024))
+        shape = (ds.count, math.ceil(ds.height / scale), math.ceil(ds.width / scale))
+        data = ds.read(out_shape=shape, masked=True)
+    ranges = []
+    for band in data[: 3 if data.shape[0] >= 3 else 1]:
+        valid = band.compressed()
+        lo, hi = (float(v) for v in np.percentile(valid, [2, 98])) if valid.size else (0, 1)
+        ranges.append([lo, hi if hi > lo else lo + 1])
+    return ranges
+
+
+def write_source(source: Source, store: Path, layer: str,
+                 to_cog: Callable[[Source, Path], None] | None = None) -> WrittenSource:
+    """Write one validated source into the store and measure what the catalogue needs."""
+    dst = store / layer / f"{uuid.uuid4().hex}.tif"
+    if to_cog is None:
+        write_cog(source.vrt_xml(), dst, source.dtype, len(source.bands))
+    else:
+        to_cog(source, dst)
+    try:
+        outline = footprint_3857(str(dst))
+        if outline is None:
+            raise SourceError(f"{source.name}: no valid pixels (everything is nodata/transparent)")
+        with rasterio.open(dst) as ds:
+            zoom = int(ds.tags(ns="TILING_SCHEME").get("ZOOM_LEVEL", 0))
+            width, height, count, dtype = ds.width, ds.height, ds.count, ds.dtypes[0]
+            minzoom = max(0, zoom - len(ds.overviews(1)))
+        lat = (source.bounds_4326[1] + source.bounds_4326[3]) / 2
+        meta = {"source_path": str(source.path.resolve()), "georef": source.georef_from,
+                "source_crs": source.crs.to_string(), "zoom": zoom,
+                "bounds_4326": list(source.bounds_4326)}
+        ranges = band_ranges(str(dst), dtype)
+        if ranges:
+            meta["display_range"] = ranges
+        return WrittenSource(name=source.name, uri=str(dst), footprint_wkb=outline.wkb,
+                             width=width, height=height, band_count=count, dtype=dtype,
+                             zoom=zoom, minzoom=minzoom,
+                             resolution_m=ground_resolution_m(zoom, lat), meta=meta)
+    except BaseException:
+        dst.unlink(missing_ok=True)
+        raise
+
+
+def register(written: Sequence[WrittenSource], layer: str, title: str | None, kind: str,
+             priority: int, database_url: str | None = None) -> int:
+    """Upsert the layer and insert its new sources in one transaction; return the version."""
+    with session_scope(database_url) as session:
+        layer_id, version = session.execute(text(
+            "INSERT INTO layers (slug, title, kind) VALUES (:slug, :title, :kind) "
+            "ON CONFLICT (slug) DO UPDATE SET title = COALESCE(:given_title, layers.title), "
+            "  version = layers.version + 1, updated_at = now() "
+            "RETURNING id, version"),
+            {"slug": layer, "title": title or layer, "given_title": title, "kind": kind},
+        ).one()
+        for src in written:
+            session.execute(text(
+                "INSERT INTO raster_sources (layer_id, name, uri, footprint, priority, width, "
+                " height, band_count, dtype, resolution_m, meta) VALUES (:layer_id, :name, :uri,"
+                " ST_Multi(ST_SetSRID(ST_GeomFromWKB(:wkb), 3857)), :priority, :width, :height,"
+                " :bands, :dtype, :res, CAST(:meta AS jsonb))"),
+                {"layer_id": layer_id, "name": src.name, "uri": src.uri,
+                 "wkb": src.footprint_wkb, "priority": priority, "width": src.width,
+                 "height": src.height, "bands": src.band_count, "dtype": src.dtype,
+                 "res": src.resolution_m, "meta": json.dumps(src.meta)})
+        session.execute(text(
+            "UPDATE layers l SET "
+            " bounds = (SELECT ST_Envelope(ST_Transform(ST_SetSRID(ST_Extent(s.footprint),"
+            "   3857), 4326)) FROM raster_sources s WHERE s.layer_id = l.id),"
+            " resolution_m = (SELECT min(resolution_m) FROM raster_sources s"
+            "   WHERE s.layer_id = l.id),"
+            " maxzoom = (SELECT max((meta->>'zoom')::int) FROM raster_sources s"
+            "   WHERE s.layer_id = l.id),"
+            " minzoom = :minzoom "
+            "WHERE l.id = :id"),
+            {"id": layer_id, "minzoom": min(src.minzoom for src in written)})
+        return int(version)
+
+
+def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None,
+                  kind: str = "orthophoto", crs: str | None = None, priority: int = 0,
+                  inspect_source: Callable[[Path], Source] | None = None,
+                  to_cog: Callable[[Source, Path], None] | None = None,
+                  database_url: str | None = None,
+                  store: Path | None = None) -> IngestReport:
+    """Ingest ``paths`` into layer ``layer``; raise :class:`SourceError` on bad input.
+
+    ``inspect_source``/``to_cog`` let the GCP path plug in its own georeferencing and warp.
+    """
+    if not re.match(SLUG_RE, layer):
+        raise SourceError(f"layer slug {layer!r} must match {SLUG_RE}")
+    if kind not in LAYER_KINDS:
+        raise SourceError(f"--kind must be one of {', '.join(LAYER_KINDS)}")
+    store = store or Path(get_settings().raster_store_uri)
+    check = inspect_source or (lambda p: inspect(p, crs=crs))
+    sources = [check(Path(p)) for p in paths]
+    written: list[WrittenSource] = []
+    bar = tqdm(sources, desc=f"ingest {layer}", unit="source", disable=not sys.stderr.isatty())
+    try:
+        for source in bar:
+            bar.set_postfix_str(source.name)
+            written.append(write_source(source, store, layer, to_cog))
+        version = register(written, layer, title, kind, priority, database_url)
+    except BaseException:
+        for src in written:
+            with contextlib.suppress(FileNotFoundError):
+                Path(src.uri).unlink()
+        raise
+    return IngestReport(layer=layer, version=version, sources=written)

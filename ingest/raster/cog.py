@@ -38,7 +38,7 @@ def cog_options(dtype: str, band_count: int) -> dict[str, Any]:
         "NUM_THREADS": "ALL_CPUS",
     }
     if dtype == "uint8" and band_count == 3:
-        options.update(COMPRESS="JPEG", QUALITY=85)
+        options.update(COMPRESS="JPEG", QUALITY=90)
     else:
         options.update(COMPRESS="ZSTD", LEVEL=9,
                        PREDICTOR=3 if dtype.startswith("float") else 2)

@@ -27,7 +27,7 @@ def footprint_3857(path: str) -> MultiPolygon | None:
         scale = max(1, math.ceil(max(ds.width, ds.height) / TRACE_PX))
         out_w, out_h = math.ceil(ds.width / scale), math.ceil(ds.height / scale)
         mask = ds.dataset_mask(out_shape=(out_h, out_w))
-        transform = ds.transform * Affine.scale(ds.width / out_w, ds.height / out_h)
+        transform = ds.transform @ Affine.scale(ds.width / out_w, ds.height / out_h)
     valid = cv2.dilate((mask > 0).astype(np.uint8), np.ones((3, 3), np.uint8))
     if not valid.any():
         return None

@@ -146,7 +146,7 @@ def _check_plausible(path: Path, src: Source) -> None:
         res_m = min(res_x, res_y) * metres
         if not MIN_RES_M <= res_m <= MAX_RES_M:
             raise SourceError(f"{path.name}: pixel size {res_m:.4g} m is not plausible")
-        corners = [src.transform * (c, r) for c in (0, src.width) for r in (0, src.height)]
+        corners = [src.transform @ (c, r) for c in (0, src.width) for r in (0, src.height)]
         xs, ys = zip(*corners, strict=True)
         left, bottom, right, top = min(xs), min(ys), max(xs), max(ys)
     else:

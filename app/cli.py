@@ -102,7 +102,7 @@ def ingest() -> None:
 @click.option("--title", help="Human title of the layer.")
 @click.option("--kind", default="orthophoto", show_default=True,
               type=click.Choice(["orthophoto", "ipm-mosaic", "raster"]))
-@click.option("--crs", help="CRS of world-file images (e.g. EPSG:32633); overrides the file's.")
+@click.option("--crs", help="CRS of world-file images (e.g. EPSG:32633).")
 @click.option("--priority", default=0, show_default=True, type=int,
               help="Higher priority sources are drawn over lower ones; ties: newest on top.")
 def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, kind: str,

@@ -14,6 +14,7 @@ is written into the same VRT, so the pixels are never copied before the final wa
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,7 @@ from xml.sax.saxutils import escape, quoteattr
 import rasterio
 from rasterio.control import GroundControlPoint
 from rasterio.crs import CRS
-from rasterio.errors import CRSError, RasterioError
+from rasterio.errors import CRSError, NotGeoreferencedWarning, RasterioError
 from rasterio.transform import Affine
 from rasterio.warp import transform_bounds
 from rasterio.windows import Window
@@ -133,7 +134,7 @@ def _resolve_georef(path: Path, ds: rasterio.io.DatasetReader, crs: str | None,
                               "pass --crs (e.g. --crs EPSG:32633)")
         return user_crs or ds.crs, read_world_file(world), "world-file"
     if ds.crs is not None and not ds.transform.is_identity:
-        return user_crs or ds.crs, ds.transform, "file"
+        return ds.crs, ds.transform, "file"
     raise SourceError(f"{path.name}: not georeferenced (no CRS/transform in the file, no world "
                       "file, no .zone.json sidecar, no --gcps)")
 
@@ -165,6 +166,28 @@ def _check_plausible(path: Path, src: Source) -> None:
     src.bounds_4326 = (west, south, east, north)
 
 
+def _describe(path: Path, ds: rasterio.io.DatasetReader, crs: str | None,
+              gcps: Sequence[GroundControlPoint] | None, gcp_crs: CRS | None) -> Source:
+    if not 0 < ds.width <= MAX_SIDE_PX or not 0 < ds.height <= MAX_SIDE_PX \
+            or ds.width * ds.height > MAX_PIXELS:
+        raise SourceError(f"{path.name}: {ds.width}x{ds.height} px is outside the "
+                          f"accepted size (<= {MAX_SIDE_PX} px a side)")
+    dtype = ds.dtypes[0]
+    if dtype not in GDAL_TYPES or len(set(ds.dtypes)) != 1:
+        raise SourceError(f"{path.name}: unsupported pixel type {ds.dtypes}")
+    bands = colour_bands(ds)
+    try:
+        src_crs, transform, how = _resolve_georef(path, ds, crs, gcps, gcp_crs)
+    except GeorefError as exc:
+        raise SourceError(str(exc)) from exc
+    # The last row sits at the end of strip/sequential formats: a truncated file fails
+    # here instead of half-way through writing the pyramid.
+    for row in sorted({0, ds.height // 2, ds.height - 1}):
+        ds.read(bands, window=Window(0, row, ds.width, 1))
+    return Source(path=path, width=ds.width, height=ds.height, dtype=dtype, bands=bands,
+                  crs=src_crs, transform=transform, georef_from=how, gcps=list(gcps or []))
+
+
 def inspect(path: Path, crs: str | None = None,
             gcps: Sequence[GroundControlPoint] | None = None,
             gcp_crs: CRS | None = None) -> Source:
@@ -174,26 +197,10 @@ def inspect(path: Path, crs: str | None = None,
     if path.stat().st_size == 0:
         raise SourceError(f"{path}: empty file")
     try:
-        with rasterio.Env(**STRICT_READ_ENV), rasterio.open(path) as ds:
-            if not 0 < ds.width <= MAX_SIDE_PX or not 0 < ds.height <= MAX_SIDE_PX \
-                    or ds.width * ds.height > MAX_PIXELS:
-                raise SourceError(f"{path.name}: {ds.width}x{ds.height} px is outside the "
-                                  f"accepted size (<= {MAX_SIDE_PX} px a side)")
-            dtype = ds.dtypes[0]
-            if dtype not in GDAL_TYPES or len(set(ds.dtypes)) != 1:
-                raise SourceError(f"{path.name}: unsupported pixel type {ds.dtypes}")
-            bands = colour_bands(ds)
-            try:
-                src_crs, transform, how = _resolve_georef(path, ds, crs, gcps, gcp_crs)
-            except GeorefError as exc:
-                raise SourceError(str(exc)) from exc
-            # The last row sits at the end of strip/sequential formats: a truncated file
-            # fails here instead of half-way through writing the pyramid.
-            for row in sorted({0, ds.height // 2, ds.height - 1}):
-                ds.read(bands, window=Window(0, row, ds.width, 1))
-            source = Source(path=path, width=ds.width, height=ds.height, dtype=dtype,
-                            bands=bands, crs=src_crs, transform=transform, georef_from=how,
-                            gcps=list(gcps or []))
+        with warnings.catch_warnings(), rasterio.Env(**STRICT_READ_ENV):
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                source = _describe(path, ds, crs, gcps, gcp_crs)
     except RasterioError as exc:
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise SourceError(f"{path.name}: not a readable image ({reason})") from exc

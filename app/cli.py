@@ -105,15 +105,28 @@ def ingest() -> None:
 @click.option("--crs", help="CRS of world-file images (e.g. EPSG:32633).")
 @click.option("--priority", default=0, show_default=True, type=int,
               help="Higher priority sources are drawn over lower ones; ties: newest on top.")
+@click.option("--gcps", "gcps_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="CSV pixel_x,pixel_y,X,Y[,id] (lon/lat, or in --crs) to georeference SRC.")
+@click.option("--gcp-method", default="poly1", show_default=True,
+              type=click.Choice(["poly1", "poly2", "tps"]))
 def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, kind: str,
-                      crs: str | None, priority: int) -> None:
-    """Ingest GeoTIFFs / world-file images / zone mosaics into raster layer SLUG as COGs."""
+                      crs: str | None, priority: int, gcps_file: Path | None,
+                      gcp_method: str) -> None:
+    """Ingest GeoTIFFs / world-file images / zone mosaics / GCP images into layer SLUG."""
+    from ingest.raster.gcps import ingest_with_gcps
     from ingest.raster.job import ingest_raster
     from ingest.raster.sources import SourceError
 
+    options = {"title": title, "kind": kind, "priority": priority}
     try:
-        report = ingest_raster(list(sources), slug, title=title, kind=kind, crs=crs,
-                               priority=priority)
+        if gcps_file is None:
+            report = ingest_raster(list(sources), slug, crs=crs, **options)
+        elif len(sources) != 1:
+            raise CliError("--gcps georeferences exactly one SRC image")
+        else:
+            accuracy, report = ingest_with_gcps(sources[0], slug, gcps_file, gcp_method, crs,
+                                                **options)
+            click.echo(accuracy.table())
     except SourceError as exc:
         raise CliError(str(exc)) from exc
     for src in report.sources:

@@ -125,7 +125,6 @@ def test_real_orthophotos_tiles_match_source(client, shared_data: Path) -> None:
         assert (got[..., 3][ref[..., 3] == 0] == 0).mean() > 0.95
 
 
-@pytest.mark.slow
 def test_gdal_reads_served_tiles_like_the_source(live_server: str, tmp_path) -> None:
     path, _ = synthetic_utm(tmp_path / "g.tif", width=700, height=600)
     name = slug()

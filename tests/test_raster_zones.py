@@ -92,7 +92,6 @@ def test_bad_sidecar_is_refused(tmp_path: Path) -> None:
             ZoneSidecar.load(path)
 
 
-@pytest.mark.slow
 def test_overlapping_zones_mosaic_seamlessly(client, tmp_path: Path) -> None:
     point = marker_point()
     zone_a = make_zone(tmp_path, 0, 0, point)

@@ -6,14 +6,19 @@ import subprocess
 import uuid
 from pathlib import Path
 
+import cv2
 import httpx
 import numpy as np
 import pytest
 import rasterio
 from pyproj import Transformer
+from rasterio.transform import from_origin
+from sqlalchemy import text
 
+from app.db.session import get_engine
 from ingest.raster.job import ingest_raster
 from tests.raster_synth import (
+    TMS,
     UTM33,
     centroid,
     decode_rgba,
@@ -24,6 +29,7 @@ from tests.raster_synth import (
     stitch,
     synthetic_utm,
     tiles_around,
+    utm_origin,
     write_tif,
 )
 
@@ -255,3 +261,53 @@ def test_uint16_single_band_and_rgba_sources_render(client, tmp_path) -> None:
     full_w = rasterio.warp.transform_bounds(UTM33, "EPSG:4326", transform.c, transform.f - 76.8,
                                             transform.c + 76.8, transform.f)
     assert west == pytest.approx((full_w[0] + full_w[2]) / 2, abs=(east - west) * 0.05)
+
+
+def test_low_zoom_tiles_come_from_the_layer_overview(client, tmp_path) -> None:
+    from app.tiles.catalog import TileSource
+    from app.tiles.mosaic import render
+    from app.tiles.readers import overview_zoom
+
+    # Flat colours: at overview zooms the test pattern itself would alias.
+    east, north = utm_origin()
+    a = write_tif(tmp_path / "a.tif", np.array([200, 40, 40], np.uint8).reshape(3, 1, 1)
+                  * np.ones((1, 1200, 1500), np.uint8), UTM33,
+                  from_origin(east, north, 0.3, 0.3))
+    b = write_tif(tmp_path / "b.tif", np.array([40, 40, 200], np.uint8).reshape(3, 1, 1)
+                  * np.ones((1, 1200, 1500), np.uint8), UTM33,
+                  from_origin(east + 300, north - 200, 0.3, 0.3))
+    name = slug()
+    ingest_raster([a], name)
+    ingest_raster([b], name)
+    info = layer_info(client, name)
+    with get_engine().connect() as conn:
+        overview = conn.execute(text("SELECT overview_uri FROM layers WHERE slug = :s"),
+                                {"s": name}).scalar()
+    zoom = overview_zoom(overview)
+    assert 0 < zoom <= info["maxzoom"] - 5
+    assert len(list(Path(overview).parent.glob("overview-*.tif"))) == 1  # old one replaced
+    x0, y0, _, _ = tiles_around(*centre(info), zoom, n=1)
+    url = f"/tiles/{name}/{zoom}/{x0}/{y0}.png"
+    tile = decode_rgba(client.get(url).content)
+    # Same picture as composing the sources directly...
+    bounds = TMS.xy_bounds(x0, y0, zoom)
+    direct = render([TileSource(s["uri"], None) for s in info["sources"]],
+                    (bounds.left, bounds.bottom, bounds.right, bounds.top), 256)
+    direct = direct[..., [2, 1, 0, 3]]
+    both = (tile[..., 3] == 255) & (direct[..., 3] == 255)
+    # JPEG (4:2:0 chroma) bleeds a few pixels at data and colour edges; compare the interior.
+    both = cv2.erode(both.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+    err = np.abs(tile[both][:, :3].astype(int) - direct[both][:, :3]).max(axis=1)
+    assert both.sum() > 50 and np.median(err) <= 6
+    assert (tile[both][:, 0] > 150).any() and (tile[both][:, 2] > 150).any()  # both sources
+    # ...but read from the overview alone: hiding the sources does not change it.
+    for src in info["sources"]:
+        Path(src["uri"]).rename(src["uri"] + ".hidden")
+    try:
+        assert np.array_equal(decode_rgba(client.get(url).content), tile)
+        fine = tiles_around(*centre(info), info["maxzoom"], n=1)
+        assert decode_rgba(client.get(
+            f"/tiles/{name}/{info['maxzoom']}/{fine[0]}/{fine[1]}.png").content)[..., 3].max() == 0
+    finally:
+        for src in info["sources"]:
+            Path(src["uri"] + ".hidden").rename(src["uri"])

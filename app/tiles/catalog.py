@@ -32,13 +32,14 @@ class TileQuery:
     layer_id: int
     version: int
     sources: list[TileSource]
+    overview_uri: str | None
 
 
 def tile_sources(conn: Connection, slug: str,
                  bbox: tuple[float, float, float, float]) -> TileQuery | None:
     """The layer's version and the sources meeting ``bbox`` (EPSG:3857), bottom first."""
     rows = conn.execute(text(
-        "SELECT l.id, l.version, s.uri, s.meta->'display_range' FROM layers l "
+        "SELECT l.id, l.version, l.overview_uri, s.uri, s.meta->'display_range' FROM layers l "
         "LEFT JOIN raster_sources s ON s.layer_id = l.id "
         " AND s.footprint && ST_MakeEnvelope(:x0, :y0, :x1, :y1, 3857) "
         " AND ST_Intersects(s.footprint, ST_MakeEnvelope(:x0, :y0, :x1, :y1, 3857)) "
@@ -47,8 +48,9 @@ def tile_sources(conn: Connection, slug: str,
     ).all()
     if not rows:
         return None
-    sources = [TileSource(uri, rng) for _, _, uri, rng in rows if uri is not None]
-    return TileQuery(layer_id=rows[0][0], version=rows[0][1], sources=sources)
+    sources = [TileSource(uri, rng) for *_, uri, rng in rows if uri is not None]
+    return TileQuery(layer_id=rows[0][0], version=rows[0][1], sources=sources,
+                     overview_uri=rows[0][2])
 
 
 def list_layers(conn: Connection) -> list[dict[str, Any]]:

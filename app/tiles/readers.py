@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from functools import lru_cache
 
 import rasterio
+from rasterio.errors import RasterioIOError
 from rasterio.io import DatasetReader
 
 MAX_OPEN_PER_THREAD = 64
@@ -39,3 +41,12 @@ def forget(uri: str) -> None:
     cache = getattr(_local, "cache", None)
     if cache is not None and uri in cache:
         cache.pop(uri).close()
+
+
+@lru_cache(maxsize=1024)
+def overview_zoom(uri: str) -> int:
+    """The XYZ zoom a layer overview COG was written at (files are immutable: cache it)."""
+    try:
+        return int(open_dataset(uri).tags(ns="TILING_SCHEME").get("ZOOM_LEVEL", -1))
+    except RasterioIOError:
+        return -1

@@ -16,8 +16,10 @@ from fastapi.responses import JSONResponse
 
 from app.db.session import get_engine
 from app.tiles import catalog
+from app.tiles.catalog import TileSource
 from app.tiles.encode import MEDIA_TYPES, encode
 from app.tiles.mosaic import render
+from app.tiles.readers import overview_zoom
 
 router = APIRouter(tags=["raster layers"])
 TMS = morecantile.tms.get("WebMercatorQuad")
@@ -136,5 +138,8 @@ def tile(slug: str, z: str, x: str, tile: str, request: Request) -> Response:
     if _matches(request.headers.get("if-none-match"), etag):
         return Response(status_code=304, headers=headers)
     size = 512 if match["scale"] else 256
-    body = encode(render(query.sources, bbox, size), fmt)
+    sources = query.sources
+    if query.sources and query.overview_uri and zi <= overview_zoom(query.overview_uri):
+        sources = [TileSource(query.overview_uri, None)]
+    body = encode(render(sources, bbox, size), fmt)
     return Response(body, media_type=MEDIA_TYPES[fmt], headers=headers)

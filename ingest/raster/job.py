@@ -26,14 +26,17 @@ from pathlib import Path
 
 import numpy as np
 import rasterio
+import shapely.wkb
 from sqlalchemy import text
 from tqdm import tqdm
 
 from app.db.models import LAYER_KINDS, SLUG_RE
 from app.db.session import session_scope
 from app.settings import get_settings
+from app.tiles.catalog import TileSource
 from ingest.raster.cog import write_cog
 from ingest.raster.footprint import footprint_3857
+from ingest.raster.overview import build_overview
 from ingest.raster.sources import Source, SourceError, inspect
 
 EARTH_CIRCUMFERENCE_M = 2 * math.pi * 6378137.0
@@ -117,15 +120,22 @@ def write_source(source: Source, store: Path, layer: str,
 
 
 def register(written: Sequence[WrittenSource], layer: str, title: str | None, kind: str,
-             priority: int, database_url: str | None = None) -> int:
-    """Upsert the layer and insert its new sources in one transaction; return the version."""
+             priority: int, overview_uri: str,
+             database_url: str | None = None) -> tuple[int, str | None]:
+    """Upsert the layer, insert its new sources and point it at its new overview, in one
+    transaction; return the new version and the replaced overview file (to delete)."""
     with session_scope(database_url) as session:
+        old_overview = session.execute(
+            text("SELECT overview_uri FROM layers WHERE slug = :slug FOR UPDATE"),
+            {"slug": layer}).scalar()
         layer_id, version = session.execute(text(
-            "INSERT INTO layers (slug, title, kind) VALUES (:slug, :title, :kind) "
+            "INSERT INTO layers (slug, title, kind, overview_uri) "
+            "VALUES (:slug, :title, :kind, :overview) "
             "ON CONFLICT (slug) DO UPDATE SET title = COALESCE(:given_title, layers.title), "
-            "  version = layers.version + 1, updated_at = now() "
+            "  version = layers.version + 1, updated_at = now(), overview_uri = :overview "
             "RETURNING id, version"),
-            {"slug": layer, "title": title or layer, "given_title": title, "kind": kind},
+            {"slug": layer, "title": title or layer, "given_title": title, "kind": kind,
+             "overview": overview_uri},
         ).one()
         for src in written:
             session.execute(text(
@@ -148,7 +158,31 @@ def register(written: Sequence[WrittenSource], layer: str, title: str | None, ki
             " minzoom = :minzoom "
             "WHERE l.id = :id"),
             {"id": layer_id, "minzoom": min(src.minzoom for src in written)})
-        return int(version)
+        return int(version), old_overview
+
+
+def layer_overview(written: Sequence[WrittenSource], layer: str, priority: int, store: Path,
+                   database_url: str | None = None) -> str:
+    """Render the layer as it will be once ``written`` is registered into a new overview COG."""
+    with session_scope(database_url) as session:
+        rows = session.execute(text(
+            "SELECT s.uri, s.meta->'display_range', s.priority, (meta->>'zoom')::int, "
+            " ST_XMin(s.footprint), ST_YMin(s.footprint), ST_XMax(s.footprint), "
+            " ST_YMax(s.footprint) FROM raster_sources s JOIN layers l ON l.id = s.layer_id "
+            "WHERE l.slug = :slug ORDER BY s.priority, s.ingested_at, s.id"),
+            {"slug": layer}).all()
+    # Paint order as the tile query will have it: priority, then new sources after old ones.
+    ordered = [(r[2], 0, i, TileSource(r[0], r[1])) for i, r in enumerate(rows)]
+    ordered += [(priority, 1, i, TileSource(w.uri, w.meta.get("display_range")))
+                for i, w in enumerate(written)]
+    boxes = [r[4:8] for r in rows] + [shapely.wkb.loads(w.footprint_wkb).bounds
+                                      for w in written]
+    bounds = (min(b[0] for b in boxes), min(b[1] for b in boxes),
+              max(b[2] for b in boxes), max(b[3] for b in boxes))
+    maxzoom = max([r[3] for r in rows] + [w.zoom for w in written])
+    dst = store / layer / f"overview-{uuid.uuid4().hex}.tif"
+    build_overview([t[3] for t in sorted(ordered, key=lambda t: t[:3])], bounds, maxzoom, dst)
+    return str(dst)
 
 
 def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None,
@@ -169,15 +203,23 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
     check = inspect_source or (lambda p: inspect(p, crs=crs))
     sources = [check(Path(p)) for p in paths]
     written: list[WrittenSource] = []
-    bar = tqdm(sources, desc=f"ingest {layer}", unit="source", disable=not sys.stderr.isatty())
+    created: list[str] = []
+    bar = tqdm([*sources, None], desc=f"ingest {layer}", unit="step",
+               disable=not sys.stderr.isatty())
     try:
         for source in bar:
-            bar.set_postfix_str(source.name)
-            written.append(write_source(source, store, layer, to_cog))
-        version = register(written, layer, title, kind, priority, database_url)
+            bar.set_postfix_str(source.name if source else "layer overview")
+            if source is not None:
+                written.append(write_source(source, store, layer, to_cog))
+                created.append(written[-1].uri)
+        created.append(layer_overview(written, layer, priority, store, database_url))
+        version, replaced = register(written, layer, title, kind, priority, created[-1],
+                                     database_url)
     except BaseException:
-        for src in written:
+        for uri in created:
             with contextlib.suppress(FileNotFoundError):
-                Path(src.uri).unlink()
+                Path(uri).unlink()
         raise
+    if replaced:
+        Path(replaced).unlink(missing_ok=True)
     return IngestReport(layer=layer, version=version, sources=written)

@@ -147,3 +147,13 @@ def test_killed_ingest_leaves_no_half_registered_layer(database_url: str, tmp_pa
     small, _ = synthetic_utm(tmp_path / "small.tif", width=100, height=100)
     assert run_cli("ingest", "raster", str(small), "--layer", name).exit_code == 0
     assert client.get(f"/layers/{name}").json()["source_count"] == 1
+
+
+def test_demo_loader_ingests_samples_once(database_url: str, shared_data: Path) -> None:
+    from ingest.raster.samples import SAMPLE_LAYERS, ingest_sample_orthophotos
+
+    first = ingest_sample_orthophotos(shared_data / "orthophotos")
+    assert {r.layer for r in first} <= set(SAMPLE_LAYERS)
+    assert ingest_sample_orthophotos(shared_data / "orthophotos") == []
+    listed = run_cli("layers", "list").output
+    assert all(slug in listed for slug in SAMPLE_LAYERS)

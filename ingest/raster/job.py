@@ -92,7 +92,7 @@ def write_source(source: Source, store: Path, layer: str,
     """Write one validated source into the store and measure what the catalogue needs."""
     dst = store / layer / f"{uuid.uuid4().hex}.tif"
     if to_cog is None:
-        write_cog(source.vrt_xml(), dst, source.dtype, len(source.bands))
+        write_cog(source.cog_input(), dst, source.dtype, len(source.bands))
     else:
         to_cog(source, dst)
     try:

@@ -78,8 +78,9 @@ def layer(slug: str, request: Request) -> dict[str, Any] | JSONResponse:
     if found is None:
         return problem(404, "LayerNotFound", f"no raster layer {slug!r}")
     body = _layer_json(found, request)
+    # Store paths are server internals: not part of the HTTP contract.
     body["sources"] = [
-        {**{k: v for k, v in s.items() if k != "ingested_at"},
+        {**{k: v for k, v in s.items() if k not in ("ingested_at", "uri")},
          "ingested_at": s["ingested_at"].isoformat()} for s in found["sources"]]
     return body
 

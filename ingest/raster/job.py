@@ -20,7 +20,7 @@ import math
 import re
 import sys
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,7 +31,7 @@ from sqlalchemy import text
 from tqdm import tqdm
 
 from app.db.models import LAYER_KINDS, SLUG_RE
-from app.db.session import session_scope
+from app.db.session import get_engine, session_scope
 from app.settings import get_settings
 from app.tiles.catalog import TileSource
 from ingest.raster.cog import write_cog
@@ -185,6 +185,23 @@ def layer_overview(written: Sequence[WrittenSource], layer: str, priority: int, 
     return str(dst)
 
 
+@contextlib.contextmanager
+def layer_lock(layer: str, database_url: str | None = None) -> Iterator[None]:
+    """Serialise ingests into one layer, so each overview sees every committed source.
+
+    A session-level advisory lock: released explicitly, or by the server if the job dies.
+    """
+    with get_engine(database_url).connect() as conn:
+        key = {"key": f"ugvmap.raster:{layer}"}
+        conn.execute(text("SELECT pg_advisory_lock(hashtext(:key))"), key)
+        conn.commit()
+        try:
+            yield
+        finally:
+            conn.execute(text("SELECT pg_advisory_unlock(hashtext(:key))"), key)
+            conn.commit()
+
+
 def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None,
                   kind: str = "orthophoto", crs: str | None = None, priority: int = 0,
                   inspect_source: Callable[[Path], Source] | None = None,
@@ -206,20 +223,21 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
     created: list[str] = []
     bar = tqdm([*sources, None], desc=f"ingest {layer}", unit="step",
                disable=not sys.stderr.isatty())
-    try:
-        for source in bar:
-            bar.set_postfix_str(source.name if source else "layer overview")
-            if source is not None:
-                written.append(write_source(source, store, layer, to_cog))
-                created.append(written[-1].uri)
-        created.append(layer_overview(written, layer, priority, store, database_url))
-        version, replaced = register(written, layer, title, kind, priority, created[-1],
-                                     database_url)
-    except BaseException:
-        for uri in created:
-            with contextlib.suppress(FileNotFoundError):
-                Path(uri).unlink()
-        raise
+    with layer_lock(layer, database_url):
+        try:
+            for source in bar:
+                bar.set_postfix_str(source.name if source else "layer overview")
+                if source is not None:
+                    written.append(write_source(source, store, layer, to_cog))
+                    created.append(written[-1].uri)
+            created.append(layer_overview(written, layer, priority, store, database_url))
+            version, replaced = register(written, layer, title, kind, priority, created[-1],
+                                         database_url)
+        except BaseException:
+            for uri in created:
+                with contextlib.suppress(FileNotFoundError):
+                    Path(uri).unlink()
+            raise
     if replaced:
         Path(replaced).unlink(missing_ok=True)
     return IngestReport(layer=layer, version=version, sources=written)

@@ -143,10 +143,12 @@ def test_killed_ingest_leaves_no_half_registered_layer(database_url: str, tmp_pa
     # Only hidden temporary files may remain: nothing under a final name.
     assert [p for p in layer_dir.iterdir() if not p.name.startswith(".")] == []
     assert client.get(f"/tiles/{name}/0/0/0.png").status_code == 404
-    # And the job can simply be re-run.
+    # And the job can simply be re-run; it sweeps the dead job's leftovers.
     small, _ = synthetic_utm(tmp_path / "small.tif", width=100, height=100)
     assert run_cli("ingest", "raster", str(small), "--layer", name).exit_code == 0
     assert client.get(f"/layers/{name}").json()["source_count"] == 1
+    assert not list(layer_dir.glob(".*"))
+    assert len(list(layer_dir.iterdir())) == 2  # the new source and the layer overview
 
 
 def test_demo_loader_ingests_samples_once(database_url: str, shared_data: Path) -> None:

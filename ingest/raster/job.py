@@ -8,8 +8,9 @@ Order matters for atomicity:
    committed in one transaction, only after every file exists;
 4. if anything fails after step 2, the files this job wrote are deleted again.
 
-A job killed between 2 and 3 leaves at most unregistered files, which are never served:
-tiles are only read from sources the catalogue lists.
+A job killed between 2 and 3 leaves at most unregistered files, which are never served
+(tiles are only read from sources the catalogue lists) and which the next ingest into the
+layer deletes (jobs on one layer are serialised by an advisory lock, so that is safe).
 """
 
 from __future__ import annotations
@@ -202,6 +203,25 @@ def layer_lock(layer: str, database_url: str | None = None) -> Iterator[None]:
             conn.commit()
 
 
+def sweep_leftovers(layer_dir: Path, database_url: str | None = None) -> list[Path]:
+    """Delete files in a layer's store folder that the catalogue does not reference.
+
+    Called under :func:`layer_lock`, so no other job is writing there: anything
+    unreferenced (temporary files, or finished COGs of a job killed before its commit) is a
+    leftover of a dead job and is never served.
+    """
+    if not layer_dir.is_dir():
+        return []
+    with get_engine(database_url).connect() as conn:
+        known = set(conn.execute(text(
+            "SELECT uri FROM raster_sources UNION SELECT overview_uri FROM layers "
+            "WHERE overview_uri IS NOT NULL")).scalars())
+    stale = [p for p in layer_dir.iterdir() if p.is_file() and str(p) not in known]
+    for path in stale:
+        path.unlink(missing_ok=True)
+    return stale
+
+
 def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None,
                   kind: str = "orthophoto", crs: str | None = None, priority: int = 0,
                   inspect_source: Callable[[Path], Source] | None = None,
@@ -224,6 +244,7 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
     bar = tqdm([*sources, None], desc=f"ingest {layer}", unit="step",
                disable=not sys.stderr.isatty())
     with layer_lock(layer, database_url):
+        sweep_leftovers(store / layer, database_url)
         try:
             for source in bar:
                 bar.set_postfix_str(source.name if source else "layer overview")

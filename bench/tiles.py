@@ -9,7 +9,8 @@ One command (from the repo root)::
    ``shared/research/anchors-measured.md``) is ingested by ugvmap. ugvmap and TiTiler then
    serve *the same COG* with the same number of uvicorn workers, one server at a time, each
    loaded by ``wrk -t1 -c8`` cycling through a shuffled list of distinct tiles (256 px PNG)
-   at the native zoom and at native - 3 (overviews). Neither has a tile cache. TiTiler runs
+   at the native zoom and at native - 3 (overviews). Neither uses a tile cache (ugvmap's is
+   switched off with ``UGVMAP_TILE_CACHE_MB=0``). TiTiler runs
    from its own venv, ``bench/.venv-titiler``, created on first use (never a project
    dependency).
 2. **Ingest.** A 28000 x 7000 RGB mosaic is ingested by ``ugvmap ingest raster`` (validation,
@@ -208,7 +209,7 @@ def bench_tiles(args: argparse.Namespace, url: str, store: Path) -> None:
                 cmd = [sys.executable, "-m", "app.cli", "serve", "--port", str(port),
                        "--workers", str(args.workers)]
                 env = {"DATABASE_URL": url, "UGVMAP_RASTER_STORE": str(store),
-                       "UGVMAP_LOG_LEVEL": "WARNING"}
+                       "UGVMAP_LOG_LEVEL": "WARNING", "UGVMAP_TILE_CACHE_MB": "0"}
                 paths = [f"/tiles/bench/{zoom}/{x}/{y}.png" for x, y in tiles]
                 probe = f"{base}/healthz"
             else:

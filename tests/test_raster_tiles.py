@@ -182,11 +182,15 @@ def test_etag_304_and_change_after_reingest_newer_source_on_top(client, tmp_path
     assert "max-age" in first.headers["cache-control"]
     assert decode_rgba(first.content)[py, px, 0] > 150
     assert client.get(url, headers={"If-None-Match": etag}).status_code == 304
+    again = client.get(url)
+    assert (first.headers["x-tile-cache"], again.headers["x-tile-cache"]) == ("miss", "hit")
+    assert again.content == first.content
 
     ingest_raster([new], name)
     second = client.get(url, headers={"If-None-Match": etag})
     assert second.status_code == 200
     assert second.headers["etag"] != etag
+    assert second.headers["x-tile-cache"] == "miss"  # the new version misses the cache
     pixel = decode_rgba(second.content)[py, px]
     assert pixel[2] > 150 and pixel[0] < 50  # the newer (blue) source covers the older one
 
@@ -264,6 +268,7 @@ def test_uint16_single_band_and_rgba_sources_render(client, tmp_path) -> None:
 
 
 def test_low_zoom_tiles_come_from_the_layer_overview(client, tmp_path) -> None:
+    from app.tiles.cache import tile_cache
     from app.tiles.catalog import TileSource
     from app.tiles.mosaic import render
     from app.tiles.readers import overview_zoom
@@ -306,6 +311,7 @@ def test_low_zoom_tiles_come_from_the_layer_overview(client, tmp_path) -> None:
     # ...but read from the overview alone: hiding the sources does not change it.
     for uri in uris:
         Path(uri).rename(uri + ".hidden")
+    tile_cache.cache_clear()  # render again, not from the tile cache
     try:
         assert np.array_equal(decode_rgba(client.get(url).content), tile)
         fine = tiles_around(*centre(info), info["maxzoom"], n=1)

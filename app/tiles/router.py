@@ -16,6 +16,7 @@ from fastapi.responses import JSONResponse
 
 from app.db.session import get_engine
 from app.tiles import catalog
+from app.tiles.cache import tile_cache
 from app.tiles.catalog import TileSource
 from app.tiles.encode import MEDIA_TYPES, encode
 from app.tiles.mosaic import render
@@ -139,8 +140,13 @@ def tile(slug: str, z: str, x: str, tile: str, request: Request) -> Response:
     if _matches(request.headers.get("if-none-match"), etag):
         return Response(status_code=304, headers=headers)
     size = 512 if match["scale"] else 256
-    sources = query.sources
-    if query.sources and query.overview_uri and zi <= overview_zoom(query.overview_uri):
-        sources = [TileSource(query.overview_uri, None)]
-    body = encode(render(sources, bbox, size), fmt)
+    key = (query.layer_id, query.version, zi, xi, yi, fmt, size)
+    body = tile_cache().get(key)
+    headers["X-Tile-Cache"] = "hit" if body is not None else "miss"
+    if body is None:
+        sources = query.sources
+        if sources and query.overview_uri and zi <= overview_zoom(query.overview_uri):
+            sources = [TileSource(query.overview_uri, None)]
+        body = encode(render(sources, bbox, size), fmt)
+        tile_cache().put(key, body)
     return Response(body, media_type=MEDIA_TYPES[fmt], headers=headers)

@@ -320,3 +320,16 @@ def test_low_zoom_tiles_come_from_the_layer_overview(client, tmp_path) -> None:
     finally:
         for uri in uris:
             Path(uri + ".hidden").rename(uri)
+
+
+def test_layer_zoom_range_spans_all_sources(client, tmp_path) -> None:
+    coarse, _ = synthetic_utm(tmp_path / "coarse.tif", width=300, height=300, res=2.4)
+    fine, _ = synthetic_utm(tmp_path / "fine.tif", width=300, height=300, res=0.15)
+    name = slug()
+    ingest_raster([coarse], name)
+    first = layer_info(client, name)
+    ingest_raster([fine], name)
+    both = layer_info(client, name)
+    zooms = [s["zoom"] for s in both["sources"]]
+    assert zooms[1] - zooms[0] == 4  # 2.4 m vs 0.15 m is 16x, four zoom levels
+    assert both["maxzoom"] == zooms[1] and both["minzoom"] == first["minzoom"]

@@ -106,7 +106,7 @@ def write_source(source: Source, store: Path, layer: str,
             minzoom = max(0, zoom - len(ds.overviews(1)))
         lat = (source.bounds_4326[1] + source.bounds_4326[3]) / 2
         meta = {"source_path": str(source.path.resolve()), "georef": source.georef_from,
-                "source_crs": source.crs.to_string(), "zoom": zoom,
+                "source_crs": source.crs.to_string(), "zoom": zoom, "minzoom": minzoom,
                 "bounds_4326": list(source.bounds_4326)}
         ranges = band_ranges(str(dst), dtype)
         if ranges:
@@ -156,9 +156,9 @@ def register(written: Sequence[WrittenSource], layer: str, title: str | None, ki
             "   WHERE s.layer_id = l.id),"
             " maxzoom = (SELECT max((meta->>'zoom')::int) FROM raster_sources s"
             "   WHERE s.layer_id = l.id),"
-            " minzoom = :minzoom "
-            "WHERE l.id = :id"),
-            {"id": layer_id, "minzoom": min(src.minzoom for src in written)})
+            " minzoom = (SELECT min((meta->>'minzoom')::int) FROM raster_sources s"
+            "   WHERE s.layer_id = l.id) "
+            "WHERE l.id = :id"), {"id": layer_id})
         return int(version), old_overview
 
 

@@ -10,12 +10,9 @@ import sys
 
 import click
 
+from app.cli_errors import CliError
 from app.db import embedded
 from app.settings import get_settings
-
-
-class CliError(click.ClickException):
-    """A user-facing error: printed as one clear line, exit status 1, no traceback."""
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -95,18 +92,6 @@ def ingest() -> None:
     """Batch jobs that write rasters and road networks into the store."""
 
 
-def _register_network_commands() -> None:
-    from app.network import cli as network_cli
-
-    ingest.add_command(network_cli.ingest_network)
-    main.add_command(network_cli.tokens)
-    main.add_command(network_cli.export)
-    main.add_command(network_cli.network)
-
-
-_register_network_commands()
-
-
 @main.command()
 @click.option("--host", default="127.0.0.1", show_default=True)
 @click.option("--port", default=8000, show_default=True, type=int)
@@ -128,6 +113,21 @@ def serve(host: str, port: int, workers: int) -> None:
         access_log=False,
     )
 
+
+def _register_capabilities() -> None:
+    """Each capability owns its commands; this is the table of contents."""
+    from app.network import cli as network_cli
+    from app.tiles import cli as tiles_cli
+
+    ingest.add_command(network_cli.ingest_network)
+    main.add_command(network_cli.tokens)
+    main.add_command(network_cli.export)
+    main.add_command(network_cli.network)
+    ingest.add_command(tiles_cli.ingest_raster_cmd)
+    main.add_command(tiles_cli.layers)
+
+
+_register_capabilities()
 
 if __name__ == "__main__":
     main()

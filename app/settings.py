@@ -23,6 +23,7 @@ class Settings(BaseSettings):
     pg_port: int = 54329
     pg_database: str = "ugvmap"
     raster_store: str | None = None
+    tile_cache_mb: int = 64
     log_level: str = "INFO"
     db_connect_timeout_s: int = 3
     # Least token role needed to read networks (features, tiles, history); unset: public.

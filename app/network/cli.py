@@ -1,7 +1,6 @@
 """``ugvmap`` commands for road networks: import, export, validate, API tokens.
 
-Registered on the groups of ``app.cli``; ``CliError`` is imported when needed because
-``app.cli`` imports this module.
+Registered on the groups of ``app.cli``.
 """
 
 from __future__ import annotations
@@ -23,7 +22,7 @@ def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         from sqlalchemy.exc import OperationalError
 
-        from app.cli import CliError
+        from app.cli_errors import CliError
 
         try:
             return func(*args, **kwargs)
@@ -109,7 +108,7 @@ def network() -> None:
 @_user_errors
 def validate(name: str) -> None:
     """Check NAME's topology invariants; exit 1 if any is broken."""
-    from app.cli import CliError
+    from app.cli_errors import CliError
     from app.db.session import session_scope
     from app.network.integrity import check_network
 

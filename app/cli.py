@@ -95,6 +95,15 @@ def ingest() -> None:
     """Batch jobs that write rasters and road networks into the store."""
 
 
+def _register_network_commands() -> None:
+    from app.network import cli as network_cli
+
+    ingest.add_command(network_cli.ingest_network)
+
+
+_register_network_commands()
+
+
 @main.command()
 @click.option("--host", default="127.0.0.1", show_default=True)
 @click.option("--port", default=8000, show_default=True, type=int)

@@ -67,10 +67,15 @@ def snap_points(session: Session, network: str, points: Sequence[tuple[float, fl
     }).all()
     if not rows:
         raise NetworkNotFoundError(f"network {network!r} does not exist")
-    best: dict[int, tuple[float, int, float]] = {}
+    # Nearest by ground distance; on a tie (a point exactly at a junction, which may also lie
+    # under a bridge) prefer a segment that ends there, then the lowest id for determinism.
+    best: dict[int, tuple[float, int, int, float]] = {}
     for _, _, ord_, seg_id, frac, dist in rows:
-        if seg_id is not None and (ord_ not in best or (dist, seg_id) < best[ord_][:2]):
-            best[ord_] = (dist, seg_id, frac)
+        if seg_id is None:
+            continue
+        key = (dist, 0 if frac in (0.0, 1.0) else 1, seg_id, frac)
+        if ord_ not in best or key < best[ord_]:
+            best[ord_] = key
     snaps = []
     for i, point in enumerate(points):
         hit = best.get(i + 1)
@@ -78,5 +83,5 @@ def snap_points(session: Session, network: str, points: Sequence[tuple[float, fl
             where = "no road" if hit is None else f"the nearest road is {hit[0]:.1f} m away"
             raise NoSegmentError(f"point {i} ({point[0]:.6f},{point[1]:.6f}) is farther than "
                             f"{radius_m:g} m from any road: {where}")
-        snaps.append(Snap(i, point, int(hit[1]), float(hit[2]), float(hit[0])))
+        snaps.append(Snap(i, point, int(hit[2]), float(hit[3]), float(hit[0])))
     return Snapped(int(rows[0][0]), int(rows[0][1]), snaps)

@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import math
 import uuid
 
 from app.routing.live import libpq_dsn
 
 # One degree of latitude in metres, and a metre in degrees of latitude near the test origin.
 M = 1 / 111_320.0
+
+
+def xy(x_m: float, y_m: float, origin: tuple[float, float] = (1.5, 42.5)) -> tuple[float, float]:
+    """lon/lat of a point x metres east and y metres north of ``origin``."""
+    return (origin[0] + x_m * M / math.cos(math.radians(origin[1])), origin[1] + y_m * M)
 
 
 def dsn(database_url: str) -> str:

@@ -2,22 +2,14 @@
 
 from __future__ import annotations
 
-import math
-
 import polyline
 import psycopg
 import pytest
 
 from app.routing import synthetic
-from tests.routing_support import M, dsn, route, segment_walk, unique
+from tests.routing_support import dsn, route, segment_walk, unique, xy
 
-LON0, LAT0 = 1.5, 42.5
-MLON = M / math.cos(math.radians(LAT0))  # a metre in degrees of longitude at LAT0
-
-
-def xy(x_m: float, y_m: float) -> tuple[float, float]:
-    """lon/lat of a point x metres east, y metres north of the test origin."""
-    return LON0 + x_m * MLON, LAT0 + y_m * M
+LAT0 = 42.5
 
 
 @pytest.fixture(scope="module")

@@ -62,6 +62,7 @@ class GraphRegistry:
         self._listening = threading.Event()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self.stats = {"loads": 0, "patches": 0}  # for logs and tests: patches should dominate
 
     # -- queries -------------------------------------------------------------------------
     def get(self, network_id: int, min_version: int) -> RoadGraph:
@@ -86,6 +87,7 @@ class GraphRegistry:
                 return current
             graph = RoadGraph(network_id, version, segs)
             self._publish(graph)
+            self.stats["loads"] += 1
         return graph
 
     def _publish(self, graph: RoadGraph) -> None:
@@ -150,6 +152,7 @@ class GraphRegistry:
                 return
             self._publish(graph.patched(version, [box[0] - BOX_EPS, box[1] - BOX_EPS,
                                                   box[2] + BOX_EPS, box[3] + BOX_EPS], fresh))
+            self.stats["patches"] += 1
 
 
 _registries: dict[str, GraphRegistry] = {}

@@ -41,7 +41,7 @@ def add_line(conn: psycopg.Connection, network_id: int, coords: Sequence[Sequenc
     """
     src = node_at(conn, network_id, *coords[0])
     dst = node_at(conn, network_id, *coords[-1])
-    wkt = "LINESTRING(" + ", ".join(f"{x!r} {y!r}" for x, y in coords) + ")"
+    wkt = "LINESTRING(" + ", ".join(f"{float(x)!r} {float(y)!r}" for x, y in coords) + ")"
     cols = ", ".join(["network_id", "source_node", "target_node", "geom", "length_m", *attrs])
     marks = ", ".join(["%s"] * len(attrs))
     return conn.execute(

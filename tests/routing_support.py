@@ -32,6 +32,5 @@ def route(client, name: str, points: list[tuple[float, float]], **params) -> dic
 
 
 def segment_walk(body: dict) -> list[int]:
-    """Segment ids of the route's steps, in order."""
-    return [s["segment_id"] for leg in body["routes"][0]["legs"] for s in leg["steps"]
-            if "segment_id" in s]
+    """Segment ids driven, in order (from each leg's annotation)."""
+    return [sid for leg in body["routes"][0]["legs"] for sid in leg["annotation"]["segment_ids"]]

@@ -79,7 +79,7 @@ def test_two_way_street_allows_reverse(client, block) -> None:
     body = route(client, block["name"], [xy(150, 104), xy(50, 104)], cost="distance")
     assert body["routes"][0]["distance"] == pytest.approx(100.0, abs=0.5)
     step = body["routes"][0]["legs"][0]["steps"][0]
-    assert step["segment_id"] == block["seg"]["n"] and step["lanes"] == 1
+    assert step["segment_ids"] == [block["seg"]["n"]] and step["lanes"] == 1
 
 
 def test_polyline_matches_geojson(client, block) -> None:

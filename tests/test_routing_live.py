@@ -107,8 +107,7 @@ def test_edit_is_seen_by_every_worker(database_url, writer, ring) -> None:
         for _ in range(8):  # enough requests to land on both workers
             r = httpx.get(f"{base}/networks/{ring['name']}/route", params={"points": q})
             assert r.status_code == 200, r.text
-            out.append([s["segment_id"] for s in r.json()["routes"][0]["legs"][0]["steps"]
-                        if "segment_id" in s])
+            out.append(segment_walk(r.json()))
         return out
 
     with running_server(env, workers=2) as base:

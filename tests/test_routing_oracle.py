@@ -14,19 +14,10 @@ import pytest
 
 from app.db.session import session_scope
 from app.routing import synthetic
-from app.routing.costs import Cost, cost_sql
+from app.routing.costs import Cost, pgrouting_edges_sql
 from tests.routing_support import dsn, unique
 
 REL_TOL = 1e-9
-
-
-def edge_sql(network_id: int, cost: Cost) -> str:
-    """pgRouting edge query: reverse_cost -1 against a one-way's direction."""
-    c = cost_sql(cost)
-    return (f"SELECT id, source_node AS source, target_node AS target, "
-            f"CASE WHEN oneway = 'backward' THEN -1 ELSE {c} END AS cost, "
-            f"CASE WHEN oneway = 'forward' THEN -1 ELSE {c} END AS reverse_cost "
-            f"FROM road_segments WHERE network_id = {network_id}")
 
 
 def random_pairs(conn: psycopg.Connection, network_id: int, n: int, seed: int) -> list:
@@ -43,16 +34,14 @@ def random_pairs(conn: psycopg.Connection, network_id: int, n: int, seed: int) -
 
 
 def assert_connected_walk(body: dict, segs: dict, start: int, end: int) -> None:
-    """Steps follow segments end to end, each in a direction its one-way rule allows."""
+    """Segments follow each other end to end, each driven in a direction its one-way allows."""
     node = start
     for leg in body["routes"][0]["legs"]:
-        for step in leg["steps"]:
-            if "segment_id" not in step:
-                continue
-            src, dst, oneway, first = segs[step["segment_id"]]
-            forward = step["geometry"]["coordinates"][0] == first
+        walk = leg["annotation"]
+        for sid, forward in zip(walk["segment_ids"], walk["forward"], strict=True):
+            src, dst, oneway = segs[sid]
             tail, head = (src, dst) if forward else (dst, src)
-            assert tail == node, f"step on {step['segment_id']} does not start where we are"
+            assert tail == node, f"segment {sid} does not start where the route is"
             assert oneway == "none" or (oneway == "forward") == forward, "one-way violated"
             node = head
     assert node == end
@@ -61,10 +50,10 @@ def assert_connected_walk(body: dict, segs: dict, start: int, end: int) -> None:
 def check_against_pgrouting(client, conn, name: str, network_id: int, cost: Cost,
                             n_pairs: int, seed: int) -> int:
     """Compare ``n_pairs`` random node-to-node routes; returns how many had a path."""
-    segs = {sid: (s, t, ow, [x, y]) for sid, s, t, ow, x, y in conn.execute(
-        "SELECT id, source_node, target_node, oneway, ST_X(ST_StartPoint(geom)), "
-        "ST_Y(ST_StartPoint(geom)) FROM road_segments WHERE network_id = %s", (network_id,))}
-    edges = edge_sql(network_id, cost)
+    segs = {sid: (s, t, ow) for sid, s, t, ow in conn.execute(
+        "SELECT id, source_node, target_node, oneway FROM road_segments WHERE network_id = %s",
+        (network_id,))}
+    edges = pgrouting_edges_sql(network_id, cost)
     routed = 0
     for (a, ax, ay), (b, bx, by) in random_pairs(conn, network_id, n_pairs, seed):
         row = conn.execute("SELECT max(agg_cost) FROM pgr_dijkstra(%s, %s::bigint, %s::bigint)",

@@ -55,3 +55,15 @@ def cost_sql(cost: Cost, table: str = "road_segments") -> str:
     if cost is Cost.DISTANCE:
         return f"{table}.length_m"
     return f"{table}.length_m / ({speed_sql(table)} / 3.6)"
+
+
+def pgrouting_edges_sql(network_id: int, cost: Cost) -> str:
+    """pgRouting edge query pricing segments like the graph does (-1 against a one-way).
+
+    The oracle test and the benchmark hand this to ``pgr_dijkstra``.
+    """
+    c = cost_sql(cost)
+    return (f"SELECT id, source_node AS source, target_node AS target, "
+            f"CASE WHEN oneway = 'backward' THEN -1 ELSE {c} END AS cost, "
+            f"CASE WHEN oneway = 'forward' THEN -1 ELSE {c} END AS reverse_cost "
+            f"FROM road_segments WHERE network_id = {int(network_id)}")

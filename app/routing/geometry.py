@@ -45,6 +45,9 @@ def point_at(coords: np.ndarray, fracs: np.ndarray, f: float) -> tuple[float, fl
 def cut(coords: np.ndarray, fracs: np.ndarray, f_from: float, f_to: float) -> list[list[float]]:
     """The part of a line between two fractions, in travel order (reversed if f_from > f_to)."""
     lo, hi = sorted((f_from, f_to))
+    if lo == 0.0 and hi == 1.0:  # a whole segment: most pieces of a route
+        pts = coords.tolist()
+        return pts if f_from <= f_to else pts[::-1]
     inner = coords[(fracs > lo) & (fracs < hi)]
     pts = [list(point_at(coords, fracs, lo)), *inner.tolist(), list(point_at(coords, fracs, hi))]
     return pts if f_from <= f_to else pts[::-1]

@@ -1,9 +1,12 @@
 """Shape legs into an OSRM route-service response, so existing OSRM clients work unchanged.
 
 Follows OSRM v5 (``code``, ``routes[].geometry|distance|duration|weight|legs[].steps[]``,
-``waypoints[]``), with per-step extensions a vehicle planner needs: ``segment_id``,
-``lanes`` (in the direction of travel), ``speed_limit_kph``, ``speed_kph`` and ``road_class``.
-Maneuver modifiers are ``straight``, ``left``, ``right`` and ``uturn``.
+``waypoints[]``). A step is a stretch driven without a turn on segments with the same name,
+class, lanes and speed limit, and carries what a vehicle planner needs besides OSRM's fields:
+``segment_ids``, ``lanes`` (in the direction of travel), ``speed_limit_kph``, ``speed_kph``
+and ``road_class``. Maneuver modifiers are ``straight``, ``left``, ``right`` and ``uturn``.
+Each leg's ``annotation`` lists every segment piece driven: ``segment_ids``, ``forward``
+(along the segment's geometry or against it), ``distance`` (m) and ``duration`` (s).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from app.routing.costs import Cost
 from app.routing.engine import Leg, Piece
 from app.routing.geometry import bearing, cut, point_at
 from app.routing.graph import RoadGraph
+from app.routing.snap import Snap
 
 STRAIGHT_DEG = 30.0
 UTURN_DEG = 150.0
@@ -38,11 +42,6 @@ def encode(coords: list[list[float]], geometries: str) -> Any:
     return {"type": "LineString", "coordinates": coords}
 
 
-def _end_bearings(coords: list[list[float]]) -> tuple[float, float]:
-    """Bearing leaving the first point and bearing arriving at the last."""
-    return bearing(coords[0], coords[1]), bearing(coords[-2], coords[-1])
-
-
 class Shaper:
     """Turns the legs of one request into the response dictionary."""
 
@@ -53,65 +52,80 @@ class Shaper:
         coords, fracs = self.graph.line(p.row)
         return cut(coords, fracs, p.f_from, p.f_to)
 
-    def location(self, segment_id: int, fraction: float) -> list[float]:
-        row = self.graph.row_of(segment_id)
-        coords, fracs = self.graph.line(row)
-        return list(point_at(coords, fracs, fraction))
+    def location(self, snap: Snap) -> list[float]:
+        """Where a snapped point lies on its segment (lon, lat)."""
+        coords, fracs = self.graph.line(self.graph.row_of(snap.segment_id))
+        return list(point_at(coords, fracs, snap.fraction))
 
-    def step(self, p: Piece, coords: list[list[float]], maneuver: dict) -> dict[str, Any]:
-        s, g = self.graph.segs, self.graph
-        span = abs(p.f_to - p.f_from)
-        forward = p.f_to >= p.f_from
-        limit = s.speed_limit[p.row]
+    def _attrs(self, p: Piece) -> dict[str, Any]:
+        """Per-step attributes of a piece: a new step starts where any of them changes."""
+        s, row = self.graph.segs, p.row
+        limit = s.speed_limit[row]
         return {
-            "distance": span * float(s.length_m[p.row]),
-            "duration": span * float(s.length_m[p.row]) / (float(g.speed_kph[p.row]) / 3.6),
-            "geometry": encode(coords, self.geometries),
-            "name": s.name[p.row] or "",
-            "mode": "driving",
-            "maneuver": maneuver,
-            "segment_id": int(s.ids[p.row]),
-            "lanes": int(s.lanes_forward[p.row] if forward else s.lanes_backward[p.row]),
+            "name": s.name[row] or "",
+            "lanes": int(s.lanes_forward[row] if p.f_to >= p.f_from else s.lanes_backward[row]),
             "speed_limit_kph": None if limit != limit else float(limit),
-            "speed_kph": float(g.speed_kph[p.row]),
-            "road_class": s.road_class[p.row],
+            "speed_kph": float(self.graph.speed_kph[row]),
+            "road_class": s.road_class[row],
         }
 
     def leg(self, leg: Leg, heading_in: float | None) -> tuple[dict[str, Any], list, float | None]:
         """The leg's dict, its coordinates, and the bearing it arrives with."""
-        pieces = [p for p in leg.pieces if p.f_from != p.f_to]
-        start = self.location(leg.start.segment_id, leg.start.fraction)
-        end = self.location(leg.end.segment_id, leg.end.fraction)
-        steps, coords = [], [start]
-        for k, p in enumerate(pieces):
+        s, g = self.graph.segs, self.graph
+        steps: list[dict[str, Any]] = []
+        coords = [self.location(leg.start)]
+        note: dict[str, list] = {"segment_ids": [], "forward": [], "distance": [], "duration": []}
+        for p in (p for p in leg.pieces if p.f_from != p.f_to):
             pc = self.piece_coords(p)
-            b_after, b_in = _end_bearings(pc)
-            before = heading_in if heading_in is not None else b_after
-            maneuver = {"type": "depart" if k == 0 else "turn", "location": pc[0],
-                        "bearing_before": round(before), "bearing_after": round(b_after),
-                        "modifier": modifier(before, b_after)}
-            if maneuver["modifier"] == "straight" and k:
-                maneuver["type"] = "continue"
-            steps.append(self.step(p, pc, maneuver))
+            b_out, b_in = bearing(pc[0], pc[1]), bearing(pc[-2], pc[-1])
+            span = abs(p.f_to - p.f_from)
+            dist = span * float(s.length_m[p.row])
+            dur = dist / (float(g.speed_kph[p.row]) / 3.6)
+            attrs = self._attrs(p)
+            turn = modifier(heading_in if heading_in is not None else b_out, b_out)
+            if steps and turn == "straight" and steps[-1]["_attrs"] == attrs:
+                step = steps[-1]
+                step["distance"] += dist
+                step["duration"] += dur
+                step["_coords"].extend(pc[1:])
+                step["segment_ids"].append(int(s.ids[p.row]))
+            else:
+                before = heading_in if heading_in is not None else b_out
+                kind = "depart" if not steps else "continue" if turn == "straight" else "turn"
+                steps.append({
+                    "distance": dist, "duration": dur, "_coords": pc, "_attrs": attrs,
+                    "mode": "driving",
+                    "maneuver": {"type": kind, "location": pc[0], "modifier": turn,
+                                 "bearing_before": round(before), "bearing_after": round(b_out)},
+                    "segment_ids": [int(s.ids[p.row])], **attrs,
+                })
+            for key, value in (("segment_ids", int(s.ids[p.row])),
+                               ("forward", p.f_to >= p.f_from), ("distance", dist),
+                               ("duration", dur)):
+                note[key].append(value)
             coords.extend(pc[1:])
             heading_in = b_in
-        arrive = {"type": "arrive", "location": end, "bearing_before": round(heading_in or 0),
-                  "bearing_after": 0, "modifier": "straight"}
-        steps.append({"distance": 0.0, "duration": 0.0, "geometry": encode([end, end],
-                      self.geometries), "name": "", "mode": "driving", "maneuver": arrive})
-        distance = sum(st["distance"] for st in steps)
-        duration = sum(st["duration"] for st in steps)
-        return ({"distance": distance, "duration": duration, "weight": leg.weight,
-                 "summary": "", "steps": steps}, coords, heading_in)
+        end = self.location(leg.end)
+        for step in steps:
+            step["geometry"] = encode(step.pop("_coords"), self.geometries)
+            del step["_attrs"]
+        steps.append({
+            "distance": 0.0, "duration": 0.0, "geometry": encode([end, end], self.geometries),
+            "name": "", "mode": "driving", "segment_ids": [],
+            "maneuver": {"type": "arrive", "location": end, "modifier": "straight",
+                         "bearing_before": round(heading_in or 0), "bearing_after": 0},
+        })
+        out = {"distance": sum(note["distance"]), "duration": sum(note["duration"]),
+               "weight": leg.weight, "summary": "", "steps": steps, "annotation": note}
+        return out, coords, heading_in
 
-    def waypoint(self, snap: Any, extra: dict | None = None) -> dict[str, Any]:
+    def waypoint(self, snap: Snap, waypoint_index: int) -> dict[str, Any]:
         row = self.graph.row_of(snap.segment_id)
-        return {"name": self.graph.segs.name[row] or "",
-                "location": self.location(snap.segment_id, snap.fraction),
+        return {"name": self.graph.segs.name[row] or "", "location": self.location(snap),
                 "distance": snap.distance_m, "segment_id": snap.segment_id,
-                "fraction": snap.fraction, **(extra or {})}
+                "fraction": snap.fraction, "waypoint_index": waypoint_index}
 
-    def response(self, legs: Sequence[Leg], cost: Cost, snaps: Sequence[Any],
+    def response(self, legs: Sequence[Leg], cost: Cost, snaps: Sequence[Snap],
                  order: Sequence[int] | None = None) -> dict[str, Any]:
         heading, legs_out, coords = None, [], []
         for leg in legs:
@@ -131,5 +145,4 @@ class Shaper:
             "legs": legs_out,
         }
         return {"code": "Ok", "routes": [route],
-                "waypoints": [self.waypoint(s, {"waypoint_index": rank[s.index]})
-                              for s in snaps]}
+                "waypoints": [self.waypoint(s, rank[s.index]) for s in snaps]}

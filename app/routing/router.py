@@ -9,8 +9,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
+import orjson
 from fastapi import APIRouter, Depends, Query, Request
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session
 
@@ -29,6 +30,13 @@ SessionDep = Annotated[Session, Depends(get_session)]
 def routing_error(_: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RoutingError)
     return JSONResponse({"code": exc.code, "message": exc.message}, status_code=exc.status)
+
+
+def _json(body: dict[str, Any]) -> Response:
+    """Serialise with orjson directly: routes are big nested dicts, and FastAPI's generic
+    encoder would take longer than the route search itself."""
+    return Response(orjson.dumps(body, option=orjson.OPT_SERIALIZE_NUMPY),
+                    media_type="application/json")
 
 
 def _avoid(raw: str | list[str] | None) -> frozenset[str]:
@@ -56,10 +64,10 @@ def route_get(
     format: Annotated[str, Query(description="osrm | waypoints")] = "osrm",
     spacing: Annotated[float, Query(description="metres between waypoints")] = 1.0,
     radius: Annotated[float | None, Query(description="snap radius, metres")] = None,
-) -> dict[str, Any]:
+) -> Response:
     """Route through the points (OSRM route-service response)."""
     opts = RouteOptions(_cost(cost), _avoid(avoid), optimize, geometries, format, spacing, radius)
-    return plan_route(session, name, parse_points(points), opts)
+    return _json(plan_route(session, name, parse_points(points), opts))
 
 
 class RouteBody(BaseModel):
@@ -85,11 +93,11 @@ def _body_point(i: int, raw: Any) -> tuple[float, float]:
 
 
 @router.post("/{name}/route")
-def route_post(name: str, body: RouteBody, session: SessionDep) -> dict[str, Any]:
+def route_post(name: str, body: RouteBody, session: SessionDep) -> Response:
     points = [_body_point(i, p) for i, p in enumerate(body.points)]
     opts = RouteOptions(_cost(body.cost), _avoid(body.avoid), body.optimize, body.geometries,
                         body.format, body.spacing, body.radius)
-    return plan_route(session, name, points, opts)
+    return _json(plan_route(session, name, points, opts))
 
 
 @router.get("/{name}/isochrone")
@@ -99,7 +107,7 @@ def isochrone(
     seconds: float | None = None, meters: float | None = None,
     avoid: Annotated[str | None, Query(description="road classes, comma-separated")] = None,
     radius: float | None = None,
-) -> dict[str, Any]:
+) -> Response:
     """Segments (partly) reachable from the point within ``seconds`` or ``meters``."""
     if (seconds is None) == (meters is None):
         raise InvalidQueryError("give exactly one of seconds= or meters=")
@@ -114,5 +122,5 @@ def isochrone(
     avoid_set = _avoid(avoid)
     snapped, graph = current_graph(session, name, pts, avoid_set, radius)
     cost = Cost.TIME if seconds is not None else Cost.DISTANCE
-    return isochrone_geojson(graph, graph.costs(cost, avoid_set), snapped.snaps[0], avoid_set,
-                             budget, "s" if seconds is not None else "m")
+    return _json(isochrone_geojson(graph, graph.costs(cost, avoid_set), snapped.snaps[0],
+                                   avoid_set, budget, "s" if seconds is not None else "m"))

@@ -2,7 +2,10 @@
 
 The KNN operator ``<->`` walks the GiST index for a few candidates per point (in degrees);
 they are re-ranked by true (geography) distance, and the projection fraction is computed in the
-point's UTM zone so that it is proportional to ground distance along the segment. The same
+point's UTM zone so that it is proportional to ground distance along the segment.
+``network_id + 0`` hides the network_id b-tree from the planner: right after an import, before
+autovacuum has analysed the table, it would otherwise fetch the whole network and sort it
+(36 ms instead of 0.3 ms on a 20k-segment network). The same
 statement reads the network's version, which the caller uses to make sure the in-memory graph
 already contains every committed edit.
 """
@@ -34,7 +37,7 @@ SELECT net.id, net.version, p.ord, c.id, c.frac, c.dist
              ST_LineLocatePoint(ST_Transform(s.geom, p.utm), ST_Transform(p.g, p.utm)) AS frac,
              ST_Distance(s.geom::geography, p.g::geography) AS dist
         FROM road_segments s
-       WHERE s.network_id = net.id AND NOT (s.road_class = ANY(CAST(:avoid AS text[])))
+       WHERE s.network_id + 0 = net.id AND NOT (s.road_class = ANY(CAST(:avoid AS text[])))
        ORDER BY s.geom <-> p.g
        LIMIT {KNN_CANDIDATES}) c ON true
 """)

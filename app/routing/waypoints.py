@@ -32,7 +32,7 @@ def dense_waypoints(shaper: Shaper, legs: list[Leg], spacing_m: float) -> dict[s
             rows.extend([(p.row, p.f_to >= p.f_from)] * (len(pc) - 1))
             xs.append(np.asarray(x)), ys.append(np.asarray(y))
     if frame is None:  # start and end coincide
-        start = shaper.location(legs[0].start.segment_id, legs[0].start.fraction)
+        start = shaper.location(legs[0].start)
         return {"frame": _frame_doc(start), "spacing_m": spacing_m, "points": []}
     # Each piece contributes its edges; consecutive pieces share their joining vertex.
     x = np.concatenate([xs[0][:1], *[a[1:] for a in xs]])

@@ -9,17 +9,19 @@ A point within :data:`AT_NODE_M` of a segment end is *at* that node and may leav
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from app.routing.errors import NoRouteError
+from app.routing.geometry import haversine_m, point_at
 from app.routing.graph import CostGraph, RoadGraph
 from app.routing.snap import Snap
 
 AT_NODE_M = 0.01
+FIRST_LIMIT_FACTOR = 2.0  # first search bound, in straight-line costs
+LIMIT_GROWTH = 4.0
 
 
 @dataclass(frozen=True)
@@ -49,6 +51,7 @@ class Place:
     v: int
     fraction: float
     at_node: int | None
+    loc: tuple[float, float]  # lon/lat of the point on the segment
 
 
 def place(graph: RoadGraph, snap: Snap) -> Place:
@@ -58,7 +61,8 @@ def place(graph: RoadGraph, snap: Snap) -> Place:
     length = float(graph.segs.length_m[row])
     u, v, f = int(graph.u[row]), int(graph.v[row]), snap.fraction
     at = u if f * length <= AT_NODE_M else v if (1 - f) * length <= AT_NODE_M else None
-    return Place(snap, row, u, v, f, at)
+    coords, fracs = graph.line(row)
+    return Place(snap, row, u, v, f, at, point_at(coords, fracs, f))
 
 
 def departures(graph: RoadGraph, cg: CostGraph, p: Place) -> list[tuple[int, float, Piece | None]]:
@@ -119,20 +123,40 @@ class Router:
             out.append(min(best, straight[0]) if straight else float(best))
         return out
 
+    def _first_limit(self, a: Place, b: Place) -> float:
+        """A cost bound that usually covers the route: a few times the straight-line cost."""
+        crow = haversine_m(a.loc, b.loc) / self.cg.max_rate
+        c_a, c_b = (float(self.cg.seg_cost[p.row]) for p in (a, b))
+        return FIRST_LIMIT_FACTOR * crow + c_a + c_b + 1.0
+
     def leg(self, i: int, j: int) -> Leg:
+        """Cheapest way from place i to place j.
+
+        The search is bounded (scipy's ``limit``) and the bound grows until the best arrival
+        lies within it: every node cheaper than the bound has its exact cost, so a route found
+        within the bound is optimal. Short legs on a large network then touch only the
+        neighbourhood of their end points instead of the whole graph.
+        """
         a, b = self.places[i], self.places[j]
-        outs = departures(self.graph, self.cg, a)
-        dist, pred = self.cg.search((n, c) for n, c, _ in outs)
-        weight, end_node, last = np.inf, -1, None
-        for n, c, piece in arrivals(self.graph, self.cg, b):
-            if dist[n] + c < weight:
-                weight, end_node, last = float(dist[n] + c), n, piece
+        outs, ins = departures(self.graph, self.cg, a), arrivals(self.graph, self.cg, b)
+        limit = self._first_limit(a, b)
+        while True:
+            if limit > self.cg.total_cost:
+                limit = np.inf
+            dist, pred = self.cg.search(((n, c) for n, c, _ in outs), limit=limit)
+            weight, end_node, last = np.inf, -1, None
+            for n, c, piece in ins:
+                if dist[n] + c < weight:
+                    weight, end_node, last = float(dist[n] + c), n, piece
+            if weight <= limit or limit == np.inf:
+                break
+            limit *= LIMIT_GROWTH
         straight = direct(self.graph, self.cg, a, b)
         if straight and straight[0] <= weight:
             return Leg(a.snap, b.snap, straight[0], [straight[1]])
         if not np.isfinite(weight):
             raise NoRouteError(f"no route from point {a.snap.index} to point {b.snap.index} "
-                          "in the allowed directions")
+                               "in the allowed directions")
         nodes = [end_node]
         while pred[nodes[-1]] != self.cg.origin:
             nodes.append(int(pred[nodes[-1]]))
@@ -140,10 +164,9 @@ class Router:
         _, first = min(((c, piece) for n, c, piece in outs if n == nodes[0]),
                        key=lambda cp: cp[0])
         pieces = [first] if first is not None else []
-        for tail, head in itertools.pairwise(nodes):
-            row, way = self.cg.arc(tail, head)
-            pieces.append(Piece(row, 0.0, 1.0) if way > 0 else Piece(row, 1.0, 0.0))
+        rows, ways = self.cg.path_arcs(nodes)
+        pieces.extend(Piece(row, 0.0, 1.0) if way > 0 else Piece(row, 1.0, 0.0)
+                      for row, way in zip(rows.tolist(), ways.tolist(), strict=True))
         if last is not None:
             pieces.append(last)
         return Leg(a.snap, b.snap, weight, pieces)
-

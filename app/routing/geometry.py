@@ -62,6 +62,14 @@ def bearing(a: list[float] | tuple[float, float], b: list[float] | tuple[float, 
     return (math.degrees(math.atan2(y, x)) + 360.0) % 360.0
 
 
+def bearings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`bearing` for arrays of (lon, lat) rows."""
+    lon1, lat1, lon2, lat2 = (np.radians(v) for v in (a[:, 0], a[:, 1], b[:, 0], b[:, 1]))
+    y = np.sin(lon2 - lon1) * np.cos(lat2)
+    x = np.cos(lat1) * np.sin(lat2) - np.sin(lat1) * np.cos(lat2) * np.cos(lon2 - lon1)
+    return (np.degrees(np.arctan2(y, x)) + 360.0) % 360.0
+
+
 def haversine_m(a: tuple[float, float], b: tuple[float, float]) -> float:
     lon1, lat1, lon2, lat2 = map(math.radians, (a[0], a[1], b[0], b[1]))
     h = (math.sin((lat2 - lat1) / 2) ** 2

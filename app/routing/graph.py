@@ -22,7 +22,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from app.routing.costs import Cost, effective_speed_kph, segment_costs
-from app.routing.geometry import vertex_fractions
+from app.routing.geometry import bearings, vertex_fractions
 
 ONEWAY_CODES = {"none": 0, "forward": 1, "backward": -1}
 
@@ -125,7 +125,10 @@ class CostGraph:
     matrix: csr_matrix
     arc_row: np.ndarray  # segment row of each CSR entry
     arc_dir: np.ndarray  # +1 along the geometry, -1 against it
+    arc_key: np.ndarray  # tail * (origin + 1) + head, ascending, for vectorised arc lookup
     origin: int
+    max_rate: float  # most metres per unit of cost on any segment (top speed in m/s for time)
+    total_cost: float  # of all segments: a bound beyond which a search is unbounded anyway
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     SLOTS = 2
@@ -142,11 +145,11 @@ class CostGraph:
                                   return_predecessors=True, limit=limit)
         return dist, pred
 
-    def arc(self, tail: int, head: int) -> tuple[int, int]:
-        """(segment row, direction) of the arc tail -> head."""
-        lo, hi = self.matrix.indptr[tail], self.matrix.indptr[tail + 1]
-        k = lo + int(np.flatnonzero(self.matrix.indices[lo:hi] == head)[0])
-        return int(self.arc_row[k]), int(self.arc_dir[k])
+    def path_arcs(self, nodes: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """(segment rows, directions) of the arcs joining consecutive graph nodes."""
+        path = np.asarray(nodes, dtype=np.int64)
+        k = np.searchsorted(self.arc_key, path[:-1] * (self.origin + 1) + path[1:])
+        return self.arc_row[k], self.arc_dir[k]
 
 
 @dataclass
@@ -168,6 +171,12 @@ class RoadGraph:
         self.fracs = vertex_fractions(s.coords, s.offsets) if len(s) else np.zeros(0)
         self.speed_kph = effective_speed_kph(s.speed_limit, s.road_class)
         self.bbox = s.bboxes()
+        if len(s):  # compass bearing leaving the first vertex / reaching the last, forward
+            first, last = s.offsets[:-1], s.offsets[1:] - 1
+            self.bearing_start = bearings(s.coords[first], s.coords[first + 1])
+            self.bearing_end = bearings(s.coords[last - 1], s.coords[last])
+        else:
+            self.bearing_start = self.bearing_end = np.zeros(0)
 
     @property
     def n_nodes(self) -> int:
@@ -202,6 +211,8 @@ class RoadGraph:
         arc_row = np.concatenate([rows[fwd], rows[bwd]])
         arc_dir = np.concatenate([np.ones(fwd.sum(), np.int8), -np.ones(bwd.sum(), np.int8)])
         weight = seg_cost[arc_row]
+        priced = weight > 0
+        max_rate = float((s.length_m[arc_row][priced] / weight[priced]).max(initial=1.0))
         order = np.lexsort((weight, head, tail))
         tail, head, arc_row, arc_dir, weight = (a[order] for a in
                                                 (tail, head, arc_row, arc_dir, weight))
@@ -221,7 +232,9 @@ class RoadGraph:
         )
         return CostGraph(seg_cost=seg_cost, matrix=matrix,
                          arc_row=np.append(arc_row, -np.ones(pad, np.int64)),
-                         arc_dir=np.append(arc_dir, np.zeros(pad, np.int8)), origin=n)
+                         arc_dir=np.append(arc_dir, np.zeros(pad, np.int8)),
+                         arc_key=tail.astype(np.int64) * (n + 1) + head, origin=n,
+                         max_rate=max_rate, total_cost=float(weight.sum()))
 
     def patched(self, version: int, box: Sequence[float], fresh: Segments) -> RoadGraph:
         """A new graph where every segment inside ``box`` is replaced by ``fresh``.

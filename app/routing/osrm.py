@@ -57,6 +57,16 @@ class Shaper:
         coords, fracs = self.graph.line(self.graph.row_of(snap.segment_id))
         return list(point_at(coords, fracs, snap.fraction))
 
+    def _bearings(self, p: Piece, pc: list[list[float]]) -> tuple[float, float]:
+        """Bearing leaving and bearing arriving, precomputed for whole segments."""
+        g = self.graph
+        if (p.f_from, p.f_to) == (0.0, 1.0):
+            return float(g.bearing_start[p.row]), float(g.bearing_end[p.row])
+        if (p.f_from, p.f_to) == (1.0, 0.0):
+            return ((float(g.bearing_end[p.row]) + 180.0) % 360.0,
+                    (float(g.bearing_start[p.row]) + 180.0) % 360.0)
+        return bearing(pc[0], pc[1]), bearing(pc[-2], pc[-1])
+
     def _attrs(self, p: Piece) -> dict[str, Any]:
         """Per-step attributes of a piece: a new step starts where any of them changes."""
         s, row = self.graph.segs, p.row
@@ -77,7 +87,7 @@ class Shaper:
         note: dict[str, list] = {"segment_ids": [], "forward": [], "distance": [], "duration": []}
         for p in (p for p in leg.pieces if p.f_from != p.f_to):
             pc = self.piece_coords(p)
-            b_out, b_in = bearing(pc[0], pc[1]), bearing(pc[-2], pc[-1])
+            b_out, b_in = self._bearings(p, pc)
             span = abs(p.f_to - p.f_from)
             dist = span * float(s.length_m[p.row])
             dur = dist / (float(g.speed_kph[p.row]) / 3.6)

@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from sqlalchemy.orm import Session
+from sqlalchemy import Connection
 
+from app.db.session import get_engine
 from app.routing import engine
 from app.routing.costs import Cost
 from app.routing.errors import InvalidQueryError, TooBigError
@@ -77,12 +79,19 @@ class RouteOptions:
             raise InvalidQueryError("radius must be positive")
 
 
-def current_graph(session: Session, network: str, points: list[tuple[float, float]],
+def read_connection() -> Iterator[Connection]:
+    """An autocommit connection for the snap query: one read-only statement needs no
+    BEGIN/COMMIT round trips (they cost more than the route search on small networks)."""
+    with get_engine().connect() as conn:
+        yield conn.execution_options(isolation_level="AUTOCOMMIT")
+
+
+def current_graph(conn: Connection, network: str, points: list[tuple[float, float]],
                   avoid: frozenset[str], radius_m: float | None
                   ) -> tuple[Snapped, RoadGraph]:
     """Snap the points and return the graph containing every edit the snap could see."""
     radius = radius_m if radius_m is not None else routing_settings().snap_radius_m
-    snapped = snap_points(session, network, points, radius, avoid)
+    snapped = snap_points(conn, network, points, radius, avoid)
     graph = registry(get_settings().database_url).get(snapped.network_id, snapped.version)
     return snapped, graph
 
@@ -92,10 +101,10 @@ def visit_order(router: engine.Router, n: int) -> list[int]:
     return best_order(matrix)
 
 
-def plan_route(session: Session, network: str, points: list[tuple[float, float]],
+def plan_route(conn: Connection, network: str, points: list[tuple[float, float]],
                opts: RouteOptions) -> dict[str, Any]:
     opts.check(len(points))
-    snapped, graph = current_graph(session, network, points, opts.avoid, opts.radius_m)
+    snapped, graph = current_graph(conn, network, points, opts.avoid, opts.radius_m)
     cg: CostGraph = graph.costs(opts.cost, opts.avoid)
     router = engine.Router(graph, cg, snapped.snaps)
     order = visit_order(router, len(points)) if opts.optimize and len(points) > 2 else None

@@ -13,18 +13,24 @@ import orjson
 from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
-from sqlalchemy.orm import Session
+from sqlalchemy import Connection
 
-from app.db.session import get_session
 from app.routing.costs import Cost
 from app.routing.errors import InvalidQueryError, RoutingError
 from app.routing.isochrone import isochrone_geojson
-from app.routing.planner import RouteOptions, check_point, current_graph, parse_points, plan_route
+from app.routing.planner import (
+    RouteOptions,
+    check_point,
+    current_graph,
+    parse_points,
+    plan_route,
+    read_connection,
+)
 from app.routing.settings import routing_settings
 
 router = APIRouter(prefix="/networks", tags=["routing"])
 
-SessionDep = Annotated[Session, Depends(get_session)]
+ConnDep = Annotated[Connection, Depends(read_connection)]
 
 
 def routing_error(_: Request, exc: Exception) -> JSONResponse:
@@ -55,7 +61,7 @@ def _cost(raw: str) -> Cost:
 
 @router.get("/{name}/route")
 def route_get(
-    name: str, session: SessionDep,
+    name: str, conn: ConnDep,
     points: Annotated[str, Query(description="lon,lat;lon,lat[;...] visited in order")],
     optimize: bool = False,
     cost: Annotated[str, Query(description="time | distance")] = "time",
@@ -67,7 +73,7 @@ def route_get(
 ) -> Response:
     """Route through the points (OSRM route-service response)."""
     opts = RouteOptions(_cost(cost), _avoid(avoid), optimize, geometries, format, spacing, radius)
-    return _json(plan_route(session, name, parse_points(points), opts))
+    return _json(plan_route(conn, name, parse_points(points), opts))
 
 
 class RouteBody(BaseModel):
@@ -93,16 +99,16 @@ def _body_point(i: int, raw: Any) -> tuple[float, float]:
 
 
 @router.post("/{name}/route")
-def route_post(name: str, body: RouteBody, session: SessionDep) -> Response:
+def route_post(name: str, body: RouteBody, conn: ConnDep) -> Response:
     points = [_body_point(i, p) for i, p in enumerate(body.points)]
     opts = RouteOptions(_cost(body.cost), _avoid(body.avoid), body.optimize, body.geometries,
                         body.format, body.spacing, body.radius)
-    return _json(plan_route(session, name, points, opts))
+    return _json(plan_route(conn, name, points, opts))
 
 
 @router.get("/{name}/isochrone")
 def isochrone(
-    name: str, session: SessionDep,
+    name: str, conn: ConnDep,
     point: Annotated[str, Query(description="lon,lat")],
     seconds: float | None = None, meters: float | None = None,
     avoid: Annotated[str | None, Query(description="road classes, comma-separated")] = None,
@@ -120,7 +126,7 @@ def isochrone(
     if len(pts) != 1:
         raise InvalidQueryError("isochrone takes exactly one point")
     avoid_set = _avoid(avoid)
-    snapped, graph = current_graph(session, name, pts, avoid_set, radius)
+    snapped, graph = current_graph(conn, name, pts, avoid_set, radius)
     cost = Cost.TIME if seconds is not None else Cost.DISTANCE
     return _json(isochrone_geojson(graph, graph.costs(cost, avoid_set), snapped.snaps[0],
                                    avoid_set, budget, "s" if seconds is not None else "m"))

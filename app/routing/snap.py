@@ -15,8 +15,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from sqlalchemy import text
-from sqlalchemy.orm import Session
+from sqlalchemy import Connection, text
 
 from app.routing.errors import NetworkNotFoundError, NoSegmentError
 
@@ -61,10 +60,10 @@ class Snapped:
     snaps: list[Snap]
 
 
-def snap_points(session: Session, network: str, points: Sequence[tuple[float, float]],
+def snap_points(conn: Connection, network: str, points: Sequence[tuple[float, float]],
                 radius_m: float, avoid: frozenset[str] = frozenset()) -> Snapped:
     """Snap every point; 404 for an unknown network, 422 naming the first unsnappable point."""
-    rows = session.execute(SNAP_SQL, {
+    rows = conn.execute(SNAP_SQL, {
         "name": network, "lons": [p[0] for p in points], "lats": [p[1] for p in points],
         "avoid": sorted(avoid),
     }).all()

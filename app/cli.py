@@ -126,5 +126,14 @@ def serve(host: str, port: int, workers: int) -> None:
     )
 
 
+def _register_routing() -> None:
+    from app.routing.cli import route
+
+    main.add_command(route)
+
+
+_register_routing()
+
+
 if __name__ == "__main__":
     main()

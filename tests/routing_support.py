@@ -2,18 +2,23 @@
 
 from __future__ import annotations
 
-import math
+import functools
 import uuid
 
+from app.routing.geometry import local_frame
 from app.routing.live import libpq_dsn
 
-# One degree of latitude in metres, and a metre in degrees of latitude near the test origin.
-M = 1 / 111_320.0
+
+@functools.lru_cache(maxsize=8)
+def _frame(origin: tuple[float, float]):
+    return local_frame(*origin)
 
 
 def xy(x_m: float, y_m: float, origin: tuple[float, float] = (1.5, 42.5)) -> tuple[float, float]:
-    """lon/lat of a point x metres east and y metres north of ``origin``."""
-    return (origin[0] + x_m * M / math.cos(math.radians(origin[1])), origin[1] + y_m * M)
+    """lon/lat of the point x metres east and y metres north of ``origin`` (local aeqd frame,
+    so ground distances between test points are exact to well under a millimetre)."""
+    lon, lat = _frame(origin).transform(x_m, y_m, direction="INVERSE")
+    return float(lon), float(lat)
 
 
 def dsn(database_url: str) -> str:

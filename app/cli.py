@@ -99,6 +99,9 @@ def _register_network_commands() -> None:
     from app.network import cli as network_cli
 
     ingest.add_command(network_cli.ingest_network)
+    main.add_command(network_cli.tokens)
+    main.add_command(network_cli.export)
+    main.add_command(network_cli.network)
 
 
 _register_network_commands()

@@ -11,9 +11,8 @@ from fastapi import FastAPI
 from app.errors import install_error_handlers
 from app.health.router import router as health_router
 from app.logs import RequestLogMiddleware
-from app.routing.errors import RoutingError
-from app.routing.router import router as routing_router
-from app.routing.router import routing_error
+from app.network.router import include_network
+from app.routing.router import include_routing
 
 
 def create_app() -> FastAPI:
@@ -23,8 +22,8 @@ def create_app() -> FastAPI:
         description="Map tiles, road network and routes for unmanned ground vehicles.",
     )
     app.include_router(health_router)
-    app.include_router(routing_router)
-    app.add_exception_handler(RoutingError, routing_error)
+    include_network(app)
+    include_routing(app)
     install_error_handlers(app)
     app.add_middleware(RequestLogMiddleware)
     return app

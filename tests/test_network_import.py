@@ -125,3 +125,55 @@ def test_reimport_needs_replace_and_bad_input_changes_nothing(database_url: str,
     with pytest.raises(ValueError, match="not valid"), session_scope() as s:
         import_network(s, road, "Robert'); DROP TABLE road_segments;--")
     assert _stored(first.network_id)[:2] == (1, 2)
+
+
+def test_cli_reports_unreadable_files_in_one_line(database_url: str, tmp_path: Path) -> None:
+    from click.testing import CliRunner
+
+    from app.cli import main
+
+    cases = {"garbage.geojson": "{not json", "empty.geojson": '{"type":"FeatureCollection",'
+             '"features":[]}', "bad.osm": "<osm><way id='1'></osm", "x.gpkg": "nope"}
+    for name, content in cases.items():
+        path = tmp_path / name
+        path.write_text(content)
+        result = CliRunner().invoke(main, ["ingest", "network", str(path), "--network", "cli"])
+        assert result.exit_code == 1, (name, result.output)
+        assert result.output.startswith("Error: ") and result.output.count("\n") == 1, \
+            result.output
+    with session_scope() as s:
+        assert s.execute(text("SELECT count(*) FROM networks WHERE name = 'cli'")).scalar() == 0
+
+
+def test_generic_files_are_noded_and_reprojected(database_url: str, tmp_path: Path) -> None:
+    """Two crossing lines (a plus sign) in UTM 32N: imported as 4 segments meeting at one
+    junction, in lon/lat, with unknown properties kept in attrs."""
+    import numpy as np
+    import pyogrio
+    import shapely
+    from pyproj import Transformer
+
+    to_utm = Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True)
+    (x0, x1), (y0, y1) = to_utm.transform([9.0, 9.002], [50.0, 50.0])
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    lines = [shapely.LineString([(x0, y0), (x1, y1)]),
+             shapely.LineString([(cx, cy - 100), (cx, cy + 100)])]
+    path = tmp_path / "plus.gpkg"
+    pyogrio.raw.write(path, shapely.to_wkb(np.array(lines, dtype=object)),
+                      [np.array(["east", "north"], dtype=object), np.array([1, 2])],
+                      fields=["name", "survey_run"], layer="roads", driver="GPKG",
+                      geometry_type="LineString", crs="EPSG:32632")
+    with session_scope() as s:
+        summary = import_network(s, path, "plus")
+        rows = s.execute(text(
+            "SELECT name, attrs, ST_XMin(geom), ST_YMin(geom) FROM road_segments "
+            "WHERE network_id = :n ORDER BY name, ST_XMin(geom), ST_YMin(geom)"),
+            {"n": summary.network_id}).all()
+        junctions = s.execute(text("SELECT count(*) FROM road_nodes WHERE network_id = :n AND "
+                                   "kind = 'junction'"), {"n": summary.network_id}).scalar()
+    assert (summary.segments, summary.nodes, summary.crossings_noded, junctions) == (4, 5, 1, 1)
+    assert [r.name for r in rows] == ["east", "east", "north", "north"]
+    assert rows[0].attrs == {"survey_run": 1}
+    assert rows[0][2] == pytest.approx(9.0, abs=1e-7) and rows[0][3] == pytest.approx(50.0)
+    # 200 m north-south plus 0.002 degrees of longitude at 50N (~143 m).
+    assert summary.total_length_m == pytest.approx(200 + 143.1, rel=0.01)

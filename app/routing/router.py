@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 import orjson
-from fastapi import APIRouter, Depends, Query, Request
+from fastapi import APIRouter, Depends, FastAPI, Query, Request
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 from sqlalchemy import Connection
@@ -36,6 +36,12 @@ ConnDep = Annotated[Connection, Depends(read_connection)]
 def routing_error(_: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RoutingError)
     return JSONResponse({"code": exc.code, "message": exc.message}, status_code=exc.status)
+
+
+def include_routing(app: FastAPI) -> None:
+    """Mount the routing endpoints and their error responses on the app."""
+    app.include_router(router)
+    app.add_exception_handler(RoutingError, routing_error)
 
 
 def _json(body: dict[str, Any]) -> Response:

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from sqlalchemy.orm import Session
@@ -21,11 +22,12 @@ OSM_SUFFIXES = (".osm", ".osm.pbf", ".pbf", ".osm.bz2", ".osm.gz")
 GEOJSON_SUFFIXES = (".geojson", ".json")
 
 
-def import_network(session: Session, path: Path, network: str, *,
-                   replace: bool = False) -> ImportSummary:
+def import_network(session: Session, path: Path, network: str, *, replace: bool = False,
+                   progress: Callable[[str], None] | None = None) -> ImportSummary:
     """Import a road file into network ``network`` (created if missing) in the caller's
     transaction. OSM files connect at shared nodes; other files are noded where lines cross
-    or touch, unless they carry ``source_node``/``target_node`` (a topology already)."""
+    or touch, unless they carry ``source_node``/``target_node`` (a topology already).
+    ``progress`` is called with the name of each finished stage (read, node, store)."""
     path = Path(path)
     if not path.is_file():
         raise NetworkFileError(f"{path}: no such file")
@@ -44,5 +46,8 @@ def import_network(session: Session, path: Path, network: str, *,
         lines, points, topological = read_ogr(path)
     if not lines:
         raise NetworkFileError(f"{path.name}: no road lines found")
+    if progress:
+        progress("read")
     return write_network(session, network, lines, replace=replace,
-                         node_crossings=not topological, node_points=points)
+                         node_crossings=not topological, node_points=points,
+                         progress=progress)

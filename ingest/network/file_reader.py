@@ -14,10 +14,13 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyogrio
+import pyproj
 import shapely
 
-from ingest.network.model import NodePoint, RoadLine, as_bool, as_road_lines
+from ingest.network.model import NodePoint, RoadLine
+from ingest.network.properties import as_bool, as_road_lines
 
 
 class NetworkFileError(ValueError):
@@ -58,6 +61,9 @@ def read_geojson(path: Path) -> tuple[list[RoadLine], list[NodePoint], bool]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise NetworkFileError(f"{path.name}: not a readable GeoJSON file ({exc})") from exc
+    crs_name = ((data.get("crs") or {}).get("properties") or {}).get("name")
+    if crs_name and not _is_lonlat(crs_name):
+        return read_ogr(path)  # legacy GeoJSON in a projected CRS: let GDAL reproject
     if data.get("type") == "FeatureCollection":
         features = data.get("features") or []
     elif data.get("type") == "Feature":
@@ -73,11 +79,31 @@ def _clean(value: Any) -> Any:
     return value.item() if hasattr(value, "item") else value
 
 
+WGS84 = pyproj.CRS.from_epsg(4326)
+
+
+def _is_lonlat(crs: str) -> bool:
+    try:
+        parsed = pyproj.CRS.from_user_input(crs)
+    except pyproj.exceptions.CRSError as exc:
+        raise NetworkFileError(f"unknown CRS {crs[:100]!r}") from exc
+    return parsed.equals(WGS84, ignore_axis_order=True)
+
+
+def _to_lonlat(geoms: np.ndarray, crs: str | None) -> np.ndarray:
+    """Reproject to lon/lat (EPSG:4326) unless the layer already is (or names no CRS)."""
+    if crs is None or _is_lonlat(crs):
+        return geoms
+    transformer = pyproj.Transformer.from_crs(crs, WGS84, always_xy=True)
+    return shapely.transform(geoms, lambda xy: np.column_stack(
+        transformer.transform(xy[:, 0], xy[:, 1])))
+
+
 def _ogr_features(path: Path, layer: str) -> list[dict[str, Any]]:
     meta, _, wkb, columns = pyogrio.raw.read(path, layer=layer)
     names = list(meta["fields"])
     features = []
-    for i, geom in enumerate(shapely.from_wkb(wkb)):
+    for i, geom in enumerate(_to_lonlat(shapely.from_wkb(wkb), meta.get("crs"))):
         props = {name: _clean(col[i]) for name, col in zip(names, columns, strict=True)}
         features.append({"type": "Feature", "geometry": shapely.geometry.mapping(geom),
                          "properties": props})
@@ -85,7 +111,8 @@ def _ogr_features(path: Path, layer: str) -> list[dict[str, Any]]:
 
 
 def read_ogr(path: Path) -> tuple[list[RoadLine], list[NodePoint], bool]:
-    """Every layer of a GeoPackage (or any OGR vector file): lines and node points."""
+    """Every layer of a GeoPackage (or any OGR vector file): lines and node points, in
+    lon/lat whatever the layer's CRS."""
     try:
         layers = pyogrio.list_layers(path)
     except Exception as exc:  # pyogrio raises its own DataSourceError hierarchy

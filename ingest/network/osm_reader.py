@@ -14,28 +14,33 @@ from pathlib import Path
 import osmium
 
 from ingest.network.model import NodePoint, RoadLine
-from ingest.network.osm_tags import attributes_from_tags, is_road
+from ingest.network.osm_tags import EXTERNAL_ID_TAG, attributes_from_tags, is_road
 
 TRAFFIC_SIGNALS = "traffic_signals"
 
 
 def read_osm(path: Path) -> tuple[list[RoadLine], list[NodePoint]]:
-    """All road ways as RoadLines (coordinates resolved) plus traffic-light nodes."""
+    """All road ways as RoadLines (coordinates resolved) plus node attributes: traffic
+    lights, and nodes our own OSM export tagged with their ``external_id``."""
     lines: list[RoadLine] = []
-    lights: list[NodePoint] = []
-    processor = osmium.FileProcessor(str(path), osmium.osm.NODE | osmium.osm.WAY)
-    for obj in processor.with_locations():
+    points: list[NodePoint] = []
+    # The location index sees every node; Python only sees objects with the keys we use.
+    processor = osmium.FileProcessor(str(path), osmium.osm.NODE | osmium.osm.WAY) \
+        .with_locations().with_filter(osmium.filter.KeyFilter("highway", EXTERNAL_ID_TAG))
+    for obj in processor:
         if obj.is_node():
-            if obj.tags.get("highway") == TRAFFIC_SIGNALS and obj.location.valid():
-                lights.append(NodePoint((obj.location.lon, obj.location.lat),
-                                        traffic_light=True, external_id=f"n{obj.id}"))
+            light = obj.tags.get("highway") == TRAFFIC_SIGNALS
+            named = obj.tags.get(EXTERNAL_ID_TAG)
+            if (light or named) and obj.location.valid():
+                points.append(NodePoint((obj.location.lon, obj.location.lat), traffic_light=light,
+                                        external_id=named or f"n{obj.id}"))
             continue
         tags = dict(obj.tags)
         if not is_road(tags):
             continue
         attributes = attributes_from_tags(tags, external_id=f"w{obj.id}")
         lines.extend(RoadLine(run, attributes) for run in _located_runs(obj.nodes) if len(run) > 1)
-    return lines, lights
+    return lines, points
 
 
 def _located_runs(nodes: osmium.osm.WayNodeList) -> list[list[tuple[float, float]]]:

@@ -16,9 +16,12 @@ from collections.abc import Mapping
 from ingest.network.model import RoadAttributes
 
 # Tags consumed into columns; every other tag is kept verbatim in ``attrs``.
-# ``junction`` stays in attrs too: its value (roundabout, circular...) is more than a flag.
+EXTERNAL_ID_TAG = "ugvmap:external_id"
+
+# ``junction`` stays in attrs too (unless it is a bare "yes"): its value (roundabout,
+# circular...) is more than the ``is_junction`` flag.
 MAPPED_TAGS = frozenset({"highway", "maxspeed", "lanes", "lanes:forward", "lanes:backward",
-                         "oneway", "name", "surface", "width", "ugvmap:external_id"})
+                         "oneway", "name", "surface", "width", EXTERNAL_ID_TAG})
 
 # highway=* values that are not drivable or walkable lines (plans, areas, points).
 NOT_ROADS = frozenset({"proposed", "construction", "abandoned", "disused", "razed", "platform",
@@ -119,8 +122,10 @@ def attributes_from_tags(tags: Mapping[str, str], external_id: str | None = None
         name=tags.get("name"),
         surface=tags.get("surface"),
         width_m=_parse_width(tags.get("width")),
-        external_id=tags.get("ugvmap:external_id") or external_id,
-        attrs={k: v for k, v in tags.items() if k not in MAPPED_TAGS},
+        # Our export writes the tag even when empty: "no external id", not "use the way id".
+        external_id=(tags[EXTERNAL_ID_TAG] or None) if EXTERNAL_ID_TAG in tags else external_id,
+        attrs={k: v for k, v in tags.items()
+               if k not in MAPPED_TAGS and not (k == "junction" and v == "yes")},
     )
 
 
@@ -138,10 +143,10 @@ def tags_from_attributes(a: RoadAttributes) -> dict[str, str]:
         tags.setdefault("junction", "yes")
     else:
         tags.pop("junction", None)
-    for key, value in (("name", a.name), ("surface", a.surface),
-                       ("ugvmap:external_id", a.external_id)):
+    for key, value in (("name", a.name), ("surface", a.surface)):
         if value is not None:
             tags[key] = value
+    tags[EXTERNAL_ID_TAG] = a.external_id or ""
     if a.width_m is not None:
         tags["width"] = repr(float(a.width_m))
     return tags

@@ -10,19 +10,15 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.db.models import SLUG_RE
-from ingest.network.model import (
-    FeatureLike,
-    ImportSummary,
-    NodePoint,
-    as_road_lines,
-)
+from ingest.network.model import FeatureLike, ImportSummary, NodePoint
 from ingest.network.noding import Topology, build_topology
+from ingest.network.properties import as_road_lines
 
 
 class NetworkExistsError(ValueError):
@@ -87,17 +83,23 @@ def _copy_topology(session: Session, network_id: int, topo: Topology) -> None:
 
 def write_network(session: Session, network: str, lines: Iterable[FeatureLike], *,
                   replace: bool = False, node_crossings: bool = True,
-                  node_points: Iterable[NodePoint] = ()) -> ImportSummary:
+                  node_points: Iterable[NodePoint] = (),
+                  progress: Callable[[str], None] | None = None) -> ImportSummary:
     """Node ``lines`` into a topology and store it as network ``network``.
 
     ``node_crossings=False`` trusts the input's own topology (OSM shared nodes, our exports):
     lines then connect only where they share a vertex. The caller owns the transaction.
+    ``progress`` is called with "node" and "store" as those stages finish.
     """
     road_lines = [part for feature in lines for part in as_road_lines(feature)]
     topo = build_topology(road_lines, crossings=node_crossings, node_points=node_points)
+    if progress:
+        progress("node")
     network_id = _network_id(session, network, replace)
     if topo.segments:
         _copy_topology(session, network_id, topo)
+    if progress:
+        progress("store")
     total = session.execute(text("SELECT COALESCE(sum(length_m), 0) FROM road_segments "
                                  "WHERE network_id = :id"), {"id": network_id}).scalar_one()
     return ImportSummary(network=network, network_id=network_id, segments=len(topo.segments),

@@ -18,6 +18,7 @@ from app.routing import synthetic
 from app.routing.live import read_segments, registry
 from app.settings import get_settings
 from tests.conftest import running_server
+from tests.network_helpers import bearer
 from tests.routing_support import dsn, route, segment_walk, unique
 from tests.routing_support import xy as xy0
 
@@ -71,6 +72,23 @@ def test_making_a_segment_one_way_changes_the_next_route(client, writer, ring) -
     assert seg["s"] in segment_walk(back)
 
 
+def patch_segment(http, network: str, fid: int, version: int, **props) -> None:
+    """Edit a segment through the OGC API Features PATCH endpoint, as the web editor does."""
+    r = http.patch(f"/collections/{network}-segments/items/{fid}", json=props,
+                   headers={**bearer("editor"), "If-Match": f'"{version}"'})
+    assert r.status_code == 200, r.text
+
+
+def test_patch_edits_change_the_next_route(client, ring) -> None:
+    seg = ring["seg"]
+    assert seg["s"] in segment_walk(route(client, ring["name"], ring["points"]))
+    patch_segment(client, ring["name"], seg["s"], 1, oneway="backward")
+    assert segment_walk(route(client, ring["name"], ring["points"])) == [seg["w"], seg["n"],
+                                                                         seg["e"]]
+    patch_segment(client, ring["name"], seg["s"], 2, oneway="none", speed_limit_kph=90)
+    assert seg["s"] in segment_walk(route(client, ring["name"], ring["points"]))
+
+
 def test_listener_patch_equals_fresh_load(client, writer, ring, database_url) -> None:
     """Insert, move, re-attribute and delete segments; the patched graph is a fresh load."""
     route(client, ring["name"], ring["points"])  # graph loaded, listener running
@@ -110,8 +128,10 @@ def test_edit_is_seen_by_every_worker(database_url, writer, ring) -> None:
             out.append(segment_walk(r.json()))
         return out
 
-    with running_server(env, workers=2) as base:
+    with running_server(env, workers=2) as base, httpx.Client(base_url=base) as http:
         assert all(seg["s"] in w for w in walks(base))
-        writer.execute("UPDATE road_segments SET speed_limit_kph = 80 WHERE id = %s",
-                       (seg["n"],))
+        patch_segment(http, ring["name"], seg["n"], 1, speed_limit_kph=80)
         assert all(w == [seg["w"], seg["n"], seg["e"]] for w in walks(base))
+        writer.execute("UPDATE road_segments SET oneway = 'backward' WHERE id = %s",
+                       (seg["n"],))  # any committed change counts, not only the API's
+        assert all(seg["s"] in w for w in walks(base))

@@ -39,3 +39,10 @@ class NoRouteError(RoutingError):
 
     status = 422
     code = "NoRoute"
+
+
+class DatabaseUnavailableError(RoutingError):
+    """The graph could not be (re)loaded because the database is unreachable."""
+
+    status = 503
+    code = "DatabaseUnavailable"

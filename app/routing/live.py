@@ -19,6 +19,7 @@ import psycopg
 from sqlalchemy.engine import make_url
 
 from app.routing.costs import Cost
+from app.routing.errors import DatabaseUnavailableError
 from app.routing.graph import SEGMENT_COLUMNS, RoadGraph, Segments
 
 log = logging.getLogger("ugvmap.routing")
@@ -80,6 +81,12 @@ class GraphRegistry:
         return graph if graph.version >= min_version else self._reload(network_id)
 
     def _reload(self, network_id: int) -> RoadGraph:
+        try:
+            return self._load(network_id)
+        except psycopg.OperationalError as exc:
+            raise DatabaseUnavailableError(f"cannot load the road graph: {exc}") from exc
+
+    def _load(self, network_id: int) -> RoadGraph:
         with self._update, psycopg.connect(self._dsn) as conn:
             segs, version = read_segments(conn, network_id)
             current = self._graphs.get(network_id)
@@ -135,7 +142,7 @@ class GraphRegistry:
                                 (list(self._graphs),)).fetchall()
         for net_id, version in rows:
             if self._graphs[net_id].version != version:
-                self._reload(net_id)
+                self._load(net_id)
 
     def _apply(self, note: dict) -> None:
         net_id, version, box = note["network_id"], note["version"], note.get("bbox")
@@ -143,7 +150,7 @@ class GraphRegistry:
         if graph is None or version <= graph.version:
             return
         if version != graph.version + 1 or box is None:
-            self._reload(net_id)
+            self._load(net_id)
             return
         with self._update, psycopg.connect(self._dsn) as conn:
             fresh, _ = read_segments(conn, net_id, box)

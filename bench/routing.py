@@ -89,6 +89,16 @@ def time_pass(http: httpx.Client, conn: psycopg.Connection, name: str, edges: st
     return ours, pgr
 
 
+def http_floor(http: httpx.Client, n: int = 200) -> float:
+    """p50 of GET /healthz on the same server: the HTTP stack's share of every request."""
+    times = []
+    for _ in range(n):
+        t = time.perf_counter()
+        http.get("/healthz")
+        times.append(time.perf_counter() - t)
+    return percentile(times, 0.5) * 1e3
+
+
 def compare(http: httpx.Client, conn: psycopg.Connection, name: str, net: int,
             n_pairs: int, passes: int) -> None:
     edges = pgrouting_edges_sql(net, Cost.TIME)
@@ -180,6 +190,7 @@ def main() -> None:
             env = {"DATABASE_URL": url, "UGVMAP_LOG_LEVEL": "WARNING"}
             with running_server(env, workers=1) as base, \
                     httpx.Client(base_url=base, timeout=30) as http:
+                print(f"\nHTTP floor (GET /healthz, same server) p50 {http_floor(http):.2f} ms")
                 if OSM.is_file():
                     compare(http, conn, "andorra", osm_net, args.pairs, args.passes)
                 compare(http, conn, "grid", grid_net, args.grid_pairs, 1)

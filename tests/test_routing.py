@@ -102,6 +102,17 @@ def test_post_body_equals_get(client, block) -> None:
     assert len(posted.json()["routes"][0]["legs"]) == 2
 
 
+def test_osrm_url_shape_answers_like_osrm(client, block) -> None:
+    (ax, ay), (bx, by) = xy(150, -5), xy(50, -5)
+    r = client.get(f"/networks/{block['name']}/route/v1/driving/{ax},{ay};{bx},{by}",
+                   params={"overview": "full", "steps": "true"})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["code"] == "Ok" and isinstance(body["routes"][0]["geometry"], str)  # polyline
+    native = route(client, block["name"], [(ax, ay), (bx, by)])
+    assert body["routes"][0]["duration"] == native["routes"][0]["duration"]
+
+
 @pytest.mark.parametrize(("path", "status", "code", "needle"), [
     ("/networks/nope-nope/route?points=1.5,42.5;1.6,42.5", 404, "NotFound", "nope-nope"),
     ("/networks/{n}/route?points=1.5,42.5;abc", 400, "InvalidQuery", "point 1"),

@@ -82,6 +82,18 @@ def route_get(
     return _json(plan_route(conn, name, parse_points(points), opts))
 
 
+@router.get("/{name}/route/v1/{profile}/{coordinates}")
+def route_osrm_url(
+    name: str, profile: str, coordinates: str, conn: ConnDep,
+    geometries: Annotated[str, Query(description="polyline (OSRM default) | geojson")] = "polyline",
+) -> Response:
+    """OSRM's own URL shape: an OSRM client given ``/networks/{name}`` as its server works
+    unchanged. ``profile`` is accepted and ignored (one vehicle profile per network); OSRM
+    options other than ``geometries`` are ignored, steps and annotations are always sent."""
+    opts = RouteOptions(geometries=geometries)
+    return _json(plan_route(conn, name, parse_points(coordinates), opts))
+
+
 class RouteBody(BaseModel):
     """POST body for long point lists; same options as the query string."""
 

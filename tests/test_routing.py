@@ -82,6 +82,12 @@ def test_two_way_street_allows_reverse(client, block) -> None:
     assert step["segment_ids"] == [block["seg"]["n"]] and step["lanes"] == 1
 
 
+def test_same_point_twice_is_an_empty_route(client, block) -> None:
+    body = route(client, block["name"], [xy(60, -4), xy(60, -4)])
+    assert body["routes"][0]["distance"] == 0 and segment_walk(body) == []
+    assert body["routes"][0]["legs"][0]["steps"][-1]["maneuver"]["type"] == "arrive"
+
+
 def test_polyline_matches_geojson(client, block) -> None:
     pts = [xy(150, -5), xy(50, -5)]
     gj = route(client, block["name"], pts)["routes"][0]["geometry"]["coordinates"]

@@ -25,6 +25,7 @@ from app.routing.costs import Cost, effective_speed_kph, segment_costs
 from app.routing.geometry import bearings, vertex_fractions
 
 ONEWAY_CODES = {"none": 0, "forward": 1, "backward": -1}
+MAX_COST_GRAPHS = 6  # per network: cost model × avoid-set combinations kept built
 
 SEGMENT_COLUMNS = (
     "id, source_node, target_node, length_m, speed_limit_kph, oneway, lanes_forward, "
@@ -192,11 +193,14 @@ class RoadGraph:
         return self.segs.coords[lo:hi], self.fracs[lo:hi]
 
     def costs(self, cost: Cost, avoid: frozenset[str] = frozenset()) -> CostGraph:
+        """The cost graph for a cost model and avoided road classes (a few kept, LRU)."""
         key = (cost, avoid)
         with self._lock:
-            if key not in self._costs:
-                self._costs[key] = self._build_costs(cost, avoid)
-            return self._costs[key]
+            cg = self._costs.pop(key, None) or self._build_costs(cost, avoid)
+            self._costs[key] = cg  # most recently used last
+            while len(self._costs) > MAX_COST_GRAPHS:
+                del self._costs[next(iter(self._costs))]
+            return cg
 
     def _build_costs(self, cost: Cost, avoid: frozenset[str]) -> CostGraph:
         s = self.segs

@@ -20,8 +20,8 @@ from app.routing.graph import CostGraph, RoadGraph
 from app.routing.snap import Snap
 
 AT_NODE_M = 0.01
-FIRST_LIMIT_FACTOR = 3.0  # first search bound, in straight-line costs
-LIMIT_GROWTH = 2.0
+FIRST_LIMIT_FACTOR = 2.0  # first search bound, in straight-line costs
+LIMIT_GROWTH = 3.0
 
 
 @dataclass(frozen=True)

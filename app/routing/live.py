@@ -59,7 +59,7 @@ class GraphRegistry:
         self._dsn = libpq_dsn(database_url)
         self._graphs: dict[int, RoadGraph] = {}
         self._changed = threading.Condition()
-        self._update = threading.Lock()  # one writer at a time: loads and patches
+        self._update = threading.RLock()  # one writer at a time: loads and patches
         self._listening = threading.Event()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -146,19 +146,19 @@ class GraphRegistry:
 
     def _apply(self, note: dict) -> None:
         net_id, version, box = note["network_id"], note["version"], note.get("bbox")
-        graph = self._graphs.get(net_id)
-        if graph is None or version <= graph.version:
-            return
-        if version != graph.version + 1 or box is None:
-            self._load(net_id)
-            return
-        with self._update, psycopg.connect(self._dsn) as conn:
-            fresh, _ = read_segments(conn, net_id, box)
-            graph = self._graphs[net_id]
-            if graph.version + 1 != version:  # a reload overtook us
+        # Under the update lock: a first load in progress finishes (and publishes) before this
+        # note is judged, so a change committed during that load is patched, not dropped.
+        with self._update:
+            graph = self._graphs.get(net_id)
+            if graph is None or version <= graph.version:
                 return
-            self._publish(graph.patched(version, [box[0] - BOX_EPS, box[1] - BOX_EPS,
-                                                  box[2] + BOX_EPS, box[3] + BOX_EPS], fresh))
+            if version != graph.version + 1 or box is None:
+                self._load(net_id)
+                return
+            with psycopg.connect(self._dsn) as conn:
+                fresh, _ = read_segments(conn, net_id, box)
+            wide = [box[0] - BOX_EPS, box[1] - BOX_EPS, box[2] + BOX_EPS, box[3] + BOX_EPS]
+            self._publish(graph.patched(version, wide, fresh))
             self.stats["patches"] += 1
 
 

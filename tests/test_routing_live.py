@@ -115,6 +115,7 @@ def test_listener_patch_equals_fresh_load(client, writer, ring, database_url) ->
     assert seg["e"] not in graph.segs.ids
 
 
+@pytest.mark.slow
 def test_edit_is_seen_by_every_worker(database_url, writer, ring) -> None:
     env = {"DATABASE_URL": database_url, "UGVMAP_RASTER_STORE": os.environ["UGVMAP_RASTER_STORE"]}
     q = ";".join(f"{lon!r},{lat!r}" for lon, lat in ring["points"])

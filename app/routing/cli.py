@@ -56,6 +56,7 @@ def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geom
     for k, leg in enumerate(r["legs"]):
         click.echo(f"leg {k}: {leg['distance']:.1f} m, {leg['duration']:.1f} s, "
                    f"{len(leg['annotation']['segment_ids'])} segments")
-    order = [w["waypoint_index"] for w in body["waypoints"]]
+    ranks = [w["waypoint_index"] for w in body["waypoints"]]
+    order = sorted(range(len(ranks)), key=ranks.__getitem__)
     click.echo(f"total: {r['distance']:.1f} m, {r['duration']:.1f} s"
-               + (f", visit order {order}" if optimize else ""))
+               + (f", points visited in order {order}" if optimize else ""))

@@ -7,17 +7,20 @@ JSON, the dense waypoints, or a one-line-per-leg summary.
 from __future__ import annotations
 
 import json
-from contextlib import contextmanager
 
 import click
 from sqlalchemy.exc import OperationalError
 
 from app.routing.costs import Cost
 from app.routing.errors import RoutingError
-from app.routing.planner import FORMATS, GEOMETRIES, RouteOptions, parse_points, plan_route
-from app.routing.planner import read_connection as _read_connection
-
-read_connection = contextmanager(_read_connection)
+from app.routing.planner import (
+    FORMATS,
+    GEOMETRIES,
+    RouteOptions,
+    parse_points,
+    plan_route,
+    read_connection,
+)
 
 
 @click.command("route")

@@ -128,7 +128,8 @@ class GraphRegistry:
                         for note in conn.notifies(timeout=1.0):
                             self._apply(json.loads(note.payload))
             except (psycopg.Error, OSError) as exc:
-                log.warning("routing listener lost its connection (%s); retrying", exc)
+                (log.warning if backoff == 0.5 else log.debug)(
+                    "routing listener lost its connection (%s); retrying", exc)
                 self._listening.set()  # requests fall back to the version check meanwhile
                 time.sleep(backoff)
                 backoff = min(backoff * 2, 10.0)

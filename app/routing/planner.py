@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,6 +20,7 @@ from app.routing import engine
 from app.routing.costs import Cost
 from app.routing.errors import InvalidQueryError, TooBigError
 from app.routing.graph import CostGraph, RoadGraph
+from app.routing.isochrone import isochrone_geojson
 from app.routing.live import registry
 from app.routing.optimize import best_order
 from app.routing.osrm import Shaper
@@ -79,6 +81,7 @@ class RouteOptions:
             raise InvalidQueryError("radius must be positive")
 
 
+@contextmanager
 def read_connection() -> Iterator[Connection]:
     """An autocommit connection for the snap query: one read-only statement needs no
     BEGIN/COMMIT round trips (they cost more than the route search on small networks)."""
@@ -115,3 +118,20 @@ def plan_route(conn: Connection, network: str, points: list[tuple[float, float]]
         return {"code": "Ok", **dense_waypoints(shaper, legs, opts.spacing_m),
                 "order": seq}
     return shaper.response(legs, opts.cost, snapped.snaps, order)
+
+
+def plan_isochrone(conn: Connection, network: str, point: tuple[float, float],
+                   seconds: float | None, meters: float | None, avoid: frozenset[str],
+                   radius_m: float | None) -> dict[str, Any]:
+    """GeoJSON of what is reachable from ``point`` within ``seconds`` or ``meters``."""
+    if (seconds is None) == (meters is None):
+        raise InvalidQueryError("give exactly one of seconds= or meters=")
+    limits = routing_settings()
+    budget, most, cost, unit = ((seconds, limits.max_isochrone_seconds, Cost.TIME, "s")
+                                if seconds is not None else
+                                (meters, limits.max_isochrone_meters, Cost.DISTANCE, "m"))
+    if not 0 < budget <= most:
+        raise InvalidQueryError(f"the budget must be in (0, {most:g}]")
+    snapped, graph = current_graph(conn, network, [point], avoid, radius_m)
+    return isochrone_geojson(graph, graph.costs(cost, avoid), snapped.snaps[0], avoid, budget,
+                             unit)

@@ -2,35 +2,33 @@
 
 Responses follow the OSRM route service; errors are ``{"code", "message"}`` with OSRM codes
 (``InvalidQuery``, ``TooBig``, ``NoSegment``, ``NoRoute``) and ``NotFound`` for an unknown
-network. Handlers are plain ``def``: the search is CPU-bound and runs in the thread pool.
+network. Each request does its database read and search in one thread-pool hop (:func:`_answer`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Annotated, Any
 
 import orjson
-from fastapi import APIRouter, Depends, FastAPI, Query, Request
+from fastapi import APIRouter, FastAPI, Query, Request
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
-from sqlalchemy import Connection
+from starlette.concurrency import run_in_threadpool
 
 from app.routing.costs import Cost
 from app.routing.errors import InvalidQueryError, RoutingError
-from app.routing.isochrone import isochrone_geojson
 from app.routing.planner import (
     RouteOptions,
     check_point,
-    current_graph,
     parse_points,
+    plan_isochrone,
     plan_route,
     read_connection,
 )
-from app.routing.settings import routing_settings
 
 router = APIRouter(prefix="/networks", tags=["routing"])
 
-ConnDep = Annotated[Connection, Depends(read_connection)]
 
 
 def routing_error(_: Request, exc: Exception) -> JSONResponse:
@@ -51,6 +49,17 @@ def _json(body: dict[str, Any]) -> Response:
                     media_type="application/json")
 
 
+async def _answer(plan: Callable[..., dict[str, Any]], *args: Any) -> Response:
+    """Run a planner call, with its own connection, in one worker-thread hop: the snap blocks
+    on the database and the search is CPU-bound, so neither may run on the event loop (and a
+    connection dependency would cost two more hops per request)."""
+    def work() -> Response:
+        with read_connection() as conn:
+            return _json(plan(conn, *args))
+
+    return await run_in_threadpool(work)
+
+
 def _avoid(raw: str | list[str] | None) -> frozenset[str]:
     if raw is None:
         return frozenset()
@@ -66,8 +75,8 @@ def _cost(raw: str) -> Cost:
 
 
 @router.get("/{name}/route")
-def route_get(
-    name: str, conn: ConnDep,
+async def route_get(
+    name: str,
     points: Annotated[str, Query(description="lon,lat;lon,lat[;...] visited in order")],
     optimize: bool = False,
     cost: Annotated[str, Query(description="time | distance")] = "time",
@@ -79,19 +88,19 @@ def route_get(
 ) -> Response:
     """Route through the points (OSRM route-service response)."""
     opts = RouteOptions(_cost(cost), _avoid(avoid), optimize, geometries, format, spacing, radius)
-    return _json(plan_route(conn, name, parse_points(points), opts))
+    return await _answer(plan_route, name, parse_points(points), opts)
 
 
 @router.get("/{name}/route/v1/{profile}/{coordinates}")
-def route_osrm_url(
-    name: str, profile: str, coordinates: str, conn: ConnDep,
+async def route_osrm_url(
+    name: str, profile: str, coordinates: str,
     geometries: Annotated[str, Query(description="polyline (OSRM default) | geojson")] = "polyline",
 ) -> Response:
     """OSRM's own URL shape: an OSRM client given ``/networks/{name}`` as its server works
     unchanged. ``profile`` is accepted and ignored (one vehicle profile per network); OSRM
     options other than ``geometries`` are ignored, steps and annotations are always sent."""
     opts = RouteOptions(geometries=geometries)
-    return _json(plan_route(conn, name, parse_points(coordinates), opts))
+    return await _answer(plan_route, name, parse_points(coordinates), opts)
 
 
 class RouteBody(BaseModel):
@@ -117,34 +126,23 @@ def _body_point(i: int, raw: Any) -> tuple[float, float]:
 
 
 @router.post("/{name}/route")
-def route_post(name: str, body: RouteBody, conn: ConnDep) -> Response:
+async def route_post(name: str, body: RouteBody) -> Response:
     points = [_body_point(i, p) for i, p in enumerate(body.points)]
     opts = RouteOptions(_cost(body.cost), _avoid(body.avoid), body.optimize, body.geometries,
                         body.format, body.spacing, body.radius)
-    return _json(plan_route(conn, name, points, opts))
+    return await _answer(plan_route, name, points, opts)
 
 
 @router.get("/{name}/isochrone")
-def isochrone(
-    name: str, conn: ConnDep,
+async def isochrone(
+    name: str,
     point: Annotated[str, Query(description="lon,lat")],
     seconds: float | None = None, meters: float | None = None,
     avoid: Annotated[str | None, Query(description="road classes, comma-separated")] = None,
     radius: float | None = None,
 ) -> Response:
     """Segments (partly) reachable from the point within ``seconds`` or ``meters``."""
-    if (seconds is None) == (meters is None):
-        raise InvalidQueryError("give exactly one of seconds= or meters=")
-    budget = seconds if seconds is not None else meters
-    limits = routing_settings()
-    most = limits.max_isochrone_seconds if seconds is not None else limits.max_isochrone_meters
-    if not 0 < budget <= most:
-        raise InvalidQueryError(f"the budget must be in (0, {most:g}]")
     pts = parse_points(point)
     if len(pts) != 1:
         raise InvalidQueryError("isochrone takes exactly one point")
-    avoid_set = _avoid(avoid)
-    snapped, graph = current_graph(conn, name, pts, avoid_set, radius)
-    cost = Cost.TIME if seconds is not None else Cost.DISTANCE
-    return _json(isochrone_geojson(graph, graph.costs(cost, avoid_set), snapped.snaps[0],
-                                   avoid_set, budget, "s" if seconds is not None else "m"))
+    return await _answer(plan_isochrone, name, pts[0], seconds, meters, _avoid(avoid), radius)

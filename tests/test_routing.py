@@ -133,6 +133,33 @@ def test_errors(client, block, path, status, code, needle) -> None:
     assert r.json()["code"] == code and needle in r.json()["message"]
 
 
+def test_snap_radius_is_configurable_per_request(client, block) -> None:
+    q = ";".join(f"{lon!r},{lat!r}" for lon, lat in [xy(50, -8), xy(150, -1)])
+    far = client.get(f"/networks/{block['name']}/route", params={"points": q, "radius": 5})
+    assert far.status_code == 422 and "point 0" in far.json()["message"]
+    near = client.get(f"/networks/{block['name']}/route", params={"points": q, "radius": 9})
+    assert near.status_code == 200
+
+
+def test_avoided_road_classes_are_detoured(client, writer) -> None:
+    """A short service lane and a long residential way between the same two junctions."""
+    name = unique("avoid")
+    net = synthetic.create_network(writer, name)
+    synthetic.add_line(writer, net, [xy(0, 0), xy(100, 0)], road_class="service")
+    synthetic.add_line(writer, net, [xy(0, 0), xy(0, 60), xy(100, 60), xy(100, 0)],
+                       road_class="residential")
+    synthetic.add_line(writer, net, [xy(-50, 0), xy(0, 0)], road_class="residential")
+    synthetic.add_line(writer, net, [xy(100, 0), xy(150, 0)], road_class="residential")
+    pts = [xy(-40, -2), xy(140, -2)]
+    short = route(client, name, pts, cost="distance")
+    detour = route(client, name, pts, cost="distance", avoid="service,track")
+    assert short["routes"][0]["distance"] == pytest.approx(180, abs=0.5)
+    assert detour["routes"][0]["distance"] == pytest.approx(300, abs=0.5)
+    classes = {s["road_class"] for leg in detour["routes"][0]["legs"] for s in leg["steps"]
+               if "road_class" in s}
+    assert classes == {"residential"}
+
+
 def test_too_many_points_is_400(client, block) -> None:
     q = ";".join(f"{xy(i, 0)[0]},{LAT0}" for i in range(101))
     r = client.get(f"/networks/{block['name']}/route", params={"points": q})

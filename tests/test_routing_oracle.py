@@ -7,6 +7,7 @@ Andorra imported with the network importer.
 
 from __future__ import annotations
 
+import itertools
 import random
 
 import psycopg
@@ -44,7 +45,13 @@ def assert_connected_walk(body: dict, segs: dict, start: int, end: int) -> None:
             assert tail == node, f"segment {sid} does not start where the route is"
             assert oneway == "none" or (oneway == "forward") == forward, "one-way violated"
             node = head
+        coords = [s["geometry"]["coordinates"] for s in leg["steps"]]
+        for before, after in itertools.pairwise(coords):
+            assert before[-1] == after[0], "step geometries do not join"
     assert node == end
+    line = body["routes"][0]["geometry"]["coordinates"]
+    assert line[0] == body["waypoints"][0]["location"]
+    assert line[-1] == body["waypoints"][-1]["location"]
 
 
 def check_against_pgrouting(client, conn, name: str, network_id: int, cost: Cost,

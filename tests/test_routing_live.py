@@ -101,16 +101,19 @@ def test_listener_patch_equals_fresh_load(client, writer, ring, database_url) ->
                                      f"{xy(100, -20)[0]} {xy(100, -20)[1]}, "
                                      f"{xy(200, 0)[0]} {xy(200, 0)[1]})", seg["s"]))
     writer.execute("DELETE FROM road_segments WHERE id = %s", (seg["e"],))
+    writer.execute("UPDATE road_segments SET speed_limit_kph = 45, oneway = 'backward' "
+                   "WHERE id = %s", (seg["w"],))  # attributes only: the shape is reused
     version = writer.execute("SELECT version FROM networks WHERE id = %s", (net,)).fetchone()[0]
     deadline = time.monotonic() + 5
     while reg._graphs[net].version < version and time.monotonic() < deadline:
         time.sleep(0.02)
     graph = reg._graphs[net]
     assert graph.version == version  # caught up by notifications alone, no request needed
-    assert reg.stats["patches"] - patches == 3  # one bounding-box patch per statement
+    assert reg.stats["patches"] - patches == 4  # one bounding-box patch per statement
     with psycopg.connect(dsn(database_url)) as conn:
         fresh, _ = read_segments(conn, net)
-    for field in ("ids", "source", "target", "oneway", "lanes_forward", "offsets", "coords"):
+    for field in ("ids", "source", "target", "oneway", "lanes_forward", "speed_limit",
+                  "offsets", "coords"):
         np.testing.assert_array_equal(getattr(graph.segs, field), getattr(fresh, field))
     assert seg["e"] not in graph.segs.ids
 

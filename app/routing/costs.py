@@ -31,8 +31,9 @@ FALLBACK_SPEED_KPH = 30.0
 
 def effective_speed_kph(speed_limit: np.ndarray, road_class: np.ndarray) -> np.ndarray:
     """Speed limit where known (non-NaN), else the road class default."""
-    defaults = np.array([DEFAULT_SPEED_KPH.get(c, FALLBACK_SPEED_KPH) for c in road_class],
-                        dtype=np.float64)
+    classes, inverse = np.unique(road_class.astype(str), return_inverse=True)
+    defaults = np.array([DEFAULT_SPEED_KPH.get(c, FALLBACK_SPEED_KPH) for c in classes],
+                        dtype=np.float64)[inverse.reshape(-1)]
     return np.where(np.isnan(speed_limit), defaults, speed_limit)
 
 

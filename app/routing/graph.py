@@ -153,6 +153,33 @@ class CostGraph:
         return self.arc_row[k], self.arc_dir[k]
 
 
+@dataclass(frozen=True)
+class Shape:
+    """What a graph derives from segment ends and geometry, so an attribute-only edit (speed
+    limit, one-way, lanes: most edits) can reuse it instead of recomputing it."""
+
+    node_ids: np.ndarray
+    u: np.ndarray  # node index of each segment's source
+    v: np.ndarray  # ... and target
+    fracs: np.ndarray  # metric fraction of each vertex along its segment
+    bbox: np.ndarray  # (n, 4) per segment
+    bearing_start: np.ndarray  # compass bearing leaving the first vertex, forward
+    bearing_end: np.ndarray  # ... and reaching the last
+
+    @classmethod
+    def of(cls, s: Segments) -> Shape:
+        node_ids, inverse = np.unique(np.concatenate([s.source, s.target]), return_inverse=True)
+        if len(s):
+            first, last = s.offsets[:-1], s.offsets[1:] - 1
+            starts = bearings(s.coords[first], s.coords[first + 1])
+            ends = bearings(s.coords[last - 1], s.coords[last])
+            fracs = vertex_fractions(s.coords, s.offsets)
+        else:
+            starts = ends = fracs = np.zeros(0)
+        return cls(node_ids, inverse[: len(s)].astype(np.int32),
+                   inverse[len(s):].astype(np.int32), fracs, s.bboxes(), starts, ends)
+
+
 @dataclass
 class RoadGraph:
     """One network's segments with node indexing; cost graphs are built lazily and cached."""
@@ -160,24 +187,16 @@ class RoadGraph:
     network_id: int
     version: int
     segs: Segments
+    shape: Shape | None = None
     _costs: dict[tuple[Cost, frozenset[str]], CostGraph] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def __post_init__(self) -> None:
-        s = self.segs
-        self.node_ids, inverse = np.unique(np.concatenate([s.source, s.target]),
-                                           return_inverse=True)
-        self.u = inverse[: len(s)].astype(np.int32)
-        self.v = inverse[len(s):].astype(np.int32)
-        self.fracs = vertex_fractions(s.coords, s.offsets) if len(s) else np.zeros(0)
-        self.speed_kph = effective_speed_kph(s.speed_limit, s.road_class)
-        self.bbox = s.bboxes()
-        if len(s):  # compass bearing leaving the first vertex / reaching the last, forward
-            first, last = s.offsets[:-1], s.offsets[1:] - 1
-            self.bearing_start = bearings(s.coords[first], s.coords[first + 1])
-            self.bearing_end = bearings(s.coords[last - 1], s.coords[last])
-        else:
-            self.bearing_start = self.bearing_end = np.zeros(0)
+        shape = self.shape = self.shape or Shape.of(self.segs)
+        self.node_ids, self.u, self.v, self.fracs = shape.node_ids, shape.u, shape.v, shape.fracs
+        self.bbox, self.bearing_start, self.bearing_end = (shape.bbox, shape.bearing_start,
+                                                           shape.bearing_end)
+        self.speed_kph = effective_speed_kph(self.segs.speed_limit, self.segs.road_class)
 
     @property
     def n_nodes(self) -> int:
@@ -251,5 +270,30 @@ class RoadGraph:
         b = self.bbox
         inside = (b[:, 0] <= maxx) & (b[:, 2] >= minx) & (b[:, 1] <= maxy) & (b[:, 3] >= miny)
         stale = inside | np.isin(self.segs.ids, fresh.ids)
+        rows = np.flatnonzero(stale)
+        if self._same_shape(rows, fresh):
+            return RoadGraph(self.network_id, version, self._with_attributes(rows, fresh),
+                             shape=self.shape)
         kept = self.segs.take(np.flatnonzero(~stale))
         return RoadGraph(self.network_id, version, kept.concat(fresh))
+
+    def _same_shape(self, rows: np.ndarray, fresh: Segments) -> bool:
+        """True when ``fresh`` are exactly the segments at ``rows``, with the same ends and
+        geometry: only attributes changed."""
+        old = self.segs
+        if not np.array_equal(old.ids[rows], fresh.ids):
+            return False
+        if not (np.array_equal(old.source[rows], fresh.source)
+                and np.array_equal(old.target[rows], fresh.target)):
+            return False
+        offsets, gather = _ragged_take(old.offsets, rows)
+        return (np.array_equal(offsets, fresh.offsets)
+                and np.array_equal(old.coords[gather], fresh.coords))
+
+    def _with_attributes(self, rows: np.ndarray, fresh: Segments) -> Segments:
+        columns = {}
+        for name in _ROW_FIELDS:
+            column = getattr(self.segs, name).copy()
+            column[rows] = getattr(fresh, name)
+            columns[name] = column
+        return Segments(**columns, offsets=self.segs.offsets, coords=self.segs.coords)

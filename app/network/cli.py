@@ -41,7 +41,7 @@ def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
 @click.option("--replace", is_flag=True, help="Replace the network's segments if it exists.")
 @_user_errors
 def ingest_network(file: Path, network: str, replace: bool) -> None:
-    """Import a GeoJSON / GeoPackage / OSM (.osm, .osm.pbf) road file as network NAME."""
+    """Import a GeoJSON / GeoPackage / OSM (.osm, .osm.pbf) road FILE as a network."""
     from app.db.session import session_scope
     from ingest.network import import_network
 

@@ -160,6 +160,20 @@ def test_avoided_road_classes_are_detoured(client, writer) -> None:
     assert classes == {"residential"}
 
 
+def test_snaps_past_a_dense_other_network(client, writer) -> None:
+    """Twenty segments of another network lie nearer than ours: snapping still finds ours."""
+    other = synthetic.create_network(writer, unique("crowd"))
+    for k in range(20):
+        synthetic.add_line(writer, other, [xy(2000 + k, 0), xy(2000 + k, 10)])
+    name = unique("lonely")
+    ours = synthetic.create_network(writer, name)
+    seg = synthetic.add_line(writer, ours, [xy(1950, -30), xy(2050, -30)])
+    body = route(client, name, [xy(2005, 5), xy(2015, 5)], cost="distance")
+    assert body["waypoints"][0]["segment_id"] == seg
+    assert body["waypoints"][0]["distance"] == pytest.approx(35, abs=0.1)
+    assert body["routes"][0]["distance"] == pytest.approx(10, abs=0.1)
+
+
 def test_too_many_points_is_400(client, block) -> None:
     q = ";".join(f"{xy(i, 0)[0]},{LAT0}" for i in range(101))
     r = client.get(f"/networks/{block['name']}/route", params={"points": q})

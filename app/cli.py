@@ -117,6 +117,7 @@ def serve(host: str, port: int, workers: int) -> None:
 def _register_capabilities() -> None:
     """Each capability owns its commands; this is the table of contents."""
     from app.network import cli as network_cli
+    from app.routing import cli as routing_cli
     from app.tiles import cli as tiles_cli
 
     ingest.add_command(network_cli.ingest_network)
@@ -125,6 +126,7 @@ def _register_capabilities() -> None:
     main.add_command(network_cli.network)
     ingest.add_command(tiles_cli.ingest_raster_cmd)
     main.add_command(tiles_cli.layers)
+    main.add_command(routing_cli.route)
 
 
 _register_capabilities()

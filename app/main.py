@@ -12,6 +12,7 @@ from app.errors import install_error_handlers
 from app.health.router import router as health_router
 from app.logs import RequestLogMiddleware
 from app.network.router import include_network
+from app.routing.router import include_routing
 from app.tiles.router import router as tiles_router
 
 
@@ -24,6 +25,7 @@ def create_app() -> FastAPI:
     app.include_router(health_router)
     include_network(app)
     app.include_router(tiles_router)
+    include_routing(app)
     install_error_handlers(app)
     app.add_middleware(RequestLogMiddleware)
     return app

@@ -1,8 +1,8 @@
 """Turn input features (GeoJSON-like mappings, geo-interface objects) into RoadLines.
 
 Properties named like our columns are taken as they are (our own exports round-trip);
-OSM-style tags (``highway``, ``maxspeed``...) go through the OSM tag rules; anything else is
-kept in ``attrs``.
+OSM-style tags (``highway``, ``maxspeed``...) go through the OSM tag rules, SpaceNet labels
+through the SpaceNet rules; anything else is kept in ``attrs``.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from ingest.network.model import (
     RoadLine,
 )
 from ingest.network.osm_tags import attributes_from_tags
+from ingest.network.spacenet_tags import attributes_from_spacenet, is_spacenet
 
 
 def _as_int(value: Any, default: int) -> int:
@@ -60,6 +61,8 @@ def attributes_from_properties(props: Mapping[str, Any]) -> RoadAttributes:
     if "highway" in props and not any(k in props for k in ("road_class", "oneway")):
         tags = {k: str(v) for k, v in props.items() if v is not None}
         return attributes_from_tags(tags)
+    if is_spacenet(props) and "road_class" not in props:
+        return attributes_from_spacenet(props)
     oneway = props.get("oneway") or "none"
     if oneway not in ONEWAY_VALUES:
         raise ValueError(f"oneway must be one of {', '.join(ONEWAY_VALUES)}, got {oneway!r}")

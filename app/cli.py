@@ -12,6 +12,7 @@ import click
 
 from app.db import embedded
 from app.settings import get_settings
+from ingest.roads.cli import evaluate_roads, extract_roads
 
 
 class CliError(click.ClickException):
@@ -115,6 +116,10 @@ def serve(host: str, port: int, workers: int) -> None:
         log_config=logging_config(settings.log_level),
         access_log=False,
     )
+
+
+main.add_command(extract_roads)
+main.add_command(evaluate_roads)
 
 
 if __name__ == "__main__":

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from affine import Affine
 from pyproj import CRS, Transformer
+from rasterio.transform import Affine
 
 from ingest.roads import RoadsInputError
 from ingest.roads.georef import pixel_size_m, read_band
@@ -158,7 +158,7 @@ def _grid_for_lines(sets: Sequence[tuple[list[np.ndarray], CRS | None, float | N
     x0, y1 = pts[:, 0].min() - 10 * res, pts[:, 1].max() + 10 * res
     shape = (math.ceil((y1 - pts[:, 1].min()) / res) + 10, math.ceil((pts[:, 0].max() - x0) / res)
              + 10)
-    to_pixel = ~(Affine.translation(x0, y1) * Affine.scale(res, -res))
+    to_pixel = ~(Affine.translation(x0, y1) @ Affine.scale(res, -res))
     return Grid(shape, to_pixel, metric, res), lines
 
 
@@ -195,7 +195,7 @@ def load_centerlines(pred_path: Path, gt_path: Path, resolution_m: float | None 
 
 
 def _apply(t: Affine, line: np.ndarray) -> np.ndarray:
-    xs, ys = t * (line[:, 0], line[:, 1])
+    xs, ys = t @ (line[:, 0], line[:, 1])
     return np.column_stack([xs, ys])
 
 

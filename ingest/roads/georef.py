@@ -19,10 +19,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import rasterio
-from affine import Affine
 from pyproj import CRS, Geod
 from rasterio.enums import ColorInterp
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+from rasterio.transform import Affine
 
 from ingest.roads import RoadsInputError
 
@@ -72,9 +72,9 @@ def pixel_size_m(transform: Affine, crs: CRS, shape: tuple[int, int]) -> float:
         unit = crs.axis_info[0].unit_conversion_factor if crs.axis_info else 1.0
         return math.sqrt(abs(transform.a * transform.e - transform.b * transform.d)) * unit
     geod = Geod(ellps="WGS84")
-    cx, cy = transform * (shape[1] / 2, shape[0] / 2)
-    ex, ey = transform * (shape[1] / 2 + 1, shape[0] / 2)
-    sx, sy = transform * (shape[1] / 2, shape[0] / 2 + 1)
+    cx, cy = transform @ (shape[1] / 2, shape[0] / 2)
+    ex, ey = transform @ (shape[1] / 2 + 1, shape[0] / 2)
+    sx, sy = transform @ (shape[1] / 2, shape[0] / 2 + 1)
     dx = geod.inv(cx, cy, ex, ey)[2]
     dy = geod.inv(cx, cy, sx, sy)[2]
     return math.sqrt(dx * dy)
@@ -158,7 +158,7 @@ def to_working_grid(image: Image, work_resolution_m: float | None
         pixels = resize(image.pixels, (wrows, wcols), cv2.INTER_AREA)
         valid = None if image.valid is None else resize(
             image.valid.astype(np.uint8), (wrows, wcols), cv2.INTER_NEAREST).astype(bool)
-    to_output = (image.transform or Affine.identity()) * to_source
+    to_output = (image.transform or Affine.identity()) @ to_source
     res = image.resolution_m * math.sqrt(to_source.a * to_source.e)
     return pixels, valid, Frame(to_output=to_output, crs=image.crs, resolution_m=res,
                                 to_source=to_source)

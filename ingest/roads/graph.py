@@ -219,7 +219,7 @@ def feature_collection(graph: RoadGraph, frame: Frame, members: dict) -> dict:
     plain line layer, while source/target ids and the node list keep the topology.
     """
     def out(coords: np.ndarray) -> list[list[float]]:
-        xs, ys = frame.to_output * (coords[:, 0], coords[:, 1])
+        xs, ys = frame.to_output @ (coords[:, 0], coords[:, 1])
         return np.column_stack([xs, ys]).round(9 if frame.crs is not None else 3).tolist()
 
     features = [{

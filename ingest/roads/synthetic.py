@@ -16,7 +16,7 @@ import numpy as np
 
 Polyline = Sequence[tuple[int, int]]
 ROAD_RGB = (118, 118, 122)
-GRASS_RGB = (70, 110, 55)
+GRASS_RGB = (62, 118, 42)
 
 
 @dataclass(frozen=True)

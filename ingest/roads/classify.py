@@ -19,9 +19,11 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
+from skimage.filters import apply_hysteresis_threshold
 from sklearn.ensemble import HistGradientBoostingClassifier
 from tqdm import tqdm
 
@@ -153,9 +155,70 @@ def pixel_features(pixels: np.ndarray, resolution_m: float,
     return np.stack(feats, axis=-1).astype(np.float32, copy=False)
 
 
+LINE_LENGTHS_M = (12.0, 30.0)
+"""Oriented line filters: a road is a long thin strip, a roof or a field is not."""
+LINE_OFFSET_M = 6.0
+"""Side lines sit this far from the centre line (beyond a typical half road width)."""
+ORIENTATIONS = 8
+
+
+@lru_cache(maxsize=32)
+def _line_kernels(length_px: int, offset_px: int) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """(centre line, two side lines) averaging kernels for each orientation."""
+    size = length_px + 2 * offset_px + 3
+    c = size // 2
+    kernels = []
+    for k in range(ORIENTATIONS):
+        theta = np.pi * k / ORIENTATIONS
+        dx, dy = np.cos(theta) * length_px / 2, np.sin(theta) * length_px / 2
+        nx, ny = -np.sin(theta) * offset_px, np.cos(theta) * offset_px
+        pair = []
+        for shifts in ((0,), (-1, 1)):
+            kern = np.zeros((size, size), np.float32)
+            for s in shifts:
+                p0 = (round(c - dx + s * nx), round(c - dy + s * ny))
+                p1 = (round(c + dx + s * nx), round(c + dy + s * ny))
+                cv2.line(kern, p0, p1, 1.0, 1, cv2.LINE_AA)
+            pair.append(kern / kern.sum())
+        kernels.append(tuple(pair))
+    return tuple(kernels)
+
+
+def line_features(channel: np.ndarray, resolution_m: float) -> list[np.ndarray]:
+    """Per line length: strongest and weakest centre-minus-sides contrast over orientations,
+    and the centre mean along the best orientation (how road-like the strip itself is)."""
+    out = []
+    offset = max(1, round(LINE_OFFSET_M / resolution_m))
+    for length_m in LINE_LENGTHS_M:
+        length = max(3, round(length_m / resolution_m))
+        best = np.full(channel.shape, -np.inf, np.float32)
+        worst = np.full(channel.shape, np.inf, np.float32)
+        along = np.zeros(channel.shape, np.float32)
+        for centre_k, side_k in _line_kernels(length, offset):
+            centre = cv2.filter2D(channel, cv2.CV_32F, centre_k, borderType=cv2.BORDER_REFLECT)
+            contrast = centre - cv2.filter2D(channel, cv2.CV_32F, side_k,
+                                             borderType=cv2.BORDER_REFLECT)
+            better = contrast > best
+            along[better] = centre[better]
+            np.maximum(best, contrast, out=best)
+            np.minimum(worst, contrast, out=worst)
+        out += [best, worst, along]
+    return out
+
+
+def classifier_features(pixels: np.ndarray, resolution_m: float) -> np.ndarray:
+    """All classifier features: per-pixel multi-scale stack plus oriented line responses of
+    the (1 m smoothed) brightness."""
+    gray = np.mean(pixels, axis=-1, dtype=np.float32)
+    lines = line_features(_blur(gray, max(0.5, 1.0 / resolution_m)), resolution_m)
+    return np.concatenate([pixel_features(pixels, resolution_m), np.stack(lines, axis=-1)],
+                          axis=-1)
+
+
 def feature_halo_px(resolution_m: float, scales_m: Sequence[float] = SCALES_M) -> int:
     """Margin a tile needs so its features equal those of the whole image."""
-    return math.ceil(3 * max(scales_m) / resolution_m) + 2
+    reach_m = max(3 * max(scales_m), max(LINE_LENGTHS_M) / 2 + LINE_OFFSET_M)
+    return math.ceil(reach_m / resolution_m) + 2
 
 
 def tiles(shape: tuple[int, int], size: int) -> Iterator[tuple[slice, slice]]:
@@ -165,12 +228,13 @@ def tiles(shape: tuple[int, int], size: int) -> Iterator[tuple[slice, slice]]:
             yield slice(r, min(r + size, shape[0])), slice(c, min(c + size, shape[1]))
 
 
-def _tile_features(pixels: np.ndarray, rs: slice, cs: slice, halo: int,
-                   resolution_m: float) -> np.ndarray:
+def _tile_features(pixels: np.ndarray, rs: slice, cs: slice, resolution_m: float
+                   ) -> np.ndarray:
     """Features of one tile, computed on the tile plus halo and cropped back."""
+    halo = feature_halo_px(resolution_m)
     r0, c0 = max(rs.start - halo, 0), max(cs.start - halo, 0)
     r1, c1 = min(rs.stop + halo, pixels.shape[0]), min(cs.stop + halo, pixels.shape[1])
-    f = pixel_features(pixels[r0:r1, c0:c1], resolution_m)
+    f = classifier_features(pixels[r0:r1, c0:c1], resolution_m)
     return f[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
 
 
@@ -189,22 +253,17 @@ def train_pixel_classifier(pixels: np.ndarray, labels: np.ndarray, resolution_m:
                            per_class: int = 20_000, tile: int = 1024,
                            seed: int = 0) -> HistGradientBoostingClassifier:
     """Fit gradient-boosted trees on features of a balanced subsample of labelled pixels."""
-    if not (labels == NOT_ROAD).any():
-        raise RoadsInputError("the learned classifier needs not-road pixels too: add "
-                              "--not-road-box, a --train-mask with 128 = not road, or use "
-                              "--classifier spectral")
     chosen = _balanced_sample(labels, per_class, seed)
     rows, cols = np.unravel_index(chosen, labels.shape)
-    halo = feature_halo_px(resolution_m)
     xs, ys = [], []
     for rs, cs in tiles(labels.shape, tile):
         inside = (rows >= rs.start) & (rows < rs.stop) & (cols >= cs.start) & (cols < cs.stop)
         if not inside.any():
             continue
-        f = _tile_features(pixels, rs, cs, halo, resolution_m)
+        f = _tile_features(pixels, rs, cs, resolution_m)
         xs.append(f[rows[inside] - rs.start, cols[inside] - cs.start])
         ys.append(labels[rows[inside], cols[inside]] == ROAD)
-    model = HistGradientBoostingClassifier(max_iter=80, learning_rate=0.15, max_leaf_nodes=31,
+    model = HistGradientBoostingClassifier(max_iter=60, learning_rate=0.2, max_leaf_nodes=31,
                                            l2_regularization=1.0, early_stopping=False,
                                            random_state=seed)
     return model.fit(np.concatenate(xs), np.concatenate(ys))
@@ -215,18 +274,27 @@ def road_probability(pixels: np.ndarray, model: HistGradientBoostingClassifier,
                      ) -> np.ndarray:
     """Per-pixel road probability, float32, tile by tile so memory is bounded."""
     out = np.empty(pixels.shape[:2], np.float32)
-    halo = feature_halo_px(resolution_m)
     blocks = list(tiles(pixels.shape[:2], tile))
     for rs, cs in tqdm(blocks, desc="classify", unit="tile", disable=not progress, leave=False):
-        f = _tile_features(pixels, rs, cs, halo, resolution_m)
+        f = _tile_features(pixels, rs, cs, resolution_m)
         p = model.predict_proba(f.reshape(-1, f.shape[-1]))[:, 1]
         out[rs, cs] = p.reshape(f.shape[:2])
     return out
 
 
 def learned_classify(pixels: np.ndarray, labels: np.ndarray, resolution_m: float,
-                     threshold: float = 0.5, progress: bool = False) -> np.ndarray:
-    """Road mask from the learned classifier's probability (smoothed by 1 m to drop speckle)."""
+                     threshold: float = 0.5, seed_threshold: float = 0.85,
+                     progress: bool = False) -> np.ndarray:
+    """Road mask from the learned classifier's probability, smoothed by 1 m against speckle.
+
+    Hysteresis: pixels above ``threshold`` count only when connected to a confident
+    (``seed_threshold``) pixel, so faint road stretches survive and grey clutter does not.
+    """
+    if not (labels == NOT_ROAD).any():
+        raise RoadsInputError("the learned classifier needs not-road pixels too: add "
+                              "--not-road-box, a --train-mask with 128 = not road, or use "
+                              "--classifier spectral")
     model = train_pixel_classifier(pixels, labels, resolution_m)
     prob = road_probability(pixels, model, resolution_m, progress=progress)
-    return _blur(prob, max(1.0 / resolution_m, 0.5)) >= threshold
+    smooth = _blur(prob, max(1.0 / resolution_m, 0.5))
+    return apply_hysteresis_threshold(smooth, threshold, max(seed_threshold, threshold))

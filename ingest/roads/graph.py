@@ -169,23 +169,24 @@ def _geometry(g: nx.MultiGraph, u: int, v: int, key: int, walker: PixelWalker) -
     return coords[keep]
 
 
+def _length(coords: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(coords, axis=0), axis=1).sum())
+
+
 def build_graph(skel: np.ndarray, road_mask: np.ndarray, resolution_m: float,
                 params: GraphParams = GraphParams()) -> RoadGraph:
     """The road graph of a pruned skeleton; ``road_mask`` (cleaned) gives edge widths."""
     merge_px = max(1, metres_to_px(params.junction_merge_m, resolution_m))
     g = _skeleton_multigraph(skel, merge_px)
     walker = PixelWalker(skel)
-    geoms = {}
     for u, v, k in list(g.edges(keys=True)):
-        geoms[(u, v, k)] = _geometry(g, u, v, k, walker)
-        length = LineString(geoms[(u, v, k)]).length if len(geoms[(u, v, k)]) > 1 else 0.0
-        if u == v and length <= 2 * merge_px + 2:
+        if u == v and _length(_geometry(g, u, v, k, walker)) <= 2 * merge_px + 2:
             g.remove_edge(u, v, k)
     _dissolve_degree_two(g)
     min_px = params.min_segment_m / resolution_m
     for u, v, k in list(g.edges(keys=True)):
         free = u != v and g.degree(u) == 1 and g.degree(v) == 1
-        if free and LineString(_geometry(g, u, v, k, walker)).length < min_px:
+        if free and _length(_geometry(g, u, v, k, walker)) < min_px:
             g.remove_edge(u, v, k)
     g.remove_nodes_from([n for n in list(g.nodes) if g.degree(n) == 0])
     _dissolve_degree_two(g)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ingest.roads import RoadsInputError
-from ingest.roads.classify import NOT_ROAD, learned_classify, spectral_classify
+from ingest.roads.classify import NOT_ROAD, ROAD, learned_classify, spectral_classify
 from ingest.roads.clean import clean_mask
 from ingest.roads.georef import Frame, Image, crs_member, resize, to_working_grid
 from ingest.roads.graph import GraphParams, RoadGraph, build_graph, feature_collection
@@ -34,7 +34,9 @@ class ExtractParams:
     k: float = 3.0
     """Spectral: keep pixels within k x the mean training distance to the colour line."""
     threshold: float = 0.5
-    """Learned: road probability above which a pixel is road."""
+    """Learned: road probability above which a pixel is road..."""
+    seed_threshold: float = 0.85
+    """...when connected to a pixel at least this probable (hysteresis)."""
     work_resolution_m: float | None = 0.5
     """Average finer images down to this grid; None keeps the source grid."""
     open_m: float = 1.0
@@ -61,6 +63,11 @@ class Extraction:
         return feature_collection(self.graph, self.frame,
                                   crs_member(self.frame.crs, self.source_resolution_m))
 
+    def source_lines(self) -> list[np.ndarray]:
+        """Edge geometries in source-image pixel-corner coordinates (for scoring)."""
+        return [np.column_stack(self.frame.to_source @ (e.coords[:, 0], e.coords[:, 1]))
+                for e in self.graph.edges]
+
 
 def choose_classifier(requested: Classifier, labels: np.ndarray) -> str:
     """Resolve ``auto``: the learned classifier needs not-road examples."""
@@ -75,10 +82,14 @@ def extract_roads(image: Image, labels: np.ndarray, params: ExtractParams = Extr
     pixels, valid, frame = to_working_grid(image, params.work_resolution_m)
     if labels.shape != pixels.shape[:2]:
         labels = resize(labels, pixels.shape[:2], cv2.INTER_NEAREST)
+        if not (labels == ROAD).any():
+            raise RoadsInputError("the road sample is too small for the working grid: draw a "
+                                  "bigger --train-box or pass a finer --work-resolution")
     res = frame.resolution_m
     method = choose_classifier(params.classifier, labels)
     if method == "learned":
-        binary = learned_classify(pixels, labels, res, params.threshold, progress=progress)
+        binary = learned_classify(pixels, labels, res, params.threshold, params.seed_threshold,
+                                  progress=progress)
     else:
         binary = spectral_classify(pixels, labels, params.k)
     if valid is not None:

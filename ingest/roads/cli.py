@@ -58,7 +58,7 @@ def _box(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
 @click.option("--resolution", type=float, help="Metres per pixel (required without georeference).")
 @click.option("--work-resolution", type=float, default=0.5, show_default=True,
               help="Average finer images down to this many metres per pixel (0 = keep source).")
-@click.option("--spur-max", type=float, default=10.0, show_default=True,
+@click.option("--spur-max", type=float, default=15.0, show_default=True,
               help="Longest hair (m) pruned from the skeleton.")
 @click.option("--simplify", type=float, default=0.5, show_default=True,
               help="RDP tolerance (m) for edge geometry.")

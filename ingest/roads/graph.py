@@ -120,9 +120,12 @@ def _skeleton_multigraph(skel: np.ndarray, merge_px: int) -> nx.MultiGraph:
     cluster_flat[full.flat(jr, jc)] = cluster[jr, jc]
     g = nx.MultiGraph()
     free_ids = itertools.count(n_clusters)
+    ids = cluster[jr, jc]
+    size = np.bincount(ids, minlength=n_clusters)
+    mean_x = np.bincount(ids, weights=jc, minlength=n_clusters) / np.maximum(size, 1) + 0.5
+    mean_y = np.bincount(ids, weights=jr, minlength=n_clusters) / np.maximum(size, 1) + 0.5
     for k in range(n_clusters):
-        rows, cols = np.nonzero(cluster == k)
-        g.add_node(k, xy=(float(cols.mean() + 0.5), float(rows.mean() + 0.5)))
+        g.add_node(k, xy=(float(mean_x[k]), float(mean_y[k])))
 
     def attach(pixel: int, avoid: int | None) -> int:
         touching = sorted({int(cluster_flat[n]) for n in full.neighbours(pixel)

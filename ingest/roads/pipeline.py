@@ -44,7 +44,7 @@ class ExtractParams:
     min_area_m2: float = 150.0
     max_hole_m2: float = 40.0
     houses: HouseRule = field(default_factory=HouseRule)
-    spur_max_m: float = 10.0
+    spur_max_m: float = 15.0
     spur_steps: int = 4
     graph: GraphParams = field(default_factory=GraphParams)
 

@@ -72,8 +72,7 @@ def _centre(walker: PixelWalker, idx: list[int] | np.ndarray) -> np.ndarray:
     return np.column_stack([cols + 0.5, rows + 0.5]).astype(float)
 
 
-def _junction_clusters(skel: np.ndarray, junction: np.ndarray, merge_px: int
-                       ) -> tuple[np.ndarray, int]:
+def _junction_clusters(junction: np.ndarray, merge_px: int) -> tuple[np.ndarray, int]:
     """Cluster id per pixel (-1 elsewhere) for junction pixels within ``merge_px``."""
     grown = junction.astype(np.uint8)
     if merge_px > 1:
@@ -113,7 +112,7 @@ def _skeleton_multigraph(skel: np.ndarray, merge_px: int) -> nx.MultiGraph:
     """Nodes (cluster centroids, free ends) and edges (pixel paths) of a skeleton."""
     skel = skel.astype(bool)
     junction = skel & (neighbour_count(skel) >= 3)
-    cluster, n_clusters = _junction_clusters(skel, junction, merge_px)
+    cluster, n_clusters = _junction_clusters(junction, merge_px)
     full = PixelWalker(skel)
     cluster_flat = np.full(full.on.shape, -1, np.int64)
     jr, jc = np.nonzero(junction)

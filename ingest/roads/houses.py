@@ -44,16 +44,16 @@ def is_house_like(contour: np.ndarray, rule: HouseRule = HouseRule()) -> bool:
         return False
     approx = cv2.approxPolyDP(contour, rule.epsilon_fraction * perimeter, closed=True)
     poly = approx.reshape(-1, 2).astype(float)
-    if len(poly) < 3:
-        return False
+    if len(poly) < 3 or not cv2.isContourConvex(approx):
+        return False  # an L or a T of right angles is a road junction, not a roof
     approx_perimeter = cv2.arcLength(approx, closed=True)
     if abs(approx_perimeter - perimeter) > rule.perimeter_tolerance * perimeter:
         return False
-    angles = _corner_angles(poly)
+    angles = _corner_angles(poly)  # convex, so these are the interior angles
     if not ((angles >= rule.min_angle_deg) & (angles <= rule.max_angle_deg)).all():
         return False
     sides = np.linalg.norm(np.roll(poly, -1, axis=0) - poly, axis=1)
-    return sides.max() <= rule.max_side_ratio * max(sides.min(), 1e-9)
+    return bool(sides.max() <= rule.max_side_ratio * max(sides.min(), 1e-9))
 
 
 def remove_houses(mask: np.ndarray, rule: HouseRule = HouseRule()) -> np.ndarray:

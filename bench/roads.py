@@ -56,6 +56,15 @@ def make_scene(path: Path, size: int, resolution_m: float) -> None:
     np.save(path.with_suffix(".labels.npy"), labels)
 
 
+def peak_rss_gib() -> float:
+    """This process's peak RSS. VmHWM, not getrusage: ru_maxrss survives fork+exec and would
+    report the parent's peak (the scene renderer) instead of the child's own."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 2**20
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+
+
 def run_one(path: Path, config: str) -> dict:
     """Child process: read, extract, serialise; report time and peak RSS."""
     from ingest.roads.georef import read_image
@@ -67,7 +76,7 @@ def run_one(path: Path, config: str) -> dict:
     result = extract_roads(image, labels, ExtractParams(**CONFIGS[config]))
     json.dumps(result.geojson())
     seconds = time.perf_counter() - start
-    rss_gib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    rss_gib = peak_rss_gib()
     return {"seconds": seconds, "peak_rss_gib": rss_gib, "edges": len(result.graph.edges),
             "junctions": sum(n.is_junction for n in result.graph.nodes)}
 

@@ -119,6 +119,7 @@ def _register_capabilities() -> None:
     from app.network import cli as network_cli
     from app.routing import cli as routing_cli
     from app.tiles import cli as tiles_cli
+    from ingest.roads import cli as roads_cli
 
     ingest.add_command(network_cli.ingest_network)
     main.add_command(network_cli.tokens)
@@ -127,6 +128,8 @@ def _register_capabilities() -> None:
     ingest.add_command(tiles_cli.ingest_raster_cmd)
     main.add_command(tiles_cli.layers)
     main.add_command(routing_cli.route)
+    main.add_command(roads_cli.extract_roads)
+    main.add_command(roads_cli.evaluate_roads)
 
 
 _register_capabilities()

@@ -1,0 +1,98 @@
+"""The accuracy protocol on labelled imagery: train on one quadrant, score on the other three.
+
+Shared by ``tests/test_roads_real.py`` (which asserts measured floors) and
+``bench/roads_accuracy.py`` (which prints the full table), so both measure the same thing.
+The training quadrant is the one with the most labelled road (a user would also put the
+sample where the roads are); its ground truth becomes the sample (road = 255, the rest 128).
+Scores count only centerline pixels outside that quadrant.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ingest.roads.classify import NOT_ROAD, ROAD
+from ingest.roads.evaluate import BufferScore, buffer_scores, rasterize_lines
+from ingest.roads.georef import Image, read_band, read_image
+from ingest.roads.pipeline import ExtractParams, extract_roads
+from ingest.roads.skeleton import thin
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One labelled image under ``shared/data/road_imagery``."""
+
+    name: str
+    image: str
+    truth: str
+    """Mask image (road >= 128) or GeoJSON centerlines."""
+    resolution_m: float | None
+    """None: take it from the image's georeference."""
+
+
+SAMPLES = (
+    *(Sample(f"massachusetts_{n}", f"massachusetts/mass_{n}_sat.jpg",
+             f"massachusetts/mass_{n}_label.jpg", 1.0) for n in ("01", "02", "04", "07")),
+    *(Sample(f"deepglobe_{n}", f"deepglobe/{n}_sat.jpg", f"deepglobe/{n}_mask.png", 0.5)
+      for n in ("104", "113", "343")),
+    Sample("spacenet_vegas", "spacenet_vegas/RGB-PanSharpen_AOI_2_Vegas_img0.tif",
+           "spacenet_vegas/AOI_2_Vegas_img0.geojson", None),
+)
+
+CENTERLINE_ROAD_M = 3.0
+"""For centerline ground truth: within this of a centerline the training sample says road..."""
+CENTERLINE_CLEAR_M = 8.0
+"""...and beyond this, not road (in between is left unlabelled)."""
+
+
+def truth_rasters(sample: Sample, root: Path, image: Image
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(road mask, scoring centerline, pixels too near a road to call "not road" or None)
+    on the image's pixel grid."""
+    path = root / sample.truth
+    if path.suffix != ".geojson":
+        road = read_band(path)[0] >= 128
+        return road, thin(road), None
+    inverse = ~image.transform
+    lines = []
+    for feature in json.loads(path.read_text())["features"]:
+        pts = np.asarray(feature["geometry"]["coordinates"], float)[:, :2]
+        lines.append(np.column_stack(inverse @ (pts[:, 0], pts[:, 1])))
+    centerline = rasterize_lines(lines, image.pixels.shape[:2])
+    metres = cv2.distanceTransform((~centerline).astype(np.uint8), cv2.DIST_L2,
+                                   cv2.DIST_MASK_PRECISE) * image.resolution_m
+    road = metres <= CENTERLINE_ROAD_M
+    return road, centerline, ~road & (metres <= CENTERLINE_CLEAR_M)
+
+
+def quadrant_labels(road: np.ndarray, unsure: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(training labels, training region): the quadrant with the most road, labelled."""
+    h, w = road.shape
+    quads = [(slice(r, r + h // 2), slice(c, c + w // 2)) for r in (0, h // 2) for c in (0, w // 2)]
+    best = max(quads, key=lambda q: int(road[q].sum()))
+    region = np.zeros(road.shape, bool)
+    region[best] = True
+    labels = np.where(region, np.where(road, ROAD, NOT_ROAD), 0).astype(np.uint8)
+    if unsure is not None:
+        labels[unsure & region] = 0
+    return labels, region
+
+
+def evaluate_sample(sample: Sample, root: Path, classifier: str,
+                    radii_m: tuple[float, ...] = (1.0, 2.0),
+                    params: ExtractParams | None = None) -> list[BufferScore]:
+    """Extract roads from ``sample`` with ``classifier`` and score them (see module doc)."""
+    image = read_image(root / sample.image, sample.resolution_m)
+    road, centerline, unsure = truth_rasters(sample, root, image)
+    labels, region = quadrant_labels(road, unsure)
+    params = replace(params or ExtractParams(), classifier=classifier)
+    result = extract_roads(image, labels, params)
+    pred = rasterize_lines(result.source_lines(), road.shape)
+    res = image.resolution_m
+    return buffer_scores(pred, centerline, [r / res for r in radii_m], res, region=~region)

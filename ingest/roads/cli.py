@@ -1,0 +1,136 @@
+"""``ugvmap extract-roads`` and ``ugvmap evaluate-roads``: the pipeline without a database.
+
+Heavy imports (OpenCV, scikit-learn) happen inside the commands so ``ugvmap --help`` stays
+instant. User mistakes surface as :class:`app.cli.CliError` (one line, exit 1).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import click
+
+from app.cli_errors import CliError
+from ingest.roads import RoadsInputError
+
+
+@contextmanager
+def _user_errors() -> Iterator[None]:
+    """Turn input problems into the CLI's one-line error."""
+    try:
+        yield
+    except RoadsInputError as exc:
+        raise CliError(str(exc)) from exc
+    except MemoryError as exc:
+        raise CliError("out of memory: try a coarser --work-resolution") from exc
+
+
+def _box(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
+         ) -> list[tuple[int, int, int, int]]:
+    boxes = []
+    for value in values:
+        try:
+            x0, y0, x1, y1 = (int(float(v)) for v in value.split(","))
+        except ValueError:
+            raise click.BadParameter(f"{value!r} is not x0,y0,x1,y1 (pixels)") from None
+        boxes.append((x0, y0, x1, y1))
+    return boxes
+
+
+@click.command("extract-roads")
+@click.argument("image", type=click.Path(path_type=Path, dir_okay=False))
+@click.option("--train-box", "train_boxes", multiple=True, callback=_box,
+              help="Box of road x0,y0,x1,y1 in source pixels (repeatable).")
+@click.option("--not-road-box", "not_road_boxes", multiple=True, callback=_box,
+              help="Box of not-road x0,y0,x1,y1 (repeatable); enables the learned classifier.")
+@click.option("--train-mask", type=click.Path(path_type=Path, dir_okay=False),
+              help="Label image, same size: 255 = road, 128 = not road, 0 = unlabelled.")
+@click.option("--classifier", type=click.Choice(["auto", "spectral", "learned"]),
+              default="auto", show_default=True,
+              help="auto = learned when the sample has not-road labels, else spectral.")
+@click.option("--k", "k", type=float, default=3.0, show_default=True,
+              help="Spectral: keep pixels within k x mean training distance to the colour line.")
+@click.option("--resolution", type=float, help="Metres per pixel (required without georeference).")
+@click.option("--work-resolution", type=float, default=0.5, show_default=True,
+              help="Average finer images down to this many metres per pixel (0 = keep source).")
+@click.option("--spur-max", type=float, default=15.0, show_default=True,
+              help="Longest hair (m) pruned from the skeleton.")
+@click.option("--simplify", type=float, default=0.5, show_default=True,
+              help="RDP tolerance (m) for edge geometry.")
+@click.option("--out", "out_path", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="Output GeoJSON (LineStrings; nodes in the 'nodes' member).")
+@click.option("--debug-dir", type=click.Path(path_type=Path, file_okay=False),
+              help="Write binary / cleaned / houses-removed / skeleton PNGs here.")
+def extract_roads(image: Path, train_boxes: list, not_road_boxes: list, train_mask: Path | None,
+                  classifier: str, k: float, resolution: float | None, work_resolution: float,
+                  spur_max: float, simplify: float, out_path: Path,
+                  debug_dir: Path | None) -> None:
+    """Extract the road network of IMAGE from a training sample into GeoJSON."""
+    from dataclasses import replace
+
+    from ingest.roads.classify import training_labels
+    from ingest.roads.georef import read_band, read_image
+    from ingest.roads.pipeline import ExtractParams, extract_roads
+
+    with _user_errors():
+        img = read_image(image, resolution)
+        mask = read_band(train_mask)[0] if train_mask else None
+        if not (train_boxes or mask is not None):
+            raise RoadsInputError("no training sample: give --train-box x0,y0,x1,y1 around a "
+                                  "bit of road, or --train-mask")
+        labels = training_labels(img.pixels.shape[:2], train_boxes, not_road_boxes, mask)
+        params = ExtractParams(classifier=classifier, k=k,
+                               work_resolution_m=work_resolution or None, spur_max_m=spur_max)
+        params = replace(params, graph=replace(params.graph, simplify_m=simplify))
+        result = extract_roads(img, labels, params, debug_dir=debug_dir,
+                               progress=sys.stderr.isatty())
+        if not result.graph.edges:
+            raise RoadsInputError(
+                f"no road found in {image} ({result.classifier} classifier): the sample's road "
+                "colour does not form road-like shapes here; check the training box"
+                + (f" and the images in {debug_dir}" if debug_dir else " (see --debug-dir)"))
+        try:
+            out_path.write_text(json.dumps(result.geojson()))
+        except OSError as exc:
+            raise RoadsInputError(f"cannot write {out_path}: {exc.strerror}") from exc
+    junctions = sum(n.is_junction for n in result.graph.nodes)
+    click.echo(f"{len(result.graph.edges)} segments, {len(result.graph.nodes)} nodes "
+               f"({junctions} junctions), {result.classifier} classifier -> {out_path}")
+
+
+@click.command("evaluate-roads")
+@click.argument("pred", type=click.Path(path_type=Path, dir_okay=False))
+@click.argument("gt", type=click.Path(path_type=Path, dir_okay=False))
+@click.option("--resolution", type=float,
+              help="Metres per pixel (pixel inputs), or grid size for two map-coordinate files "
+                   "(default 0.5).")
+@click.option("--max-radius", type=int, default=20, show_default=True,
+              help="Largest buffer radius in pixels (radii 1..N).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+def evaluate_roads(pred: Path, gt: Path, resolution: float | None, max_radius: int,
+                   as_json: bool) -> None:
+    """Buffer precision / recall / quality of PRED centerlines against GT.
+
+    Each of PRED and GT is a GeoJSON of centerlines or a mask image (road >= 128).
+    """
+    from ingest.roads.evaluate import buffer_scores, load_centerlines, scores_json
+
+    with _user_errors():
+        if max_radius < 1:
+            raise RoadsInputError("--max-radius must be at least 1")
+        p, g, res = load_centerlines(pred, gt, resolution)
+        if not g.any():
+            raise RoadsInputError(f"{gt}: the ground truth has no road")
+        scores = buffer_scores(p, g, range(1, max_radius + 1), res)
+    if as_json:
+        click.echo(scores_json(scores))
+        return
+    click.echo(f"{'radius px':>9} {'radius m':>8} {'precision':>9} {'recall':>7} {'quality':>7}")
+    for s in scores:
+        metres = f"{s.radius_m:8.2f}" if s.radius_m is not None else f"{'-':>8}"
+        click.echo(f"{s.radius_px:9.0f} {metres} {s.precision:9.3f} {s.recall:7.3f} "
+                   f"{s.quality:7.3f}")

@@ -1,0 +1,239 @@
+"""Pixel skeleton -> road graph: nodes at junctions and ends, edges along pixel chains.
+
+Junction pixels (more than two skeleton neighbours) that lie within a few metres of each
+other are one crossing seen through a wide road, so they are merged into one node. Pixel
+chains between nodes become edges; nodes left with exactly two edges are not junctions and
+are dissolved, so every node a planner sees is a real junction or a road end. The image also
+tells each edge's width (twice the distance from centerline to the mask edge) and from it a
+lane estimate. Coordinates stay in working-grid pixels here; :class:`~ingest.roads.georef.Frame`
+maps them to the output.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import cv2
+import networkx as nx
+import numpy as np
+from shapely import LineString
+
+from ingest.roads.clean import disk, metres_to_px
+from ingest.roads.georef import Frame
+from ingest.roads.skeleton import PixelWalker, neighbour_count, trace
+
+
+@dataclass(frozen=True)
+class GraphParams:
+    """Graph-building thresholds, in metres."""
+
+    junction_merge_m: float = 4.0
+    """Junction pixels closer than this are one node."""
+    simplify_m: float = 0.5
+    """Ramer–Douglas–Peucker tolerance for edge geometry."""
+    min_segment_m: float = 10.0
+    """Isolated pieces (both ends free) shorter than this are dropped as clutter."""
+    lane_width_m: float = 3.5
+
+
+@dataclass(frozen=True)
+class Node:
+    id: int
+    xy: tuple[float, float]
+    """Working-grid pixel coordinates (pixel corners at integers)."""
+    degree: int
+
+    @property
+    def is_junction(self) -> bool:
+        return self.degree >= 3
+
+
+@dataclass(frozen=True)
+class Edge:
+    id: int
+    source: int
+    target: int
+    coords: np.ndarray
+    """(n, 2) working-grid pixel coordinates from source to target, simplified."""
+    length_m: float
+    width_m: float
+    lanes: int
+
+
+@dataclass(frozen=True)
+class RoadGraph:
+    nodes: list[Node]
+    edges: list[Edge]
+
+
+def _centre(walker: PixelWalker, idx: list[int] | np.ndarray) -> np.ndarray:
+    rows, cols = walker.unflat(np.asarray(idx))
+    return np.column_stack([cols + 0.5, rows + 0.5]).astype(float)
+
+
+def _junction_clusters(junction: np.ndarray, merge_px: int) -> tuple[np.ndarray, int]:
+    """Cluster id per pixel (-1 elsewhere) for junction pixels within ``merge_px``."""
+    grown = junction.astype(np.uint8)
+    if merge_px > 1:
+        grown = cv2.dilate(grown, disk(merge_px))
+    n, lab = cv2.connectedComponents(grown, connectivity=8)
+    cluster = np.where(junction, lab - 1, -1).astype(np.int64)
+    used = np.unique(cluster[cluster >= 0])
+    remap = np.full(n, -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return np.where(cluster >= 0, remap[np.maximum(cluster, 0)], -1), len(used)
+
+
+def _chains(skel: np.ndarray, junction: np.ndarray) -> list[tuple[list[int], bool]]:
+    """Ordered flat (padded) pixel indices of every chain between junction pixels, and
+    whether it is a closed ring (no ends at all)."""
+    chain_mask = skel & ~junction
+    walker = PixelWalker(chain_mask)
+    n, lab = cv2.connectedComponents(chain_mask.astype(np.uint8), connectivity=8)
+    flat = np.flatnonzero(chain_mask.ravel())
+    labels = lab.ravel()[flat]
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(1, n + 1))
+    count = neighbour_count(chain_mask).ravel()[flat]
+    rows, cols = np.unravel_index(flat, skel.shape)
+    padded = walker.flat(rows, cols)
+    chains = []
+    for k in range(1, n):
+        members = order[bounds[k - 1]:bounds[k]]
+        ends = members[count[members] <= 1]
+        start = int(padded[ends[0] if len(ends) else members[0]])
+        path, _ = trace(walker, start)
+        chains.append((path, len(ends) == 0))
+    return chains
+
+
+def _skeleton_multigraph(skel: np.ndarray, merge_px: int) -> nx.MultiGraph:
+    """Nodes (cluster centroids, free ends) and edges (pixel paths) of a skeleton."""
+    skel = skel.astype(bool)
+    junction = skel & (neighbour_count(skel) >= 3)
+    cluster, n_clusters = _junction_clusters(junction, merge_px)
+    full = PixelWalker(skel)
+    cluster_flat = np.full(full.on.shape, -1, np.int64)
+    jr, jc = np.nonzero(junction)
+    cluster_flat[full.flat(jr, jc)] = cluster[jr, jc]
+    g = nx.MultiGraph()
+    free_ids = itertools.count(n_clusters)
+    ids = cluster[jr, jc]
+    size = np.bincount(ids, minlength=n_clusters)
+    mean_x = np.bincount(ids, weights=jc, minlength=n_clusters) / np.maximum(size, 1) + 0.5
+    mean_y = np.bincount(ids, weights=jr, minlength=n_clusters) / np.maximum(size, 1) + 0.5
+    for k in range(n_clusters):
+        g.add_node(k, xy=(float(mean_x[k]), float(mean_y[k])))
+
+    def attach(pixel: int, avoid: int | None) -> int:
+        touching = sorted({int(cluster_flat[n]) for n in full.neighbours(pixel)
+                           if cluster_flat[n] >= 0})
+        others = [t for t in touching if t != avoid]
+        if others or touching:
+            return (others or touching)[0]
+        node = next(free_ids)
+        x, y = _centre(full, [pixel])[0]
+        g.add_node(node, xy=(float(x), float(y)))
+        return node
+
+    for path, closed in _chains(skel, junction):
+        u = attach(path[0], None)
+        v = u if closed else attach(path[-1], u if len(path) == 1 else None)
+        g.add_edge(u, v, start=u, pixels=path)
+    return g
+
+
+def _oriented(g: nx.MultiGraph, u: int, v: int, key: int, frm: int) -> list[int]:
+    """Pixel path of edge (u, v, key) running away from node ``frm``."""
+    data = g.edges[u, v, key]
+    return data["pixels"] if data["start"] == frm else data["pixels"][::-1]
+
+
+def _dissolve_degree_two(g: nx.MultiGraph) -> None:
+    """Join the two edges of every node that has exactly two (non-loop) edges."""
+    for n in list(g.nodes):
+        if g.degree(n) != 2 or g.has_edge(n, n):
+            continue
+        (_, a, ka), (_, b, kb) = list(g.edges(n, keys=True))
+        path = _oriented(g, n, a, ka, a) + _oriented(g, n, b, kb, n)
+        g.remove_node(n)
+        g.add_edge(a, b, start=a, pixels=path)
+
+
+def _geometry(g: nx.MultiGraph, u: int, v: int, key: int, walker: PixelWalker) -> np.ndarray:
+    start = g.edges[u, v, key]["start"]
+    end = v if start == u else u
+    pts = [np.array([g.nodes[start]["xy"]]), _centre(walker, g.edges[u, v, key]["pixels"]),
+           np.array([g.nodes[end]["xy"]])]
+    coords = np.vstack(pts)
+    keep = np.r_[True, np.any(np.diff(coords, axis=0) != 0, axis=1)]
+    return coords[keep]
+
+
+def _length(coords: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(coords, axis=0), axis=1).sum())
+
+
+def build_graph(skel: np.ndarray, road_mask: np.ndarray, resolution_m: float,
+                params: GraphParams = GraphParams()) -> RoadGraph:
+    """The road graph of a pruned skeleton; ``road_mask`` (cleaned) gives edge widths."""
+    merge_px = max(1, metres_to_px(params.junction_merge_m, resolution_m))
+    g = _skeleton_multigraph(skel, merge_px)
+    walker = PixelWalker(skel)
+    for u, v, k in list(g.edges(keys=True)):
+        if u == v and _length(_geometry(g, u, v, k, walker)) <= 2 * merge_px + 2:
+            g.remove_edge(u, v, k)
+    _dissolve_degree_two(g)
+    min_px = params.min_segment_m / resolution_m
+    for u, v, k in list(g.edges(keys=True)):
+        free = u != v and g.degree(u) == 1 and g.degree(v) == 1
+        if free and _length(_geometry(g, u, v, k, walker)) < min_px:
+            g.remove_edge(u, v, k)
+    g.remove_nodes_from([n for n in list(g.nodes) if g.degree(n) == 0])
+    _dissolve_degree_two(g)
+
+    dist = cv2.distanceTransform(road_mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    ids = {n: i for i, n in enumerate(sorted(g.nodes))}
+    nodes = [Node(ids[n], g.nodes[n]["xy"], g.degree(n)) for n in sorted(g.nodes)]
+    edges = []
+    for u, v, k in g.edges(keys=True):
+        coords = _geometry(g, u, v, k, walker)
+        if len(coords) < 2:
+            continue
+        line = LineString(coords)
+        rows, cols = walker.unflat(np.asarray(g.edges[u, v, k]["pixels"]))
+        width_px = max(2.0 * float(np.median(dist[rows, cols])) - 1.0, 1.0)
+        width_m = width_px * resolution_m
+        start = g.edges[u, v, k]["start"]
+        end = v if start == u else u
+        simple = np.asarray(line.simplify(params.simplify_m / resolution_m,
+                                          preserve_topology=False).coords)
+        edges.append(Edge(len(edges), ids[start], ids[end], simple,
+                          round(line.length * resolution_m, 2), round(width_m, 2),
+                          max(1, round(width_m / params.lane_width_m))))
+    return RoadGraph(nodes, edges)
+
+
+def feature_collection(graph: RoadGraph, frame: Frame, members: dict) -> dict:
+    """GeoJSON FeatureCollection of edge LineStrings; nodes ride along in a ``nodes`` member.
+
+    Keeping ``features`` to LineStrings lets any GIS (and the network importer) read it as a
+    plain line layer, while source/target ids and the node list keep the topology.
+    """
+    def out(coords: np.ndarray) -> list[list[float]]:
+        xs, ys = frame.to_output @ (coords[:, 0], coords[:, 1])
+        return np.column_stack([xs, ys]).round(9 if frame.crs is not None else 3).tolist()
+
+    features = [{
+        "type": "Feature", "id": e.id,
+        "geometry": {"type": "LineString", "coordinates": out(e.coords)},
+        "properties": {"id": e.id, "source": e.source, "target": e.target,
+                       "length_m": e.length_m, "width_m": e.width_m, "lanes": e.lanes},
+    } for e in graph.edges]
+    nodes = [{
+        "type": "Feature", "id": n.id,
+        "geometry": {"type": "Point", "coordinates": out(np.array([n.xy]))[0]},
+        "properties": {"id": n.id, "degree": n.degree, "is_junction": n.is_junction},
+    } for n in graph.nodes]
+    return {"type": "FeatureCollection", **members, "features": features, "nodes": nodes}

@@ -130,6 +130,7 @@ def _register_capabilities() -> None:
     main.add_command(routing_cli.route)
     main.add_command(roads_cli.extract_roads)
     main.add_command(roads_cli.evaluate_roads)
+    ingest.add_command(roads_cli.ingest_roads)
 
 
 _register_capabilities()

@@ -1,4 +1,4 @@
-"""``ugvmap extract-roads`` and ``ugvmap evaluate-roads``: the pipeline without a database.
+"""``ugvmap extract-roads`` / ``evaluate-roads`` (no database) and ``ugvmap ingest roads``.
 
 Heavy imports (OpenCV, scikit-learn) happen inside the commands so ``ugvmap --help`` stays
 instant. User mistakes surface as :class:`app.cli.CliError` (one line, exit 1).
@@ -8,14 +8,18 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from app.cli_errors import CliError
 from ingest.roads import RoadsInputError
+
+if TYPE_CHECKING:
+    from ingest.roads.pipeline import ExtractParams
 
 
 @contextmanager
@@ -41,6 +45,39 @@ def _box(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
     return boxes
 
 
+def extraction_options(command: Callable[..., Any]) -> Callable[..., Any]:
+    """The pipeline's tuning options, shared by ``extract-roads`` and ``ingest roads``."""
+    options = [
+        click.option("--classifier", type=click.Choice(["auto", "spectral", "learned"]),
+                     default="auto", show_default=True,
+                     help="auto = learned when the sample has not-road labels, else spectral."),
+        click.option("--k", "k", type=float, default=3.0, show_default=True,
+                     help="Spectral: keep pixels within k x mean training distance to the "
+                          "colour line."),
+        click.option("--work-resolution", type=float, default=0.5, show_default=True,
+                     help="Average finer images down to this many metres per pixel "
+                          "(0 = keep source)."),
+        click.option("--spur-max", type=float, default=15.0, show_default=True,
+                     help="Longest hair (m) pruned from the skeleton."),
+        click.option("--simplify", type=float, default=0.5, show_default=True,
+                     help="RDP tolerance (m) for edge geometry."),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
+def extract_params(classifier: str, k: float, work_resolution: float, spur_max: float,
+                   simplify: float) -> ExtractParams:
+    from dataclasses import replace
+
+    from ingest.roads.pipeline import ExtractParams
+
+    params = ExtractParams(classifier=classifier, k=k,
+                           work_resolution_m=work_resolution or None, spur_max_m=spur_max)
+    return replace(params, graph=replace(params.graph, simplify_m=simplify))
+
+
 @click.command("extract-roads")
 @click.argument("image", type=click.Path(path_type=Path, dir_okay=False))
 @click.option("--train-box", "train_boxes", multiple=True, callback=_box,
@@ -49,32 +86,19 @@ def _box(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
               help="Box of not-road x0,y0,x1,y1 (repeatable); enables the learned classifier.")
 @click.option("--train-mask", type=click.Path(path_type=Path, dir_okay=False),
               help="Label image, same size: 255 = road, 128 = not road, 0 = unlabelled.")
-@click.option("--classifier", type=click.Choice(["auto", "spectral", "learned"]),
-              default="auto", show_default=True,
-              help="auto = learned when the sample has not-road labels, else spectral.")
-@click.option("--k", "k", type=float, default=3.0, show_default=True,
-              help="Spectral: keep pixels within k x mean training distance to the colour line.")
+@extraction_options
 @click.option("--resolution", type=float, help="Metres per pixel (required without georeference).")
-@click.option("--work-resolution", type=float, default=0.5, show_default=True,
-              help="Average finer images down to this many metres per pixel (0 = keep source).")
-@click.option("--spur-max", type=float, default=15.0, show_default=True,
-              help="Longest hair (m) pruned from the skeleton.")
-@click.option("--simplify", type=float, default=0.5, show_default=True,
-              help="RDP tolerance (m) for edge geometry.")
 @click.option("--out", "out_path", type=click.Path(path_type=Path, dir_okay=False), required=True,
               help="Output GeoJSON (LineStrings; nodes in the 'nodes' member).")
 @click.option("--debug-dir", type=click.Path(path_type=Path, file_okay=False),
               help="Write binary / cleaned / houses-removed / skeleton PNGs here.")
 def extract_roads(image: Path, train_boxes: list, not_road_boxes: list, train_mask: Path | None,
-                  classifier: str, k: float, resolution: float | None, work_resolution: float,
-                  spur_max: float, simplify: float, out_path: Path,
-                  debug_dir: Path | None) -> None:
+                  resolution: float | None, out_path: Path, debug_dir: Path | None,
+                  **tuning: float | str) -> None:
     """Extract the road network of IMAGE from a training sample into GeoJSON."""
-    from dataclasses import replace
-
     from ingest.roads.classify import training_labels
     from ingest.roads.georef import read_band, read_image
-    from ingest.roads.pipeline import ExtractParams, extract_roads
+    from ingest.roads.pipeline import extract_roads
 
     with _user_errors():
         img = read_image(image, resolution)
@@ -83,10 +107,7 @@ def extract_roads(image: Path, train_boxes: list, not_road_boxes: list, train_ma
             raise RoadsInputError("no training sample: give --train-box x0,y0,x1,y1 around a "
                                   "bit of road, or --train-mask")
         labels = training_labels(img.pixels.shape[:2], train_boxes, not_road_boxes, mask)
-        params = ExtractParams(classifier=classifier, k=k,
-                               work_resolution_m=work_resolution or None, spur_max_m=spur_max)
-        params = replace(params, graph=replace(params.graph, simplify_m=simplify))
-        result = extract_roads(img, labels, params, debug_dir=debug_dir,
+        result = extract_roads(img, labels, extract_params(**tuning), debug_dir=debug_dir,
                                progress=sys.stderr.isatty())
         if not result.graph.edges:
             raise RoadsInputError(
@@ -134,3 +155,55 @@ def evaluate_roads(pred: Path, gt: Path, resolution: float | None, max_radius: i
         metres = f"{s.radius_m:8.2f}" if s.radius_m is not None else f"{'-':>8}"
         click.echo(f"{s.radius_px:9.0f} {metres} {s.precision:9.3f} {s.recall:7.3f} "
                    f"{s.quality:7.3f}")
+
+
+def _lonlat_box(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
+                ) -> list[tuple[float, float, float, float]]:
+    boxes = []
+    for value in values:
+        try:
+            x0, y0, x1, y1 = (float(v) for v in value.split(","))
+        except ValueError:
+            raise click.BadParameter(f"{value!r} is not minlon,minlat,maxlon,maxlat") from None
+        if not (-180 <= x0 < x1 <= 180 and -90 <= y0 < y1 <= 90):
+            raise click.BadParameter(f"{value!r} is not minlon,minlat,maxlon,maxlat in degrees")
+        boxes.append((x0, y0, x1, y1))
+    return boxes
+
+
+@click.command("roads")
+@click.option("--layer", "slug", required=True, help="Raster layer to extract roads from.")
+@click.option("--network", required=True, help="Network to write (created if new).")
+@click.option("--train-box", "train_boxes", multiple=True, callback=_lonlat_box,
+              help="Box of road minlon,minlat,maxlon,maxlat (repeatable).")
+@click.option("--not-road-box", "not_road_boxes", multiple=True, callback=_lonlat_box,
+              help="Box of not-road minlon,minlat,maxlon,maxlat (repeatable).")
+@click.option("--train-lines", type=click.Path(path_type=Path, dir_okay=False, exists=True),
+              help="GeoJSON of known road centerlines (lon/lat): near = road, far = not road.")
+@click.option("--line-width", type=float, default=6.0, show_default=True,
+              help="Road width (m) around --train-lines centerlines.")
+@extraction_options
+@click.option("--replace", is_flag=True, help="Replace the network if it exists.")
+def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: list,
+                 train_lines: Path | None, line_width: float, replace: bool,
+                 **tuning: float | str) -> None:
+    """Extract the roads of raster layer SLUG into road network NETWORK (PostGIS)."""
+    from app.db.session import session_scope
+    from ingest.roads.layer import GeoSample, ingest_layer_roads, read_sample_lines
+
+    with _user_errors():
+        lines = read_sample_lines(train_lines) if train_lines else []
+        if not (train_boxes or lines):
+            raise RoadsInputError("no training sample: give --train-box (lon/lat) around a bit "
+                                  "of road, or --train-lines")
+        sample = GeoSample(train_boxes, not_road_boxes, lines, line_width)
+        try:
+            with session_scope() as session:
+                extraction, summary = ingest_layer_roads(
+                    session, slug, network, sample, extract_params(**tuning), replace=replace,
+                    progress=sys.stderr.isatty())
+        except ValueError as exc:  # network exists / bad network name
+            raise RoadsInputError(str(exc)) from exc
+    click.echo(f"network {summary.network}: {summary.segments} segments, {summary.nodes} nodes, "
+               f"{summary.total_length_m / 1000:.3f} km extracted from layer {slug} "
+               f"({extraction.classifier} classifier)")

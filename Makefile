@@ -11,6 +11,7 @@ setup:
 demo: setup
 	$(UGVMAP) db start
 	$(UGVMAP) db upgrade
+	$(UGVMAP) demo
 	$(UGVMAP) serve --host 127.0.0.1 --port 8000
 
 ## make test: lint + the whole pytest suite against a throwaway PostGIS database

@@ -7,6 +7,7 @@ module stays a table of contents.
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import click
 
@@ -90,6 +91,18 @@ def db_downgrade(revision: str) -> None:
 @main.group()
 def ingest() -> None:
     """Batch jobs that write rasters and road networks into the store."""
+
+
+@main.command()
+@click.option("--shared-data", type=click.Path(path_type=Path, file_okay=False),
+              default=Path("../shared/data"), show_default=True,
+              help="Sample data folder; a synthetic town is generated when it is absent.")
+def demo(shared_data: Path) -> None:
+    """Load the demo layers and networks (idempotent) and print an editor token."""
+    from ingest.demo import load_demo
+
+    token = load_demo(shared_data, get_settings().data_dir / "demo-editor-token", click.echo)
+    click.echo(f"editor token for the web map: {token}")
 
 
 @main.command()

@@ -52,9 +52,11 @@ def database_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     url = base.set(database=name).render_as_string(hide_password=False)
     embedded.ensure_database(admin, name)
     migrate.upgrade(url)
-    previous = {k: os.environ.get(k) for k in ("DATABASE_URL", "UGVMAP_RASTER_STORE")}
+    previous = {k: os.environ.get(k)
+                for k in ("DATABASE_URL", "UGVMAP_RASTER_STORE", "UGVMAP_DATA_DIR")}
     os.environ["DATABASE_URL"] = url
     os.environ["UGVMAP_RASTER_STORE"] = str(tmp_path_factory.mktemp("rasters"))
+    os.environ["UGVMAP_DATA_DIR"] = str(tmp_path_factory.mktemp("data"))
     get_settings.cache_clear()
     get_engine.cache_clear()
     try:

@@ -7,6 +7,7 @@ from collections import Counter
 import numpy as np
 import pytest
 import rasterio
+import rasterio.warp
 from rasterio.transform import Affine
 from shapely import LineString, MultiLineString, Point
 
@@ -153,7 +154,8 @@ def test_georeferenced_image_gives_map_coordinates(tmp_path) -> None:
                        dtype="uint8", crs="EPSG:32633", transform=transform) as dst:
         dst.write(np.moveaxis(rgb, -1, 0))
     image = read_image(path)
-    assert image.resolution_m == pytest.approx(RES)
+    # On the central meridian a UTM metre is 0.9996 ground metres.
+    assert image.resolution_m == pytest.approx(RES / 0.9996, rel=1e-5)
     labels = training_labels(rgb.shape[:2], [ROAD_BOX])
     doc = extract_roads(image, labels).geojson()
     assert doc["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::32633"
@@ -164,6 +166,17 @@ def test_georeferenced_image_gives_map_coordinates(tmp_path) -> None:
     edge = doc["features"][0]
     assert edge["properties"]["length_m"] == pytest.approx(
         LineString(edge["geometry"]["coordinates"]).length, rel=0.05)
+
+
+def test_web_mercator_resolution_is_ground_metres(tmp_path) -> None:
+    """Stored layers are EPSG:3857, whose unit is cos(lat) ground metres (0.5 at 60 N)."""
+    path = tmp_path / "merc.tif"
+    x, y = rasterio.warp.transform("EPSG:4326", "EPSG:3857", [24.94], [60.0])
+    transform = Affine.translation(x[0], y[0]) @ Affine.scale(1.0, -1.0)
+    with rasterio.open(path, "w", driver="GTiff", width=32, height=32, count=1, dtype="uint8",
+                       crs="EPSG:3857", transform=transform) as dst:
+        dst.write(np.zeros((1, 32, 32), np.uint8))
+    assert read_image(path).resolution_m == pytest.approx(0.5, rel=0.01)
 
 
 def test_geographic_resolution_is_in_metres(tmp_path) -> None:

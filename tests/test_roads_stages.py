@@ -48,6 +48,16 @@ def test_house_rule(draw, house: bool) -> None:
     assert remove_houses(mask.astype(bool)).any() is not house
 
 
+def test_house_inside_a_block_of_roads_is_removed() -> None:
+    """A roof enclosed by the four roads of its block (a blob inside another blob's hole)."""
+    mask = np.zeros((200, 200), np.uint8)
+    cv2.rectangle(mask, (20, 20), (180, 180), 1, 8)  # the block's roads
+    cv2.rectangle(mask, (80, 80), (120, 110), 1, -1)  # the roof
+    out = remove_houses(mask.astype(bool))
+    assert not out[85:105, 85:115].any()
+    assert out[20, 100] and out[100, 20]  # the square loop of road is not a roof
+
+
 def test_house_rule_thresholds_are_parameters() -> None:
     mask = _blob(lambda c: cv2.rectangle(c, (10, 90), (190, 100), 1, -1))
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)

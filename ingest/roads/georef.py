@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import rasterio
-from pyproj import CRS, Geod
+from pyproj import CRS, Geod, Transformer
 from rasterio.enums import ColorInterp
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 from rasterio.transform import Affine
@@ -72,14 +72,19 @@ def _scale_to_unit(data: np.ndarray) -> np.ndarray:
 
 
 def pixel_size_m(transform: Affine, crs: CRS, shape: tuple[int, int]) -> float:
-    """Geometric mean of the pixel's east-west and north-south size, in metres."""
-    if not crs.is_geographic:
-        unit = crs.axis_info[0].unit_conversion_factor if crs.axis_info else 1.0
-        return math.sqrt(abs(transform.a * transform.e - transform.b * transform.d)) * unit
-    geod = Geod(ellps="WGS84")
+    """Geometric mean of the pixel's east-west and north-south ground size, in metres.
+
+    Measured on the ellipsoid at the image centre, because a projected CRS's grid unit is not a
+    ground metre everywhere: a web-mercator pixel (every stored layer) covers cos(latitude)
+    of its nominal size, 0.8x at Las Vegas and 0.5x at Helsinki.
+    """
     cx, cy = transform @ (shape[1] / 2, shape[0] / 2)
     ex, ey = transform @ (shape[1] / 2 + 1, shape[0] / 2)
     sx, sy = transform @ (shape[1] / 2, shape[0] / 2 + 1)
+    if not crs.is_geographic:
+        to_lonlat = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+        (cx, ex, sx), (cy, ey, sy) = to_lonlat.transform([cx, ex, sx], [cy, ey, sy])
+    geod = Geod(ellps="WGS84")
     dx = geod.inv(cx, cy, ex, ey)[2]
     dy = geod.inv(cx, cy, sx, sy)[2]
     return math.sqrt(dx * dy)

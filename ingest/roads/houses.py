@@ -26,6 +26,8 @@ class HouseRule:
     """Longest / shortest side at most this (and so at least its inverse)."""
     epsilon_fraction: float = 0.02
     """RDP tolerance as a fraction of the contour perimeter."""
+    max_hole_fraction: float = 0.1
+    """A roof's holes cover at most this fraction of its outline (a road loop's cover most)."""
 
 
 def _corner_angles(poly: np.ndarray) -> np.ndarray:
@@ -56,13 +58,33 @@ def is_house_like(contour: np.ndarray, rule: HouseRule = HouseRule()) -> bool:
     return bool(sides.max() <= rule.max_side_ratio * max(sides.min(), 1e-9))
 
 
+def _hole_area(contours: list[np.ndarray], hierarchy: np.ndarray, outer: int) -> float:
+    """Total area of the holes of blob ``outer`` (its children in a RETR_CCOMP hierarchy)."""
+    area, child = 0.0, hierarchy[outer][2]
+    while child != -1:
+        area += cv2.contourArea(contours[child])
+        child = hierarchy[child][0]
+    return area
+
+
 def remove_houses(mask: np.ndarray, rule: HouseRule = HouseRule()) -> np.ndarray:
-    """The mask without its rectangle-like blobs (outer contours, filled with their holes)."""
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL,
-                                   cv2.CHAIN_APPROX_NONE)
-    houses = [c for c in contours if is_house_like(c, rule)]
-    if not houses:
-        return mask.astype(bool)
+    """The mask without its rectangle-like solid blobs (filled with their small holes).
+
+    Every blob's outer outline is examined, including blobs lying inside a hole of another
+    blob: a roof in a town block is enclosed by the block's roads, and ``RETR_EXTERNAL``
+    would never show it. A roof is solid; a blob with large holes is a loop of road around a
+    block, however square its outline.
+    """
+    contours, hierarchy = cv2.findContours(mask.astype(np.uint8), cv2.RETR_CCOMP,
+                                           cv2.CHAIN_APPROX_NONE)
     out = mask.astype(np.uint8)
-    cv2.drawContours(out, houses, -1, 0, thickness=cv2.FILLED)
+    if not contours:
+        return out.astype(bool)
+    links = hierarchy[0]
+    for i, contour in enumerate(contours):
+        if links[i][3] != -1 or not is_house_like(contour, rule):
+            continue
+        if _hole_area(contours, links, i) > rule.max_hole_fraction * cv2.contourArea(contour):
+            continue
+        cv2.drawContours(out, contours, i, 0, thickness=cv2.FILLED)
     return out.astype(bool)

@@ -1,0 +1,62 @@
+"""``ugvmap demo`` loads a meaningful map (real samples, or a generated town) and is re-runnable."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from click.testing import CliRunner
+from pyproj import Transformer
+from rasterio.transform import from_origin
+from sqlalchemy import text
+
+from app.cli import main
+from app.db.session import session_scope
+from ingest.demo import SYNTHETIC_ORIGIN
+
+
+def _names(table: str, column: str) -> set[str]:
+    with session_scope() as session:
+        return set(session.execute(text(f"SELECT {column} FROM {table}")).scalars())
+
+
+def test_demo_without_samples_generates_a_routable_town(client, tmp_path: Path) -> None:
+    runner = CliRunner()
+    first = runner.invoke(main, ["demo", "--shared-data", str(tmp_path / "absent")])
+    assert first.exit_code == 0, first.output
+    assert "synthetic-town" in _names("layers", "slug")
+    assert "synthetic-town" in _names("networks", "name")
+    token = first.output.strip().splitlines()[-1].rsplit(" ", 1)[-1]
+    assert token.startswith("ugv_")
+
+    again = runner.invoke(main, ["demo", "--shared-data", str(tmp_path / "absent")])
+    assert again.exit_code == 0 and "already there" in again.output
+    assert again.output.strip().endswith(token)  # the same demo token, not a new one
+
+    # Two junctions of the generated grid, 500 m apart along one road.
+    utm = Transformer.from_crs("EPSG:4326", "EPSG:32611", always_xy=True)
+    east, north = utm.transform(*SYNTHETIC_ORIGIN)
+    grid = from_origin(round(east), round(north), 0.5, 0.5)
+    to_lonlat = Transformer.from_crs("EPSG:32611", "EPSG:4326", always_xy=True).transform
+    a, b = (to_lonlat(*(grid * (x, 375.5))) for x in (375.5, 1375.5))
+    route = client.get("/networks/synthetic-town/route",
+                       params={"points": f"{a[0]},{a[1]};{b[0]},{b[1]}", "cost": "distance"})
+    assert route.status_code == 200, route.text
+    assert abs(route.json()["routes"][0]["distance"] - 500) < 15
+
+
+def test_demo_with_shared_samples(client, shared_data: Path) -> None:
+    result = CliRunner().invoke(main, ["demo", "--shared-data", str(shared_data)])
+    assert result.exit_code == 0, result.output
+    assert {"vegas", "drone-orthophotos"} <= _names("layers", "slug")
+    assert {"vegas", "vegas-extracted", "helsinki"} <= _names("networks", "name")
+    tile = client.get("/layers/vegas/tilejson.json")
+    assert tile.status_code == 200
+    with session_scope() as session:  # both ends of the arterial along the top of the image
+        vertices = session.execute(text(
+            "SELECT ST_X(p.geom), ST_Y(p.geom) FROM road_segments s"
+            " JOIN networks n ON n.id = s.network_id, ST_DumpPoints(s.geom) AS p"
+            " WHERE n.name = 'vegas' AND s.road_class = 'primary' ORDER BY ST_X(p.geom)")).all()
+    points = ";".join(f"{x},{y}" for x, y in (vertices[0], vertices[-1]))
+    route = client.get("/networks/vegas/route", params={"points": points})
+    assert route.status_code == 200, route.text
+    assert route.json()["routes"][0]["distance"] > 200

@@ -10,6 +10,7 @@ from fastapi import FastAPI
 
 from app.errors import install_error_handlers
 from app.health.router import router as health_router
+from app.jobs.router import router as jobs_router
 from app.logs import RequestLogMiddleware
 from app.network.router import include_network
 from app.routing.router import include_routing
@@ -23,6 +24,7 @@ def create_app() -> FastAPI:
         description="Map tiles, road network and routes for unmanned ground vehicles.",
     )
     app.include_router(health_router)
+    app.include_router(jobs_router)
     include_network(app)
     app.include_router(tiles_router)
     include_routing(app)

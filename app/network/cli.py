@@ -42,14 +42,17 @@ def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
 def ingest_network(file: Path, network: str, replace: bool) -> None:
     """Import a GeoJSON / GeoPackage / OSM (.osm, .osm.pbf) road FILE as a network."""
     from app.db.session import session_scope
+    from app.jobs.recorder import JobRecorder
     from ingest.network import import_network
 
-    with tqdm(total=3, desc=f"import {file.name}", unit="stage",
-              disable=not sys.stderr.isatty()) as bar, session_scope() as session:
+    with JobRecorder("ingest-network", network, {"file": str(file), "replace": replace}) as job, \
+            tqdm(total=3, desc=f"import {file.name}", unit="stage",
+                 disable=not sys.stderr.isatty()) as bar, session_scope() as session:
 
         def stage_done(stage: str) -> None:
             bar.set_postfix_str(f"{stage} done")
             bar.update(1)
+            job.progress(bar.n / bar.total, f"{stage} done")
 
         summary = import_network(session, file, network, replace=replace, progress=stage_done)
     click.echo(f"network {summary.network}: {summary.segments} segments, {summary.nodes} nodes, "

@@ -29,22 +29,31 @@ def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, k
                       crs: str | None, priority: int, gcps_file: Path | None,
                       gcp_method: str) -> None:
     """Ingest GeoTIFFs / world-file images / zone mosaics / GCP images into layer SLUG."""
+    from sqlalchemy.exc import OperationalError
+
+    from app.jobs.recorder import JobRecorder
     from ingest.raster.gcps import ingest_with_gcps
     from ingest.raster.job import ingest_raster
     from ingest.raster.sources import SourceError
 
-    options = {"title": title, "kind": kind, "priority": priority}
+    if gcps_file is not None and len(sources) != 1:
+        raise CliError("--gcps georeferences exactly one SRC image")
+    params = {"sources": [str(s) for s in sources], "kind": kind, "crs": crs,
+              "gcps": str(gcps_file) if gcps_file else None}
     try:
-        if gcps_file is None:
-            report = ingest_raster(list(sources), slug, crs=crs, **options)
-        elif len(sources) != 1:
-            raise CliError("--gcps georeferences exactly one SRC image")
-        else:
-            accuracy, report = ingest_with_gcps(sources[0], slug, gcps_file, gcp_method, crs,
-                                                **options)
-            click.echo(accuracy.table())
+        with JobRecorder("ingest-raster", slug, params) as job:
+            options = {"title": title, "kind": kind, "priority": priority,
+                       "on_progress": job.progress}
+            if gcps_file is None:
+                report = ingest_raster(list(sources), slug, crs=crs, **options)
+            else:
+                accuracy, report = ingest_with_gcps(sources[0], slug, gcps_file, gcp_method,
+                                                    crs, **options)
+                click.echo(accuracy.table())
     except SourceError as exc:
         raise CliError(str(exc)) from exc
+    except OperationalError as exc:
+        raise CliError(f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
     for src in report.sources:
         click.echo(f"{src.name}: {src.width}x{src.height} px at z{src.zoom} "
                    f"({src.resolution_m:.3f} m/px) -> {src.uri}")

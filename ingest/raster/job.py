@@ -227,10 +227,12 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
                   inspect_source: Callable[[Path], Source] | None = None,
                   to_cog: Callable[[Source, Path], None] | None = None,
                   database_url: str | None = None,
-                  store: Path | None = None) -> IngestReport:
+                  store: Path | None = None,
+                  on_progress: Callable[[float, str], None] | None = None) -> IngestReport:
     """Ingest ``paths`` into layer ``layer``; raise :class:`SourceError` on bad input.
 
-    ``inspect_source``/``to_cog`` let the GCP path plug in its own georeferencing and warp.
+    ``inspect_source``/``to_cog`` let the GCP path plug in its own georeferencing and warp;
+    ``on_progress(fraction, step)`` is told before each step (e.g. to update a job row).
     """
     if not re.match(SLUG_RE, layer):
         raise SourceError(f"layer slug {layer!r} must match {SLUG_RE}")
@@ -246,8 +248,10 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
     with layer_lock(layer, database_url):
         sweep_leftovers(store / layer, database_url)
         try:
-            for source in bar:
+            for done, source in enumerate(bar):
                 bar.set_postfix_str(source.name if source else "layer overview")
+                if on_progress:
+                    on_progress(done / len(bar), source.name if source else "layer overview")
                 if source is not None:
                     written.append(write_source(source, store, layer, to_cog))
                     created.append(written[-1].uri)

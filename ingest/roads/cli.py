@@ -189,6 +189,7 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
                  **tuning: float | str) -> None:
     """Extract the roads of raster layer SLUG into road network NETWORK (PostGIS)."""
     from app.db.session import session_scope
+    from app.jobs.recorder import JobRecorder
     from ingest.roads.layer import GeoSample, ingest_layer_roads, read_sample_lines
 
     with _user_errors():
@@ -198,7 +199,8 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
                                   "of road, or --train-lines")
         sample = GeoSample(train_boxes, not_road_boxes, lines, line_width)
         try:
-            with session_scope() as session:
+            with JobRecorder("ingest-roads", network, {"layer": slug, **tuning}), \
+                    session_scope() as session:
                 extraction, summary = ingest_layer_roads(
                     session, slug, network, sample, extract_params(**tuning), replace=replace,
                     progress=sys.stderr.isatty())

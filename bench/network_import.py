@@ -16,7 +16,6 @@ import os
 import subprocess
 import sys
 import time
-import uuid
 from pathlib import Path
 
 import morecantile
@@ -25,16 +24,13 @@ from sqlalchemy.engine import make_url
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.db import embedded, migrate
+from app.db.scratch import scratch_database
+from app.db.session import libpq_dsn
 from app.settings import get_settings
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm"
 EXTRACTS = ("andorra.osm.pbf", "Helsinki.osm.pbf")
 REPEATS = 3
-
-
-def libpq(url: str) -> str:
-    return make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
 
 
 def best(fn, repeats: int = REPEATS) -> float:
@@ -80,7 +76,7 @@ def bench_tiles(url: str) -> None:
 
     tms = morecantile.tms.get("WebMercatorQuad")
     tiles = list(tms.tiles(24.935, 60.164, 24.953, 60.179, [16]))
-    with psycopg.connect(libpq(url)) as conn:
+    with psycopg.connect(libpq_dsn(url)) as conn:
         network_id = conn.execute("SELECT id FROM networks WHERE name = 'bench'").fetchone()[0]
         raw_sql = TILE_SQL.replace(":tolerance", "0").replace(":network_id", "%(n)s")
         for name in ("z", "x", "y"):
@@ -115,29 +111,11 @@ def bench_tiles(url: str) -> None:
 
 
 def main() -> None:
-    settings = get_settings()
-    if settings.embedded:
-        embedded.start(embedded.cluster_from(settings))
-    base = make_url(settings.database_url)
-    name = f"ugvmap_bench_{uuid.uuid4().hex[:8]}"
-    admin = libpq(base.set(database="postgres").render_as_string(hide_password=False))
-    with psycopg.connect(admin, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    url = base.set(database=name).render_as_string(hide_password=False)
-    try:
-        embedded.ensure_database(admin, name)
-        migrate.upgrade(url)
+    with scratch_database("ugvmap_bench") as url:
         os.environ["DATABASE_URL"] = url
         get_settings.cache_clear()
         bench_import(url)
         bench_tiles(url)
-    finally:
-        from app.db.session import get_engine
-
-        get_engine.cache_clear()
-        with psycopg.connect(admin, autocommit=True) as conn:
-            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-
 
 if __name__ == "__main__":
     main()

@@ -19,24 +19,22 @@ import statistics
 import sys
 import time
 import tracemalloc
-import uuid
 from pathlib import Path
 
 import httpx
 import psycopg
-from sqlalchemy.engine import make_url
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from app.db import embedded, migrate  # noqa: E402
-from app.db.session import session_scope  # noqa: E402
+from app.db.scratch import scratch_database  # noqa: E402
+from app.db.session import libpq_dsn, session_scope  # noqa: E402
 from app.routing import synthetic  # noqa: E402
 from app.routing.costs import Cost, pgrouting_edges_sql  # noqa: E402
 from app.routing.graph import RoadGraph  # noqa: E402
-from app.routing.live import libpq_dsn, read_segments, registry  # noqa: E402
+from app.routing.live import read_segments, registry  # noqa: E402
 from app.settings import get_settings  # noqa: E402
-from tests.conftest import _libpq, running_server  # noqa: E402
+from tests.conftest import running_server  # noqa: E402
 
 OSM = REPO.parent / "shared" / "data" / "osm" / "andorra.osm.pbf"
 
@@ -44,22 +42,6 @@ OSM = REPO.parent / "shared" / "data" / "osm" / "andorra.osm.pbf"
 def percentile(xs: list[float], q: float) -> float:
     s = sorted(xs)
     return s[min(len(s) - 1, round(q * (len(s) - 1)))]
-
-
-def scratch_database() -> tuple[str, str]:
-    """(url, admin dsn) of a new migrated database with PostGIS and pgRouting."""
-    settings = get_settings()
-    if settings.embedded:
-        embedded.start(embedded.cluster_from(settings))
-    base = make_url(settings.database_url)
-    name = f"ugvmap_bench_{uuid.uuid4().hex[:8]}"
-    admin = _libpq(base.set(database="postgres").render_as_string(hide_password=False))
-    with psycopg.connect(admin, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    embedded.ensure_database(admin, name)
-    url = base.set(database=name).render_as_string(hide_password=False)
-    migrate.upgrade(url)
-    return url, admin
 
 
 def node_pairs(conn: psycopg.Connection, net: int, n: int, edges: str) -> list:
@@ -168,35 +150,30 @@ def main() -> None:
     ap.add_argument("--grid-pairs", type=int, default=60)
     args = ap.parse_args()
 
-    url, admin = scratch_database()
-    name_db = make_url(url).database
-    os.environ["DATABASE_URL"] = url
-    get_settings.cache_clear()
-    try:
-        with psycopg.connect(libpq_dsn(url), autocommit=True) as conn:
-            t = time.perf_counter()
-            grid_net = synthetic.grid(conn, "grid", args.grid, args.grid)
-            print(f"synthesised {args.grid}x{args.grid} grid in {time.perf_counter() - t:.1f} s")
-            if OSM.is_file():
-                from ingest.network import import_network
+    with scratch_database("ugvmap_bench") as url, \
+            psycopg.connect(libpq_dsn(url), autocommit=True) as conn:
+        os.environ["DATABASE_URL"] = url
+        get_settings.cache_clear()
+        t = time.perf_counter()
+        grid_net = synthetic.grid(conn, "grid", args.grid, args.grid)
+        print(f"synthesised {args.grid}x{args.grid} grid in {time.perf_counter() - t:.1f} s")
+        if OSM.is_file():
+            from ingest.network import import_network
 
-                with session_scope(url) as session:
-                    import_network(session, OSM, "andorra")
-                osm_net = conn.execute("SELECT id FROM networks WHERE name = 'andorra'"
-                                       ).fetchone()[0]
-            else:
-                print(f"{OSM} not found: skipping the OSM network")
-            build_figures(url, grid_net)
-            env = {"DATABASE_URL": url, "UGVMAP_LOG_LEVEL": "WARNING"}
-            with running_server(env, workers=1) as base, \
-                    httpx.Client(base_url=base, timeout=30) as http:
-                print(f"\nHTTP floor (GET /healthz, same server) p50 {http_floor(http):.2f} ms")
-                if OSM.is_file():
-                    compare(http, conn, "andorra", osm_net, args.pairs, args.passes)
-                compare(http, conn, "grid", grid_net, args.grid_pairs, 1)
-    finally:
-        with psycopg.connect(admin, autocommit=True) as conn:
-            conn.execute(f'DROP DATABASE IF EXISTS "{name_db}" WITH (FORCE)')
+            with session_scope(url) as session:
+                import_network(session, OSM, "andorra")
+            osm_net = conn.execute("SELECT id FROM networks WHERE name = 'andorra'"
+                                   ).fetchone()[0]
+        else:
+            print(f"{OSM} not found: skipping the OSM network")
+        build_figures(url, grid_net)
+        env = {"DATABASE_URL": url, "UGVMAP_LOG_LEVEL": "WARNING"}
+        with running_server(env, workers=1) as base, \
+                httpx.Client(base_url=base, timeout=30) as http:
+            print(f"\nHTTP floor (GET /healthz, same server) p50 {http_floor(http):.2f} ms")
+            if OSM.is_file():
+                compare(http, conn, "andorra", osm_net, args.pairs, args.passes)
+            compare(http, conn, "grid", grid_net, args.grid_pairs, 1)
 
 
 if __name__ == "__main__":

@@ -11,17 +11,14 @@ import socket
 import subprocess
 import sys
 import time
-import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
-import psycopg
 import pytest
-from sqlalchemy.engine import make_url
 
-from app.db import embedded, migrate
+from app.db.scratch import scratch_database
 from app.db.session import get_engine
 from app.settings import get_settings
 
@@ -29,49 +26,28 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
 
 
-def _libpq(url: str) -> str:
-    u = make_url(url)
-    parts = [f"host={u.host or '127.0.0.1'}", f"port={u.port or 5432}",
-             f"user={u.username or 'postgres'}", f"dbname={u.database}"]
-    if u.password:
-        parts.append(f"password={u.password}")
-    return " ".join(parts)
-
-
 @pytest.fixture(scope="session")
 def database_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """URL of a fresh, migrated database that lives exactly as long as the test session."""
-    settings = get_settings()
-    if settings.embedded:
-        embedded.start(embedded.cluster_from(settings))
-    base = make_url(settings.database_url)
-    name = f"ugvmap_test_{uuid.uuid4().hex[:10]}"
-    admin = _libpq(base.set(database="postgres").render_as_string(hide_password=False))
-    with psycopg.connect(admin, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    url = base.set(database=name).render_as_string(hide_password=False)
-    embedded.ensure_database(admin, name)
-    migrate.upgrade(url)
-    previous = {k: os.environ.get(k)
-                for k in ("DATABASE_URL", "UGVMAP_RASTER_STORE", "UGVMAP_DATA_DIR")}
-    os.environ["DATABASE_URL"] = url
-    os.environ["UGVMAP_RASTER_STORE"] = str(tmp_path_factory.mktemp("rasters"))
-    os.environ["UGVMAP_DATA_DIR"] = str(tmp_path_factory.mktemp("data"))
-    get_settings.cache_clear()
-    get_engine.cache_clear()
-    try:
-        yield url
-    finally:
-        get_engine(url).dispose()
-        get_engine.cache_clear()
-        for key, value in previous.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+    keys = ("DATABASE_URL", "UGVMAP_RASTER_STORE", "UGVMAP_DATA_DIR")
+    previous = {k: os.environ.get(k) for k in keys}
+    with scratch_database("ugvmap_test") as url:
+        os.environ["DATABASE_URL"] = url
+        os.environ["UGVMAP_RASTER_STORE"] = str(tmp_path_factory.mktemp("rasters"))
+        os.environ["UGVMAP_DATA_DIR"] = str(tmp_path_factory.mktemp("data"))
         get_settings.cache_clear()
-        with psycopg.connect(admin, autocommit=True) as conn:
-            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+        get_engine.cache_clear()
+        try:
+            yield url
+        finally:
+            get_engine(url).dispose()
+            get_engine.cache_clear()
+            for key, value in previous.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+            get_settings.cache_clear()
 
 
 @pytest.fixture(scope="session")

@@ -5,8 +5,8 @@ from __future__ import annotations
 import functools
 import uuid
 
+from app.db.session import libpq_dsn
 from app.routing.geometry import local_frame
-from app.routing.live import libpq_dsn
 
 
 @functools.lru_cache(maxsize=8)

@@ -13,6 +13,7 @@ import httpx
 import pytest
 
 from app.db import embedded
+from app.db.scratch import scratch_database
 from tests.conftest import free_port, running_server
 
 
@@ -77,24 +78,8 @@ def test_readyz_follows_database_outage_without_restart() -> None:
 
 def test_readyz_503_when_schema_not_migrated(database_url: str) -> None:
     """A reachable but empty database is not ready, and says how to fix it."""
-    import uuid
-
-    import psycopg
-    from sqlalchemy.engine import make_url
-
-    from tests.conftest import _libpq
-
-    base = make_url(database_url)
-    name = f"ugvmap_empty_{uuid.uuid4().hex[:8]}"
-    admin = _libpq(base.set(database="postgres").render_as_string(hide_password=False))
-    with psycopg.connect(admin, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    try:
-        url = base.set(database=name).render_as_string(hide_password=False)
-        with running_server({"DATABASE_URL": url}) as srv:
-            resp = httpx.get(f"{srv}/readyz")
-            assert resp.status_code == 503
-            assert "ugvmap db upgrade" in resp.json()["reason"]
-    finally:
-        with psycopg.connect(admin, autocommit=True) as conn:
-            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+    with scratch_database("ugvmap_empty", migrated=False, base_url=database_url) as url, \
+            running_server({"DATABASE_URL": url}) as srv:
+        resp = httpx.get(f"{srv}/readyz")
+        assert resp.status_code == 503
+        assert "ugvmap db upgrade" in resp.json()["reason"]

@@ -6,13 +6,12 @@ import json
 import uuid
 
 import psycopg
-from sqlalchemy.engine import make_url
 
-from tests.conftest import _libpq
+from app.db.session import libpq_dsn
 
 
 def test_segment_change_notifies_with_version_and_bbox(database_url: str) -> None:
-    dsn = _libpq(make_url(database_url).render_as_string(hide_password=False))
+    dsn = libpq_dsn(database_url)
     with psycopg.connect(dsn, autocommit=True) as listener, psycopg.connect(dsn) as writer:
         listener.execute("LISTEN network_changed")
         net = writer.execute("INSERT INTO networks (name) VALUES (%s) RETURNING id",

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import uuid
 
-import psycopg
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
@@ -13,7 +12,7 @@ from sqlalchemy.exc import IntegrityError
 
 from app.db import migrate
 from app.db.models import Base
-from tests.conftest import _libpq
+from app.db.scratch import scratch_database
 
 TABLES = {"layers", "raster_sources", "networks", "road_nodes", "road_segments",
           "segment_edits", "ingest_jobs", "api_tokens"}
@@ -104,18 +103,9 @@ def test_bad_layer_slug_and_geometry_srid_rejected(database_url: str) -> None:
     engine.dispose()
 
 
-def test_downgrade_and_upgrade_again(database_url: str) -> None:
+def test_downgrade_and_upgrade_again() -> None:
     """Downgrade to base removes every table; upgrading again restores them (own database)."""
-    from sqlalchemy.engine import make_url
-
-    base = make_url(database_url)
-    name = f"ugvmap_mig_{uuid.uuid4().hex[:8]}"
-    admin = _libpq(base.set(database="postgres").render_as_string(hide_password=False))
-    with psycopg.connect(admin, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    url = base.set(database=name).render_as_string(hide_password=False)
-    try:
-        migrate.upgrade(url)
+    with scratch_database("ugvmap_mig") as url:
         migrate.downgrade(url, "base")
         engine = create_engine(url)
         with engine.connect() as conn:
@@ -125,6 +115,3 @@ def test_downgrade_and_upgrade_again(database_url: str) -> None:
             assert set(inspect(conn).get_table_names()) >= TABLES
             assert migrate.current_revision(conn) == migrate.head_revision()
         engine.dispose()
-    finally:
-        with psycopg.connect(admin, autocommit=True) as conn:
-            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import psycopg
+from psycopg.conninfo import make_conninfo
 
 from app.settings import Settings
 
@@ -193,7 +194,7 @@ def ensure_database(admin_dsn: str, database: str) -> None:
         ).fetchone()
         if not exists:
             conn.execute(f'CREATE DATABASE "{database}"')
-    db_dsn = admin_dsn.replace("dbname=postgres", f"dbname={database}")
+    db_dsn = make_conninfo(admin_dsn, dbname=database)
     with psycopg.connect(db_dsn, autocommit=True) as conn:
         for ext in EXTENSIONS:
             conn.execute(f"CREATE EXTENSION IF NOT EXISTS {ext} CASCADE")

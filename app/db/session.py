@@ -12,6 +12,7 @@ from contextlib import contextmanager
 from functools import lru_cache
 
 from sqlalchemy import Engine, create_engine
+from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.settings import get_settings
@@ -52,3 +53,8 @@ def get_session() -> Iterator[Session]:
     """FastAPI dependency: one session per request."""
     with session_scope() as session:
         yield session
+
+
+def libpq_dsn(url: str) -> str:
+    """A libpq/psycopg conninfo URL from a SQLAlchemy URL (for LISTEN threads, COPY, admin)."""
+    return make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)

@@ -21,7 +21,8 @@ import time
 from collections import OrderedDict
 
 import psycopg
-from sqlalchemy.engine import make_url
+
+from app.db.session import libpq_dsn
 
 log = logging.getLogger(__name__)
 
@@ -76,9 +77,6 @@ class TileCache:
             self._known.clear()
             self.healthy = healthy
 
-
-def libpq_dsn(url: str) -> str:
-    return make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
 
 
 class Listener(threading.Thread):

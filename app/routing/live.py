@@ -16,8 +16,8 @@ import threading
 import time
 
 import psycopg
-from sqlalchemy.engine import make_url
 
+from app.db.session import libpq_dsn
 from app.routing.costs import Cost
 from app.routing.errors import DatabaseUnavailableError
 from app.routing.graph import SEGMENT_COLUMNS, RoadGraph, Segments
@@ -29,10 +29,6 @@ CHANNEL = "network_changed"
 BOX_EPS = 1e-7
 CATCH_UP_TIMEOUT_S = 2.0
 
-
-def libpq_dsn(url: str) -> str:
-    """A psycopg conninfo from a SQLAlchemy URL."""
-    return make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
 
 
 def read_segments(conn: psycopg.Connection, network_id: int,

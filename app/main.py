@@ -11,6 +11,7 @@ from fastapi import FastAPI
 from app.errors import install_error_handlers
 from app.health.router import router as health_router
 from app.logs import RequestLogMiddleware
+from app.tiles.router import router as tiles_router
 
 
 def create_app() -> FastAPI:
@@ -20,6 +21,7 @@ def create_app() -> FastAPI:
         description="Map tiles, road network and routes for unmanned ground vehicles.",
     )
     app.include_router(health_router)
+    app.include_router(tiles_router)
     install_error_handlers(app)
     app.add_middleware(RequestLogMiddleware)
     return app

@@ -1,0 +1,85 @@
+"""Catalogue queries for raster layers, shared by the HTTP routes and ``ugvmap layers``.
+
+The tile query does two things in one round trip: it reads the layer's version (for the ETag)
+and asks PostGIS which source footprints meet the tile, in paint order (lowest priority and
+oldest first, so the newest source is painted last, on top).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import Connection, text
+
+LAYER_COLUMNS = (
+    "l.id, l.slug, l.title, l.kind, l.minzoom, l.maxzoom, l.resolution_m, l.attribution, "
+    "l.version, l.created_at, l.updated_at, l.overview_uri, "
+    "CASE WHEN l.bounds IS NULL THEN NULL ELSE ARRAY[ST_XMin(l.bounds), ST_YMin(l.bounds), "
+    "ST_XMax(l.bounds), ST_YMax(l.bounds)] END AS bounds, "
+    "(SELECT count(*) FROM raster_sources s WHERE s.layer_id = l.id) AS source_count"
+)
+
+
+@dataclass(frozen=True)
+class TileSource:
+    uri: str
+    display_range: list[list[float]] | None
+
+
+@dataclass(frozen=True)
+class TileQuery:
+    layer_id: int
+    version: int
+    sources: list[TileSource]
+    overview_uri: str | None
+
+
+def tile_sources(conn: Connection, slug: str,
+                 bbox: tuple[float, float, float, float]) -> TileQuery | None:
+    """The layer's version and the sources meeting ``bbox`` (EPSG:3857), bottom first."""
+    rows = conn.execute(text(
+        "SELECT l.id, l.version, l.overview_uri, s.uri, s.meta->'display_range' FROM layers l "
+        "LEFT JOIN raster_sources s ON s.layer_id = l.id "
+        " AND s.footprint && ST_MakeEnvelope(:x0, :y0, :x1, :y1, 3857) "
+        " AND ST_Intersects(s.footprint, ST_MakeEnvelope(:x0, :y0, :x1, :y1, 3857)) "
+        "WHERE l.slug = :slug ORDER BY s.priority, s.ingested_at, s.id"),
+        {"slug": slug, "x0": bbox[0], "y0": bbox[1], "x1": bbox[2], "y1": bbox[3]},
+    ).all()
+    if not rows:
+        return None
+    sources = [TileSource(uri, rng) for *_, uri, rng in rows if uri is not None]
+    return TileQuery(layer_id=rows[0][0], version=rows[0][1], sources=sources,
+                     overview_uri=rows[0][2])
+
+
+def list_layers(conn: Connection) -> list[dict[str, Any]]:
+    rows = conn.execute(text(f"SELECT {LAYER_COLUMNS} FROM layers l ORDER BY l.slug"))
+    return [dict(r._mapping) for r in rows]
+
+
+def get_layer(conn: Connection, slug: str) -> dict[str, Any] | None:
+    row = conn.execute(text(f"SELECT {LAYER_COLUMNS} FROM layers l WHERE l.slug = :slug"),
+                       {"slug": slug}).first()
+    if row is None:
+        return None
+    layer = dict(row._mapping)
+    sources = conn.execute(text(
+        "SELECT id, name, uri, priority, ingested_at, width, height, band_count, dtype, "
+        " resolution_m, meta->>'georef' AS georef, (meta->>'zoom')::int AS zoom "
+        "FROM raster_sources WHERE layer_id = :id ORDER BY priority, ingested_at, id"),
+        {"id": layer["id"]})
+    layer["sources"] = [dict(s._mapping) for s in sources]
+    return layer
+
+
+def delete_layer(conn: Connection, slug: str) -> list[str] | None:
+    """Delete a layer and its source rows; return the files to remove after commit."""
+    row = conn.execute(text("SELECT id, overview_uri FROM layers WHERE slug = :slug FOR UPDATE"),
+                       {"slug": slug}).first()
+    if row is None:
+        return None
+    uris = [u for (u,) in conn.execute(
+        text("SELECT uri FROM raster_sources WHERE layer_id = :id"), {"id": row.id})]
+    conn.execute(text("DELETE FROM layers WHERE id = :id"), {"id": row.id})
+    return uris + ([row.overview_uri] if row.overview_uri else [])

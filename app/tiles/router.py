@@ -1,0 +1,146 @@
+"""HTTP routes: ``/tiles/{slug}/{z}/{x}/{y}[@2x].{png,jpg,webp}``, ``/layers``, TileJSON.
+
+Caching: the ETag is the layer id and version (every ingest bumps the version; a deleted and
+re-created layer gets a new id), so a client revalidates cheaply and gets 304 without any
+pixel being read, and the ETag changes as soon as the layer does.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import morecantile
+from fastapi import APIRouter, Request, Response
+from fastapi.responses import JSONResponse
+
+from app.db.session import get_engine
+from app.tiles import catalog
+from app.tiles.catalog import TileSource
+from app.tiles.encode import MEDIA_TYPES, encode
+from app.tiles.mosaic import render
+from app.tiles.readers import overview_zoom
+
+router = APIRouter(tags=["raster layers"])
+TMS = morecantile.tms.get("WebMercatorQuad")
+MAX_ZOOM = 30
+TILE_RE = re.compile(r"^(?P<y>\d+)(?P<scale>@2x)?\.(?P<fmt>[A-Za-z0-9]+)$")
+FORMATS = {"png": "png", "jpg": "jpg", "jpeg": "jpg", "webp": "webp"}
+CACHE_CONTROL = "public, max-age=60"
+
+
+def problem(status: int, code: str, message: str) -> JSONResponse:
+    return JSONResponse({"code": code, "message": message}, status_code=status)
+
+
+def _layer_json(layer: dict[str, Any], request: Request) -> dict[str, Any]:
+    slug = layer["slug"]
+    return {
+        "slug": slug, "title": layer["title"], "kind": layer["kind"],
+        "minzoom": layer["minzoom"], "maxzoom": layer["maxzoom"],
+        "resolution_m": layer["resolution_m"], "bounds": layer["bounds"],
+        "version": layer["version"], "source_count": layer["source_count"],
+        "attribution": layer["attribution"],
+        "updated_at": layer["updated_at"].isoformat(),
+        "links": {
+            "self": str(request.url_for("layer", slug=slug)),
+            "tilejson": str(request.url_for("tilejson", slug=slug)),
+            "tiles": _tile_template(request, slug, "png"),
+        },
+    }
+
+
+def _tile_template(request: Request, slug: str, fmt: str) -> str:
+    base = str(request.base_url).rstrip("/")
+    return f"{base}/tiles/{slug}/{{z}}/{{x}}/{{y}}.{fmt}"
+
+
+def _matches(if_none_match: str | None, etag: str) -> bool:
+    if not if_none_match:
+        return False
+    tags = {t.strip().removeprefix("W/") for t in if_none_match.split(",")}
+    return etag in tags or "*" in tags
+
+
+@router.get("/layers")
+def layers(request: Request) -> dict[str, Any]:
+    """All raster layers."""
+    with get_engine().connect() as conn:
+        rows = catalog.list_layers(conn)
+    return {"layers": [_layer_json(layer, request) for layer in rows]}
+
+
+@router.get("/layers/{slug}", name="layer", response_model=None)
+def layer(slug: str, request: Request) -> dict[str, Any] | JSONResponse:
+    """One layer with its sources (paint order: last is on top)."""
+    with get_engine().connect() as conn:
+        found = catalog.get_layer(conn, slug)
+    if found is None:
+        return problem(404, "LayerNotFound", f"no raster layer {slug!r}")
+    body = _layer_json(found, request)
+    # Store paths are server internals: not part of the HTTP contract.
+    body["sources"] = [
+        {**{k: v for k, v in s.items() if k not in ("ingested_at", "uri")},
+         "ingested_at": s["ingested_at"].isoformat()} for s in found["sources"]]
+    return body
+
+
+@router.get("/layers/{slug}/tilejson.json", name="tilejson", response_model=None)
+def tilejson(slug: str, request: Request,
+             format: str = "png") -> dict[str, Any] | JSONResponse:
+    """TileJSON 3.0.0 for the layer's XYZ tiles."""
+    fmt = FORMATS.get(format.lower())
+    if fmt is None:
+        return problem(400, "UnsupportedFormat", f"format must be one of {sorted(FORMATS)}")
+    with get_engine().connect() as conn:
+        found = catalog.get_layer(conn, slug)
+    if found is None:
+        return problem(404, "LayerNotFound", f"no raster layer {slug!r}")
+    bounds = found["bounds"] or [-180.0, -85.0511, 180.0, 85.0511]
+    center_zoom = max(found["minzoom"], min(found["maxzoom"], found["minzoom"] + 2))
+    return {
+        "tilejson": "3.0.0",
+        "name": found["title"],
+        "description": f"ugvmap raster layer {slug} ({found['kind']})",
+        "version": f"1.0.{found['version']}",
+        "attribution": found["attribution"] or "",
+        "scheme": "xyz",
+        "tiles": [_tile_template(request, slug, fmt)],
+        "minzoom": found["minzoom"],
+        "maxzoom": found["maxzoom"],
+        "bounds": bounds,
+        "center": [(bounds[0] + bounds[2]) / 2, (bounds[1] + bounds[3]) / 2, center_zoom],
+    }
+
+
+@router.get("/tiles/{slug}/{z}/{x}/{tile}", response_model=None,
+            responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}}})
+def tile(slug: str, z: str, x: str, tile: str, request: Request) -> Response:
+    """One XYZ tile (256 px, or 512 px with ``@2x``) composed from all sources meeting it."""
+    match = TILE_RE.match(tile)
+    if not (z.isdigit() and x.isdigit() and match):
+        return problem(400, "BadTileAddress", "expected /tiles/{slug}/{z}/{x}/{y}[@2x].{format}"
+                       " with non-negative integers")
+    fmt = FORMATS.get(match["fmt"].lower())
+    if fmt is None:
+        return problem(400, "UnsupportedFormat",
+                       f"tile format must be one of {sorted(FORMATS)}, not {match['fmt']!r}")
+    zi, xi, yi = int(z), int(x), int(match["y"])
+    if zi > MAX_ZOOM or xi >= 2**zi or yi >= 2**zi:
+        return problem(404, "TileOutOfRange", f"tile {zi}/{xi}/{yi} is outside the grid")
+    b = TMS.xy_bounds(xi, yi, zi)
+    bbox = (b.left, b.bottom, b.right, b.top)
+    with get_engine().connect() as conn:
+        query = catalog.tile_sources(conn, slug, bbox)
+    if query is None:
+        return problem(404, "LayerNotFound", f"no raster layer {slug!r}")
+    etag = f'"{query.layer_id}.{query.version}"'
+    headers = {"ETag": etag, "Cache-Control": CACHE_CONTROL}
+    if _matches(request.headers.get("if-none-match"), etag):
+        return Response(status_code=304, headers=headers)
+    size = 512 if match["scale"] else 256
+    sources = query.sources
+    if query.sources and query.overview_uri and zi <= overview_zoom(query.overview_uri):
+        sources = [TileSource(query.overview_uri, None)]
+    body = encode(render(sources, bbox, size), fmt)
+    return Response(body, media_type=MEDIA_TYPES[fmt], headers=headers)

@@ -1,0 +1,39 @@
+"""Footprint of a written COG: the area where it has valid pixels, in EPSG:3857.
+
+Tiles ask PostGIS which footprints meet them, so the footprint must never be *smaller* than
+the data (a tile would miss a source); it may be slightly larger (one extra source read).
+It is traced on a coarse overview of the mask and grown by one coarse pixel.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import rasterio
+from rasterio.features import shapes
+from rasterio.transform import Affine
+from shapely.geometry import MultiPolygon, Polygon, shape
+from shapely.ops import unary_union
+
+#: Longest side of the mask the footprint is traced on.
+TRACE_PX = 1024
+
+
+def footprint_3857(path: str) -> MultiPolygon | None:
+    """The valid-data outline of a EPSG:3857 raster, or None if it has no valid pixel."""
+    with rasterio.open(path) as ds:
+        scale = max(1, math.ceil(max(ds.width, ds.height) / TRACE_PX))
+        out_w, out_h = math.ceil(ds.width / scale), math.ceil(ds.height / scale)
+        mask = ds.dataset_mask(out_shape=(out_h, out_w))
+        transform = ds.transform @ Affine.scale(ds.width / out_w, ds.height / out_h)
+    valid = cv2.dilate((mask > 0).astype(np.uint8), np.ones((3, 3), np.uint8))
+    if not valid.any():
+        return None
+    polygons = [shape(geom) for geom, value in shapes(valid, mask=valid > 0,
+                                                      transform=transform) if value]
+    pixel = abs(transform.a)
+    outline = unary_union(polygons).simplify(pixel / 2)
+    parts = [outline] if isinstance(outline, Polygon) else list(outline.geoms)
+    return MultiPolygon([p for p in parts if isinstance(p, Polygon) and not p.is_empty])

@@ -188,6 +188,18 @@ def layers_delete(slug: str) -> None:
     click.echo(f"deleted layer {slug} ({len(uris)} files)")
 
 
+def _register_network_commands() -> None:
+    from app.network import cli as network_cli
+
+    ingest.add_command(network_cli.ingest_network)
+    main.add_command(network_cli.tokens)
+    main.add_command(network_cli.export)
+    main.add_command(network_cli.network)
+
+
+_register_network_commands()
+
+
 @main.command()
 @click.option("--host", default="127.0.0.1", show_default=True)
 @click.option("--port", default=8000, show_default=True, type=int)
@@ -208,6 +220,15 @@ def serve(host: str, port: int, workers: int) -> None:
         log_config=logging_config(settings.log_level),
         access_log=False,
     )
+
+
+def _register_routing() -> None:
+    from app.routing.cli import route
+
+    main.add_command(route)
+
+
+_register_routing()
 
 
 if __name__ == "__main__":

@@ -11,6 +11,8 @@ from fastapi import FastAPI
 from app.errors import install_error_handlers
 from app.health.router import router as health_router
 from app.logs import RequestLogMiddleware
+from app.network.router import include_network
+from app.routing.router import include_routing
 from app.tiles.router import router as tiles_router
 
 
@@ -22,6 +24,8 @@ def create_app() -> FastAPI:
     )
     app.include_router(health_router)
     app.include_router(tiles_router)
+    include_network(app)
+    include_routing(app)
     install_error_handlers(app)
     app.add_middleware(RequestLogMiddleware)
     return app

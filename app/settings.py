@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -24,6 +25,8 @@ class Settings(BaseSettings):
     raster_store: str | None = None
     log_level: str = "INFO"
     db_connect_timeout_s: int = 3
+    # Least token role needed to read networks (features, tiles, history); unset: public.
+    network_read_role: Literal["viewer", "editor", "admin"] | None = None
 
     @property
     def embedded(self) -> bool:

@@ -1,0 +1,1 @@
+"""The road network as a service: OGC API Features, vector tiles, authenticated editing."""

@@ -1,0 +1,122 @@
+"""``ugvmap`` commands for road networks: import, export, validate, API tokens.
+
+Registered on the groups of ``app.cli``; ``CliError`` is imported when needed because
+``app.cli`` imports this module.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+from tqdm import tqdm
+
+
+def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn the domain's ValueErrors into one-line CLI errors (exit 1, no traceback)."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from sqlalchemy.exc import OperationalError
+
+        from app.cli import CliError
+
+        try:
+            return func(*args, **kwargs)
+        except ValueError as exc:
+            raise CliError(str(exc)) from exc
+        except OperationalError as exc:
+            raise CliError(f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
+
+    return wrapper
+
+
+@click.command("network")
+@click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--network", "network", required=True, help="Network name (slug).")
+@click.option("--replace", is_flag=True, help="Replace the network's segments if it exists.")
+@_user_errors
+def ingest_network(file: Path, network: str, replace: bool) -> None:
+    """Import a GeoJSON / GeoPackage / OSM (.osm, .osm.pbf) road FILE as a network."""
+    from app.db.session import session_scope
+    from ingest.network import import_network
+
+    with tqdm(total=3, desc=f"import {file.name}", unit="stage",
+              disable=not sys.stderr.isatty()) as bar, session_scope() as session:
+
+        def stage_done(stage: str) -> None:
+            bar.set_postfix_str(f"{stage} done")
+            bar.update(1)
+
+        summary = import_network(session, file, network, replace=replace, progress=stage_done)
+    click.echo(f"network {summary.network}: {summary.segments} segments, {summary.nodes} nodes, "
+               f"{summary.total_length_m / 1000:.3f} km from {summary.lines_read} lines "
+               f"({summary.crossings_noded} crossings noded, "
+               f"{summary.duplicates_dropped} duplicates dropped)")
+
+
+@click.group("tokens")
+def tokens() -> None:
+    """API tokens for editing (stored hashed; shown once)."""
+
+
+@tokens.command("create")
+@click.option("--role", type=click.Choice(["viewer", "editor", "admin"]), required=True)
+@click.option("--name", required=True, help="Who or what uses the token (shown in history).")
+@_user_errors
+def tokens_create(role: str, name: str) -> None:
+    """Create a token and print it once; only its hash is stored."""
+    from app.db.session import session_scope
+    from app.network.tokens import create_token
+
+    with session_scope() as session:
+        token = create_token(session, name, role)
+    click.echo(token)
+
+
+@click.group("export")
+def export() -> None:
+    """Write stored data to files."""
+
+
+@export.command("network")
+@click.argument("name")
+@click.option("--format", "fmt", type=click.Choice(["geojson", "gpkg", "osm"]), required=True)
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="Output file (for osm: .osm or .osm.pbf).")
+@_user_errors
+def export_network(name: str, fmt: str, out: Path) -> None:
+    """Export network NAME losslessly (import of the file gives the same network)."""
+    from app.db.session import session_scope
+    from ingest.network.exporter import export_network as export_file
+
+    with session_scope() as session:
+        count = export_file(session, name, out, fmt)
+    click.echo(f"wrote {count} segments of {name} to {out}")
+
+
+@click.group("network")
+def network() -> None:
+    """Road network maintenance."""
+
+
+@network.command("validate")
+@click.argument("name")
+@_user_errors
+def validate(name: str) -> None:
+    """Check NAME's topology invariants; exit 1 if any is broken."""
+    from app.cli import CliError
+    from app.db.session import session_scope
+    from app.network.integrity import check_network
+
+    with session_scope() as session:
+        report = check_network(session, name)
+    for line in report.lines()[:-1]:
+        click.echo(line)
+    if not report.ok:
+        raise CliError(report.lines()[-1])
+    click.echo(report.lines()[-1])

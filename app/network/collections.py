@@ -1,0 +1,131 @@
+"""Which OGC API collections exist: one ``{network}-segments`` and one ``{network}-nodes``
+collection per network, resolved from the id in the URL, and their GeoJSON features.
+
+All SQL here takes user input only as bound parameters; column lists are constants.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from sqlalchemy import text
+from sqlalchemy.orm import Session
+
+from app.db.models import SLUG_RE
+from app.network.errors import not_found
+
+Kind = Literal["segments", "nodes"]
+KINDS: tuple[Kind, ...] = ("segments", "nodes")
+
+# Editable segment attributes, in the order they are shown.
+SEGMENT_ATTRIBUTES = ("lanes_forward", "lanes_backward", "speed_limit_kph", "oneway",
+                      "road_class", "is_junction", "name", "surface", "width_m", "external_id",
+                      "attrs")
+SEGMENT_READONLY = ("source_node", "target_node", "length_m", "version", "updated_at",
+                    "updated_by")
+SEGMENT_SELECT = ", ".join(("id", *SEGMENT_READONLY, *SEGMENT_ATTRIBUTES,
+                            "ST_AsGeoJSON(geom, 15) AS geometry"))
+NODE_SELECT = ("id, kind, traffic_light, external_id, ST_AsGeoJSON(geom, 15) AS geometry, "
+               "(SELECT count(*) FROM road_segments s WHERE s.source_node = n.id) + "
+               "(SELECT count(*) FROM road_segments s WHERE s.target_node = n.id) AS degree")
+
+
+@dataclass(frozen=True)
+class Collection:
+    network: str
+    network_id: int
+    kind: Kind
+    title: str | None = None
+
+    @property
+    def id(self) -> str:
+        return f"{self.network}-{self.kind}"
+
+    @property
+    def table(self) -> str:
+        return "road_segments" if self.kind == "segments" else "road_nodes"
+
+
+def list_collections(session: Session) -> list[Collection]:
+    rows = session.execute(text("SELECT id, name, title FROM networks ORDER BY name")).all()
+    return [Collection(r.name, r.id, kind, r.title) for r in rows for kind in KINDS]
+
+
+def network_row(session: Session, name: str) -> Any:
+    """(id, title, version) of a network, or None; names that cannot exist (not a slug, e.g.
+    with NUL bytes PostgreSQL would reject) are not even looked up."""
+    if not re.fullmatch(SLUG_RE.strip("^$"), name):
+        return None
+    return session.execute(text("SELECT id, title, version FROM networks WHERE name = :n"),
+                           {"n": name}).first()
+
+
+def resolve(session: Session, collection_id: str) -> Collection:
+    """``{network}-segments`` / ``{network}-nodes`` -> Collection, or 404."""
+    network, _, kind = collection_id.rpartition("-")
+    if kind in KINDS and network:
+        row = network_row(session, network)
+        if row is not None:
+            return Collection(network, row.id, kind, row.title)  # type: ignore[arg-type]
+    raise not_found(f"collection {collection_id[:100]!r}")
+
+
+def extent(session: Session, collection: Collection) -> list[float] | None:
+    row = session.execute(text(
+        f"SELECT ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e) FROM "
+        f"(SELECT ST_Extent(geom) AS e FROM {collection.table} WHERE network_id = :n) q"),
+        {"n": collection.network_id}).one()
+    return None if row[0] is None else [float(v) for v in row]
+
+
+def to_feature(row: Any) -> dict[str, Any]:
+    """A result row (with ``id`` and ``geometry`` JSON text) -> GeoJSON Feature."""
+    props = dict(row._mapping)
+    fid, geometry = props.pop("id"), props.pop("geometry")
+    if props.get("updated_at") is not None:
+        props["updated_at"] = props["updated_at"].isoformat()
+    return {"type": "Feature", "id": fid, "geometry": json.loads(geometry), "properties": props}
+
+
+def _where(bbox: list[float] | None) -> str:
+    clause = "network_id = :network_id"
+    if bbox:
+        clause += " AND geom && ST_MakeEnvelope(:minx, :miny, :maxx, :maxy, 4326)"
+    return clause
+
+
+def _bbox_params(bbox: list[float] | None) -> dict[str, float]:
+    return dict(zip(("minx", "miny", "maxx", "maxy"), bbox, strict=True)) if bbox else {}
+
+
+def query_items(session: Session, collection: Collection, *, bbox: list[float] | None,
+                limit: int, offset: int) -> tuple[int, list[dict[str, Any]]]:
+    """(numberMatched, features) for one page, ordered by id so paging is stable."""
+    params = {"network_id": collection.network_id, **_bbox_params(bbox)}
+    where = _where(bbox)
+    matched = session.execute(text(f"SELECT count(*) FROM {collection.table} WHERE {where}"),
+                              params).scalar_one()
+    select = SEGMENT_SELECT if collection.kind == "segments" else NODE_SELECT
+    alias = "" if collection.kind == "segments" else " n"
+    rows = session.execute(text(
+        f"SELECT {select} FROM {collection.table}{alias} WHERE {where} "
+        "ORDER BY id LIMIT :limit OFFSET :offset"),
+        {**params, "limit": limit, "offset": offset}).all()
+    return matched, [to_feature(r) for r in rows]
+
+
+def get_item(session: Session, collection: Collection, fid: int, *,
+             for_update: bool = False) -> dict[str, Any]:
+    select = SEGMENT_SELECT if collection.kind == "segments" else NODE_SELECT
+    alias = "" if collection.kind == "segments" else " n"
+    lock = " FOR UPDATE" if for_update else ""
+    row = session.execute(text(
+        f"SELECT {select} FROM {collection.table}{alias} "
+        f"WHERE id = :id AND network_id = :network_id{lock}"),
+        {"id": fid, "network_id": collection.network_id}).first()
+    if row is None:
+        raise not_found(f"feature {fid} in {collection.id!r}")
+    return to_feature(row)

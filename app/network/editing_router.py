@@ -1,0 +1,115 @@
+"""HTTP side of editing: PATCH (JSON merge patch), history, revert, and admin split/merge.
+
+Every write needs ``Authorization: Bearer`` with role editor (attributes) or admin (topology
+changes); reads are public unless ``UGVMAP_NETWORK_READ_ROLE`` is set.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import JSONResponse
+from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
+
+from app.db.session import session_scope
+from app.network import collections as colls
+from app.network import editing, topology_edits
+from app.network.errors import ApiError, bad_request
+from app.network.features import GEOJSON, etag, parse_fid
+from app.network.tokens import Principal, SessionDep, read_access, require_role
+
+router = APIRouter(tags=["Editing"])
+
+EditorDep = Annotated[Principal, Depends(require_role("editor", "admin"))]
+AdminDep = Annotated[Principal, Depends(require_role("admin"))]
+PATCH_TYPES = ("application/merge-patch+json", "application/json")
+MAX_BODY = 1_000_000
+
+
+async def json_body(request: Request, accepted: tuple[str, ...] = PATCH_TYPES) -> Any:
+    content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if content_type not in accepted:
+        raise ApiError(415, "UnsupportedMediaType",
+                       f"Content-Type must be one of: {', '.join(accepted)}")
+    raw = await request.body()
+    if len(raw) > MAX_BODY:
+        raise ApiError(413, "PayloadTooLarge", f"the body must be under {MAX_BODY} bytes")
+    try:
+        return json.loads(raw)
+    except (ValueError, RecursionError):
+        raise bad_request("the body is not valid JSON") from None
+
+
+def _segments(session: Session, collection_id: str) -> colls.Collection:
+    c = colls.resolve(session, collection_id)
+    if c.kind != "segments":
+        raise ApiError(405, "MethodNotAllowed", "only segment collections are editable")
+    return c
+
+
+def feature_response(feature: dict[str, Any]) -> JSONResponse:
+    return JSONResponse(feature, media_type=GEOJSON,
+                        headers={"ETag": etag(feature["properties"]["version"])})
+
+
+async def _in_session(work: Callable[[Session], dict[str, Any]]) -> JSONResponse:
+    """Run blocking DB work in the thread pool, in one transaction; answer with its result."""
+
+    def run() -> dict[str, Any]:
+        with session_scope() as session:
+            return work(session)
+
+    result = await run_in_threadpool(run)
+    if result.get("type") == "Feature":
+        return feature_response(result)
+    return JSONResponse(result, media_type=GEOJSON)
+
+
+@router.patch("/collections/{collection_id}/items/{fid}")
+async def patch_item(collection_id: str, fid: str, request: Request,
+                     principal: EditorDep) -> JSONResponse:
+    expected = editing.parse_if_match(request.headers.get("if-match"))
+    body = await json_body(request)
+    return await _in_session(lambda s: editing.patch_segment(
+        s, _segments(s, collection_id), parse_fid(fid), expected, body, principal))
+
+
+@router.get("/collections/{collection_id}/items/{fid}/history",
+            dependencies=[Depends(read_access)])
+def item_history(collection_id: str, fid: str,
+                 session: SessionDep) -> dict[str, Any]:
+    c = _segments(session, collection_id)
+    return {"id": parse_fid(fid), "edits": editing.history(session, c, parse_fid(fid))}
+
+
+@router.post("/collections/{collection_id}/items/{fid}/revert")
+async def revert_item(collection_id: str, fid: str, request: Request,
+                      principal: EditorDep) -> JSONResponse:
+    to = request.query_params.get("to", "")
+    if not to.isascii() or not to.isdigit() or len(to) > 9:
+        raise bad_request("to must be a version number")
+    if_match = request.headers.get("if-match")
+    expected = editing.parse_if_match(if_match) if if_match else None
+    return await _in_session(lambda s: editing.revert_segment(
+        s, _segments(s, collection_id), parse_fid(fid), int(to), expected, principal))
+
+
+@router.post("/collections/{collection_id}/items/{fid}/split")
+async def split_item(collection_id: str, fid: str, request: Request,
+                     principal: AdminDep) -> JSONResponse:
+    expected = editing.parse_if_match(request.headers.get("if-match"))
+    body = await json_body(request, ("application/json",))
+    return await _in_session(lambda s: topology_edits.split_segment(
+        s, _segments(s, collection_id), parse_fid(fid), expected, body, principal))
+
+
+@router.post("/collections/{collection_id}/merge")
+async def merge_items(collection_id: str, request: Request,
+                      principal: AdminDep) -> JSONResponse:
+    body = await json_body(request, ("application/json",))
+    return await _in_session(lambda s: topology_edits.merge_segments(
+        s, _segments(s, collection_id), body, principal))

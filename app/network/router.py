@@ -1,0 +1,14 @@
+"""Everything the network capability adds to the app, in one call from ``app.main``."""
+
+from __future__ import annotations
+
+from fastapi import FastAPI
+
+from app.network import editing_router, errors, features, tiles
+
+
+def include_network(app: FastAPI) -> None:
+    app.include_router(features.router)
+    app.include_router(editing_router.router)
+    app.include_router(tiles.router)
+    errors.install(app)

@@ -1,0 +1,130 @@
+"""In-process MVT cache, kept fresh by PostgreSQL NOTIFY in every server worker.
+
+Every committed change to a network's segments or nodes NOTIFYs ``network_changed`` with the
+new network version and the changed bbox (migration 0002). Each worker process runs one
+LISTEN thread that drops the cached tiles meeting that bbox.
+
+Read-your-writes without waiting for the listener: a request passes the network version it
+read from the database; if that is newer than the last version the listener has applied, a
+notification is still in flight, so the cache is bypassed (and nothing is stored) until it
+lands. A tile rendered from an older version is never stored after a newer change was seen.
+While the listener is disconnected the cache is bypassed, and cleared on reconnect, since
+notifications sent meanwhile are lost.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections import OrderedDict
+
+import psycopg
+from sqlalchemy.engine import make_url
+
+log = logging.getLogger(__name__)
+
+CHANNEL = "network_changed"
+Bounds = tuple[float, float, float, float]
+TileKey = tuple[int, int, int, int]  # network id, z, x, y
+
+
+def _intersects(a: Bounds, b: Bounds) -> bool:
+    return a[0] <= b[2] and b[0] <= a[2] and a[1] <= b[3] and b[1] <= a[3]
+
+
+class TileCache:
+    def __init__(self, max_tiles: int = 4096) -> None:
+        self._lock = threading.Lock()
+        self._tiles: OrderedDict[TileKey, tuple[Bounds, bytes]] = OrderedDict()
+        self._known: dict[int, int] = {}
+        self.max_tiles = max_tiles
+        self.healthy = False
+
+    def get(self, key: TileKey, version: int) -> bytes | None:
+        with self._lock:
+            if not self.healthy or self._known.setdefault(key[0], version) != version:
+                return None
+            entry = self._tiles.get(key)
+            if entry is None:
+                return None
+            self._tiles.move_to_end(key)
+            return entry[1]
+
+    def put(self, key: TileKey, version: int, bounds: Bounds, tile: bytes) -> None:
+        with self._lock:
+            if not self.healthy or self._known.get(key[0]) != version:
+                return
+            self._tiles[key] = (bounds, tile)
+            while len(self._tiles) > self.max_tiles:
+                self._tiles.popitem(last=False)
+
+    def invalidate(self, network_id: int, version: int, bbox: Bounds | None) -> int:
+        """Apply one notification; returns how many tiles were dropped."""
+        with self._lock:
+            self._known[network_id] = max(self._known.get(network_id, version), version)
+            stale = [k for k, (bounds, _) in self._tiles.items() if k[0] == network_id
+                     and (bbox is None or _intersects(bounds, bbox))]
+            for k in stale:
+                del self._tiles[k]
+            return len(stale)
+
+    def reset(self, healthy: bool) -> None:
+        with self._lock:
+            self._tiles.clear()
+            self._known.clear()
+            self.healthy = healthy
+
+
+def libpq_dsn(url: str) -> str:
+    return make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
+
+
+class Listener(threading.Thread):
+    """LISTEN on ``network_changed`` forever, reconnecting after errors."""
+
+    def __init__(self, cache: TileCache, database_url: str) -> None:
+        super().__init__(name="mvt-invalidation", daemon=True)
+        self.cache, self.dsn = cache, libpq_dsn(database_url)
+        self.ready = threading.Event()
+
+    def run(self) -> None:
+        while True:
+            try:
+                with psycopg.connect(self.dsn, autocommit=True, connect_timeout=5) as conn:
+                    conn.execute(f"LISTEN {CHANNEL}")
+                    self.cache.reset(healthy=True)
+                    self.ready.set()
+                    while True:
+                        for note in conn.notifies(timeout=10):
+                            self._apply(note.payload)
+                        conn.execute("SELECT 1")  # notice a dead connection while idle
+            except Exception as exc:  # keep the worker serving; tiles bypass the cache
+                self.cache.reset(healthy=False)
+                log.warning("tile cache listener disconnected: %s", exc)
+                time.sleep(1.0)
+
+    def _apply(self, payload: str) -> None:
+        try:
+            note = json.loads(payload)
+            bbox = tuple(note["bbox"]) if note.get("bbox") else None
+            self.cache.invalidate(int(note["network_id"]), int(note["version"]), bbox)
+        except (ValueError, KeyError, TypeError):
+            log.warning("ignoring malformed %s payload %r", CHANNEL, payload[:200])
+
+
+_cache = TileCache()
+_listener: Listener | None = None
+_start_lock = threading.Lock()
+
+
+def shared_cache(database_url: str) -> TileCache:
+    """This process's cache, starting its listener on first use (once per worker)."""
+    global _listener
+    with _start_lock:
+        if _listener is None or not _listener.is_alive():
+            _listener = Listener(_cache, database_url)
+            _listener.start()
+            _listener.ready.wait(timeout=2.0)
+    return _cache

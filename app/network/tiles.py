@@ -1,0 +1,94 @@
+"""Mapbox vector tiles of a road network, rendered by PostGIS (``ST_AsMVT``).
+
+Layers: ``segments`` (planner attributes) at every zoom, simplified to about a pixel below
+zoom 14 so low-zoom tiles stay small; ``nodes`` (kind, traffic light) from zoom 12.
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends
+from fastapi.responses import Response
+from sqlalchemy import text
+from sqlalchemy.orm import Session
+
+from app.network.collections import network_row
+from app.network.errors import bad_request, not_found
+from app.network.tile_cache import Bounds, shared_cache
+from app.network.tokens import SessionDep, read_access
+from app.settings import get_settings
+
+router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)])
+
+MVT = "application/vnd.mapbox-vector-tile"
+MAX_ZOOM = 24
+EXTENT = 4096
+BUFFER = 64
+NODES_MINZOOM = 12
+SIMPLIFY_BELOW = 14
+WORLD_M = 2 * 20037508.342789244
+
+TILE_SQL = f"""
+WITH bounds AS (
+    SELECT ST_TileEnvelope(:z, :x, :y) AS tile,
+           ST_Transform(ST_TileEnvelope(:z, :x, :y, margin => {BUFFER / EXTENT}), 4326) AS q
+), segments AS (
+    SELECT ST_AsMVTGeom(ST_Simplify(ST_Transform(s.geom, 3857), :tolerance), b.tile,
+                        {EXTENT}, {BUFFER}, true) AS geom,
+           s.id, s.name, s.road_class, s.oneway, s.lanes_forward, s.lanes_backward,
+           s.speed_limit_kph, s.is_junction, s.surface, s.width_m, s.length_m, s.version
+      FROM road_segments s, bounds b
+     WHERE s.network_id = :network_id AND s.geom && b.q
+), nodes AS (
+    SELECT ST_AsMVTGeom(ST_Transform(n.geom, 3857), b.tile, {EXTENT}, {BUFFER}, true) AS geom,
+           n.id, n.kind, n.traffic_light
+      FROM road_nodes n, bounds b
+     WHERE n.network_id = :network_id AND n.geom && b.q AND :z >= {NODES_MINZOOM}
+)
+SELECT COALESCE((SELECT ST_AsMVT(segments, 'segments', {EXTENT}, 'geom', 'id')
+                   FROM segments WHERE geom IS NOT NULL), '')
+    || COALESCE((SELECT ST_AsMVT(nodes, 'nodes', {EXTENT}, 'geom', 'id')
+                   FROM nodes WHERE geom IS NOT NULL), '')
+"""
+
+
+def parse_tile(z: str, x: str, y: str) -> tuple[int, int, int]:
+    try:
+        zi, xi, yi = int(z), int(x), int(y)
+    except ValueError:
+        raise bad_request("z, x and y must be integers") from None
+    if not 0 <= zi <= MAX_ZOOM:
+        raise bad_request(f"z must be from 0 to {MAX_ZOOM}")
+    if not (0 <= xi < 2**zi and 0 <= yi < 2**zi):
+        raise bad_request(f"x and y must be from 0 to {2**zi - 1} at zoom {zi}")
+    return zi, xi, yi
+
+
+def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
+    """Lon/lat bounds of the tile plus its buffer: what an edit must meet to change it."""
+    row = session.execute(text(
+        f"SELECT ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e) FROM (SELECT ST_Transform("
+        f"ST_TileEnvelope(:z, :x, :y, margin => {BUFFER / EXTENT}), 4326) AS e) q"),
+        {"z": z, "x": x, "y": y}).one()
+    return (row[0], row[1], row[2], row[3])
+
+
+@router.get("/networks/{name}/tiles/{z}/{x}/{y}.mvt", response_class=Response,
+            responses={200: {"content": {MVT: {}}}})
+def network_tile(name: str, z: str, x: str, y: str, session: SessionDep) -> Response:
+    zi, xi, yi = parse_tile(z, x, y)
+    network = network_row(session, name)
+    if network is None:
+        raise not_found(f"network {name[:100]!r}")
+    cache = shared_cache(get_settings().database_url)
+    key = (network.id, zi, xi, yi)
+    tile = cache.get(key, network.version)
+    status = "hit"
+    if tile is None:
+        status = "miss"
+        tolerance = WORLD_M / 2**zi / EXTENT if zi < SIMPLIFY_BELOW else 0.0
+        tile = bytes(session.execute(text(TILE_SQL), {
+            "z": zi, "x": xi, "y": yi, "network_id": network.id,
+            "tolerance": tolerance}).scalar_one())
+        cache.put(key, network.version, tile_bounds(session, zi, xi, yi), tile)
+    return Response(tile, media_type=MVT, headers={"X-Tile-Cache": status,
+                                                   "Cache-Control": "no-cache"})

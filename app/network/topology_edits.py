@@ -1,0 +1,138 @@
+"""Admin edits that change the topology: split a segment at a point, merge two segments
+through a node only they share. Both keep the invariants ``ugvmap network validate`` checks:
+segment ends coincide with their nodes, node kinds match degrees, no duplicates.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from sqlalchemy import text
+from sqlalchemy.orm import Session
+
+from app.network import collections as colls
+from app.network.editing import lock_segment, log_edit, unprocessable, write_change
+from app.network.tokens import Principal
+
+# Attributes that must agree before two segments can become one.
+MERGE_MUST_MATCH = ("lanes_forward", "lanes_backward", "speed_limit_kph", "oneway",
+                    "road_class", "is_junction", "name", "surface", "width_m")
+FLIPPED_ONEWAY = {"forward": "backward", "backward": "forward", "none": "none"}
+
+
+def _fraction(session: Session, feature: dict[str, Any], body: Any) -> float:
+    if not isinstance(body, dict) or len(body.keys() & {"fraction", "point"}) != 1:
+        raise unprocessable({"body": 'give exactly one of "fraction" (0..1) or "point" '
+                                     "([lon, lat])"})
+    if "fraction" in body:
+        value = body["fraction"]
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise unprocessable({"fraction": "must be a number between 0 and 1"})
+        fraction = float(value)
+    else:
+        point = body["point"]
+        if not (isinstance(point, list) and len(point) == 2 and all(
+                isinstance(v, int | float) and not isinstance(v, bool) for v in point)):
+            raise unprocessable({"point": "must be [lon, lat]"})
+        fraction = session.execute(text(
+            "SELECT ST_LineLocatePoint(geom, ST_SetSRID(ST_MakePoint(:x, :y), 4326)) "
+            "FROM road_segments WHERE id = :id"),
+            {"x": point[0], "y": point[1], "id": feature["id"]}).scalar_one()
+    if not 0 < fraction < 1:
+        raise unprocessable({"fraction": "the split point must lie strictly inside the segment"})
+    return fraction
+
+
+def split_segment(session: Session, c: colls.Collection, fid: int, expected: int, body: Any,
+                  principal: Principal) -> dict[str, Any]:
+    """Split at a fraction of the length or at the point nearest to a given one. The original
+    keeps its id (first part, new version); the second part is a new segment, same attributes."""
+    feature = lock_segment(session, c, fid, expected)
+    fraction = _fraction(session, feature, body)
+    first, second = session.execute(text(
+        "SELECT ST_AsGeoJSON(ST_LineSubstring(geom, 0, :f), 15), "
+        "ST_AsGeoJSON(ST_LineSubstring(geom, :f, 1), 15) FROM road_segments WHERE id = :id"),
+        {"f": fraction, "id": fid}).one()
+    first, second = json.loads(first), json.loads(second)
+    cut = first["coordinates"][-1]
+    second["coordinates"][0] = cut
+    if len(first["coordinates"]) < 2 or cut in (first["coordinates"][0],
+                                                  second["coordinates"][-1]):
+        raise unprocessable({"fraction": "the split point is too close to an end"})
+    node = session.execute(text(
+        "INSERT INTO road_nodes (network_id, geom, kind) VALUES "
+        "(:n, ST_SetSRID(ST_MakePoint(:x, :y), 4326), 'node') RETURNING id"),
+        {"n": c.network_id, "x": cut[0], "y": cut[1]}).scalar_one()
+    old_target = feature["properties"]["target_node"]
+    kept = write_change(session, c, feature, {"geometry": first, "target_node": node},
+                        principal, "split")
+    columns = ", ".join(colls.SEGMENT_ATTRIBUTES)
+    new_id = session.execute(text(
+        f"INSERT INTO road_segments (network_id, source_node, target_node, geom, length_m, "
+        f"updated_by, {columns}) SELECT network_id, :node, :target, "
+        "ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326), "
+        "ST_Length(ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326)::geography), :who, "
+        f"{columns} FROM road_segments WHERE id = :id RETURNING id"),
+        {"node": node, "target": old_target, "g": json.dumps(second), "who": principal.name,
+         "id": fid}).scalar_one()
+    log_edit(session, c, new_id, "split", None, 1, principal, None,
+             {"split_from": fid, "geometry": second})
+    return {"type": "FeatureCollection",
+            "features": [kept, colls.get_item(session, c, new_id)]}
+
+
+def _flipped(props: dict[str, Any]) -> dict[str, Any]:
+    """The same road described in the opposite digitising direction."""
+    return {**props, "oneway": FLIPPED_ONEWAY[props["oneway"]],
+            "lanes_forward": props["lanes_backward"], "lanes_backward": props["lanes_forward"],
+            "source_node": props["target_node"], "target_node": props["source_node"]}
+
+
+def merge_segments(session: Session, c: colls.Collection, body: Any,
+                   principal: Principal) -> dict[str, Any]:
+    """Merge two segments meeting at a node that no other segment uses; the first keeps its
+    id and orientation, the second and the shared node are deleted."""
+    ids = body.get("segments") if isinstance(body, dict) else None
+    if not (isinstance(ids, list) and len(ids) == 2 and all(
+            isinstance(i, int) and not isinstance(i, bool) and 0 < i < 2**63 for i in ids)
+            and ids[0] != ids[1]):
+        raise unprocessable({"segments": "must be two different segment ids"})
+    locked = {i: lock_segment(session, c, i, None) for i in sorted(ids)}
+    a, b = locked[ids[0]], locked[ids[1]]
+    pa, pb = a["properties"], b["properties"]
+    shared = {pa["source_node"], pa["target_node"]} & {pb["source_node"], pb["target_node"]}
+    if len(shared) != 1 or pa["source_node"] == pa["target_node"] \
+            or pb["source_node"] == pb["target_node"]:
+        raise unprocessable({"segments": "must meet at exactly one node and not be loops"})
+    (node,) = shared
+    degree = session.execute(text(
+        "SELECT count(*) FROM road_segments WHERE source_node = :n OR target_node = :n"),
+        {"n": node}).scalar_one()
+    if degree != 2:
+        raise unprocessable({"segments": f"node {node} joins {degree} segments, not just these "
+                                         "two; merging would break the topology"})
+    a_coords, b_coords = a["geometry"]["coordinates"], b["geometry"]["coordinates"]
+    oriented_a = pa if pa["target_node"] == node else _flipped(pa)
+    if pa["target_node"] != node:
+        a_coords = a_coords[::-1]
+    oriented_b = pb if pb["source_node"] == node else _flipped(pb)
+    if pb["source_node"] != node:
+        b_coords = b_coords[::-1]
+    differ = [k for k in MERGE_MUST_MATCH if oriented_a[k] != oriented_b[k]]
+    if differ:
+        raise unprocessable({k: "differs between the two segments" for k in differ})
+    coords = a_coords + b_coords[1:]
+    if pa["target_node"] != node:  # keep a's own digitising direction
+        coords = coords[::-1]
+        new_ends = {"source_node": oriented_b["target_node"], "target_node": pa["target_node"]}
+    else:
+        new_ends = {"source_node": pa["source_node"], "target_node": oriented_b["target_node"]}
+    session.execute(text("DELETE FROM road_segments WHERE id = :id"), {"id": b["id"]})
+    log_edit(session, c, b["id"], "merge", pb["version"], None, principal,
+             {**pb, "geometry": b["geometry"]}, {"merged_into": a["id"]})
+    merged = write_change(session, c, a, {"geometry": {"type": "LineString",
+                                                       "coordinates": coords}, **new_ends},
+                          principal, "merge")
+    session.execute(text("DELETE FROM road_nodes WHERE id = :n"), {"n": node})
+    return merged

@@ -1,0 +1,162 @@
+"""Field rules for segment edits: every bad field gets its own message (422), nothing is
+half-applied. Pure functions, so the rules are tested without HTTP.
+
+Strings are checked for what PostgreSQL would otherwise reject with a server error (NUL
+characters, unpaired surrogates), so hostile input is refused cleanly, never half-stored.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from typing import Any
+
+from app.db.models import ONEWAY_VALUES
+from app.network.collections import SEGMENT_ATTRIBUTES, SEGMENT_READONLY
+
+ROAD_CLASSES = (
+    "motorway", "motorway_link", "trunk", "trunk_link", "primary", "primary_link",
+    "secondary", "secondary_link", "tertiary", "tertiary_link", "unclassified", "residential",
+    "living_street", "service", "road", "track", "pedestrian", "busway", "bus_guideway",
+    "footway", "cycleway", "bridleway", "path", "steps", "corridor", "escape", "raceway",
+)
+MAX_LANES = 8
+SPEED_RANGE = (5.0, 150.0)
+WIDTH_RANGE = (0.5, 100.0)
+MAX_NAME = 200
+MAX_SHORT_TEXT = 64
+MAX_ATTRS_BYTES = 16_384
+NULLABLE = {"speed_limit_kph", "name", "surface", "width_m", "external_id", "attrs"}
+
+
+def text_problem(value: str, limit: int) -> str | None:
+    if len(value) > limit:
+        return f"must be at most {limit} characters"
+    if "\x00" in value:
+        return "must not contain NUL characters"
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        return "must be valid Unicode text"
+    return None
+
+
+def _int_in(low: int, high: int) -> Callable[[Any], str | None]:
+    def check(value: Any) -> str | None:
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            return f"must be an integer from {low} to {high}"
+        return None
+    return check
+
+
+def _number_in(low: float, high: float, unit: str) -> Callable[[Any], str | None]:
+    def check(value: Any) -> str | None:
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or not math.isfinite(value) or not low <= value <= high:
+            return f"must be a number from {low:g} to {high:g} {unit}"
+        return None
+    return check
+
+
+def _one_of(options: tuple[str, ...]) -> Callable[[Any], str | None]:
+    def check(value: Any) -> str | None:
+        if value not in options:
+            return f"must be one of: {', '.join(options)}"
+        return None
+    return check
+
+
+def _text(limit: int) -> Callable[[Any], str | None]:
+    def check(value: Any) -> str | None:
+        return "must be a string" if not isinstance(value, str) else text_problem(value, limit)
+    return check
+
+
+def _bool(value: Any) -> str | None:
+    return None if isinstance(value, bool) else "must be true or false"
+
+
+def _json_strings(value: Any) -> list[str]:
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, dict):
+        return [s for k, v in value.items() for s in (k, *_json_strings(v))]
+    if isinstance(value, list):
+        return [s for v in value for s in _json_strings(v)]
+    return []
+
+
+def _attrs(value: Any) -> str | None:
+    if not isinstance(value, dict):
+        return "must be a JSON object"
+    try:
+        size = len(json.dumps(value, allow_nan=False).encode("utf-8"))
+    except (ValueError, UnicodeEncodeError):
+        return "must be plain JSON (finite numbers, valid Unicode)"
+    if size > MAX_ATTRS_BYTES:
+        return f"must be at most {MAX_ATTRS_BYTES} bytes of JSON"
+    for s in _json_strings(value):
+        problem = text_problem(s, MAX_ATTRS_BYTES)
+        if problem:
+            return f"strings {problem}"
+    return None
+
+
+RULES: dict[str, Callable[[Any], str | None]] = {
+    "lanes_forward": _int_in(0, MAX_LANES),
+    "lanes_backward": _int_in(0, MAX_LANES),
+    "speed_limit_kph": _number_in(*SPEED_RANGE, "km/h"),
+    "oneway": _one_of(ONEWAY_VALUES),
+    "road_class": _one_of(ROAD_CLASSES),
+    "is_junction": _bool,
+    "name": _text(MAX_NAME),
+    "surface": _text(MAX_SHORT_TEXT),
+    "width_m": _number_in(*WIDTH_RANGE, "m"),
+    "external_id": _text(MAX_NAME),
+    "attrs": _attrs,
+}
+assert set(RULES) == set(SEGMENT_ATTRIBUTES)
+
+
+def field_errors(properties: dict[str, Any]) -> dict[str, str]:
+    """One message per offending field of a merge patch of segment properties."""
+    errors: dict[str, str] = {}
+    for key, value in properties.items():
+        label = key[:100]
+        if key in SEGMENT_READONLY:
+            errors[label] = "is read-only"
+        elif key not in RULES:
+            errors[label] = "is not a segment attribute"
+        elif value is None:
+            if key not in NULLABLE:
+                errors[label] = "cannot be removed (null)"
+        else:
+            problem = RULES[key](value)
+            if problem:
+                errors[label] = problem
+    return errors
+
+
+def lanes_consistent(values: dict[str, Any]) -> dict[str, str]:
+    """Cross-field rule on the final state: a one-way road has lanes only in its direction."""
+    if values["oneway"] == "forward" and values["lanes_forward"] == 0:
+        return {"lanes_forward": "a forward one-way road needs at least one forward lane"}
+    if values["oneway"] == "backward" and values["lanes_backward"] == 0:
+        return {"lanes_backward": "a backward one-way road needs at least one backward lane"}
+    if values["lanes_forward"] + values["lanes_backward"] == 0:
+        return {"lanes_forward": "a road needs at least one lane"}
+    return {}
+
+
+def merge_patch(target: Any, patch: Any) -> Any:
+    """RFC 7396 JSON merge patch."""
+    if not isinstance(patch, dict):
+        return patch
+    result = dict(target) if isinstance(target, dict) else {}
+    for key, value in patch.items():
+        if value is None:
+            result.pop(key, None)
+        else:
+            result[key] = merge_patch(result.get(key), value)
+    return result

@@ -1,0 +1,65 @@
+"""``ugvmap route NAME --points ...``: the route service from the command line.
+
+Answers exactly like ``GET /networks/{name}/route`` (same planner), printing the OSRM-shaped
+JSON, the dense waypoints, or a one-line-per-leg summary.
+"""
+
+from __future__ import annotations
+
+import json
+
+import click
+from sqlalchemy.exc import OperationalError
+
+from app.routing.costs import Cost
+from app.routing.errors import RoutingError
+from app.routing.planner import (
+    FORMATS,
+    GEOMETRIES,
+    RouteOptions,
+    parse_points,
+    plan_route,
+    read_connection,
+)
+
+
+@click.command("route")
+@click.argument("network")
+@click.option("--points", required=True, help="lon,lat;lon,lat[;...] visited in order")
+@click.option("--cost", type=click.Choice([c.value for c in Cost]), default="time",
+              show_default=True)
+@click.option("--avoid", default="", help="road classes to avoid, comma-separated")
+@click.option("--optimize", is_flag=True, help="best order of the intermediate points")
+@click.option("--geometries", type=click.Choice(GEOMETRIES), default="geojson",
+              show_default=True)
+@click.option("--format", "fmt", type=click.Choice([*FORMATS, "summary"]), default="summary",
+              show_default=True, help="summary: one line per leg")
+@click.option("--spacing", type=float, default=1.0, show_default=True,
+              help="metres between points for --format waypoints")
+@click.option("--radius", type=float, default=None, help="snap radius in metres")
+def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geometries: str,
+          fmt: str, spacing: float, radius: float | None) -> None:
+    """Plan a route on NETWORK through the given points."""
+    from app.cli import CliError
+
+    opts = RouteOptions(Cost(cost), frozenset(a for a in avoid.split(",") if a), optimize,
+                        geometries, "waypoints" if fmt == "waypoints" else "osrm", spacing,
+                        radius)
+    try:
+        with read_connection() as conn:
+            body = plan_route(conn, network, parse_points(points), opts)
+    except RoutingError as exc:
+        raise CliError(f"{exc.code}: {exc.message}") from exc
+    except OperationalError as exc:
+        raise CliError(f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
+    if fmt != "summary":
+        click.echo(json.dumps(body))
+        return
+    r = body["routes"][0]
+    for k, leg in enumerate(r["legs"]):
+        click.echo(f"leg {k}: {leg['distance']:.1f} m, {leg['duration']:.1f} s, "
+                   f"{len(leg['annotation']['segment_ids'])} segments")
+    ranks = [w["waypoint_index"] for w in body["waypoints"]]
+    order = sorted(range(len(ranks)), key=ranks.__getitem__)
+    click.echo(f"total: {r['distance']:.1f} m, {r['duration']:.1f} s"
+               + (f", points visited in order {order}" if optimize else ""))

@@ -1,0 +1,172 @@
+"""Shortest paths between snapped points, starting and ending mid-segment.
+
+A snapped point sits at fraction ``f`` of segment (u -> v). Leaving it costs ``(1-f)·c`` to
+reach v (if the segment may be driven along its geometry) and ``f·c`` to reach u (if it may be
+driven against it); arriving is the mirror image, and two points on the same segment may also
+be joined directly along it. One-way rules therefore hold on the snapped segments themselves.
+A point within :data:`AT_NODE_M` of a segment end is *at* that node and may leave by any arc.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.routing.errors import NoRouteError
+from app.routing.geometry import haversine_m, point_at
+from app.routing.graph import CostGraph, RoadGraph
+from app.routing.snap import Snap
+
+AT_NODE_M = 0.01
+FIRST_LIMIT_FACTOR = 2.0  # first search bound, in straight-line costs
+LIMIT_GROWTH = 3.0
+
+
+@dataclass(frozen=True)
+class Piece:
+    """A traversed part of one segment, from fraction ``f_from`` to ``f_to``."""
+
+    row: int
+    f_from: float
+    f_to: float
+
+
+@dataclass(frozen=True)
+class Leg:
+    start: Snap
+    end: Snap
+    weight: float
+    pieces: list[Piece]
+
+
+@dataclass(frozen=True)
+class Place:
+    """A snap resolved against one graph: segment row and end-node indices."""
+
+    snap: Snap
+    row: int
+    u: int
+    v: int
+    fraction: float
+    at_node: int | None
+    loc: tuple[float, float]  # lon/lat of the point on the segment
+
+
+def place(graph: RoadGraph, snap: Snap) -> Place:
+    row = graph.row_of(snap.segment_id)
+    if row is None:  # deleted between snapping and routing
+        raise NoRouteError(f"segment {snap.segment_id} under point {snap.index} no longer exists")
+    length = float(graph.segs.length_m[row])
+    u, v, f = int(graph.u[row]), int(graph.v[row]), snap.fraction
+    at = u if f * length <= AT_NODE_M else v if (1 - f) * length <= AT_NODE_M else None
+    coords, fracs = graph.line(row)
+    return Place(snap, row, u, v, f, at, point_at(coords, fracs, f))
+
+
+def departures(graph: RoadGraph, cg: CostGraph, p: Place) -> list[tuple[int, float, Piece | None]]:
+    """(node, cost, piece) ways to leave a place onto the graph."""
+    if p.at_node is not None:
+        return [(p.at_node, 0.0, None)]
+    c, way = float(cg.seg_cost[p.row]), int(graph.segs.oneway[p.row])
+    out = []
+    if way >= 0:
+        out.append((p.v, (1 - p.fraction) * c, Piece(p.row, p.fraction, 1.0)))
+    if way <= 0:
+        out.append((p.u, p.fraction * c, Piece(p.row, p.fraction, 0.0)))
+    return out
+
+
+def arrivals(graph: RoadGraph, cg: CostGraph, p: Place) -> list[tuple[int, float, Piece | None]]:
+    """(node, cost, piece) ways to reach a place from the graph."""
+    if p.at_node is not None:
+        return [(p.at_node, 0.0, None)]
+    c, way = float(cg.seg_cost[p.row]), int(graph.segs.oneway[p.row])
+    out = []
+    if way >= 0:
+        out.append((p.u, p.fraction * c, Piece(p.row, 0.0, p.fraction)))
+    if way <= 0:
+        out.append((p.v, (1 - p.fraction) * c, Piece(p.row, 1.0, p.fraction)))
+    return out
+
+
+def direct(graph: RoadGraph, cg: CostGraph, a: Place, b: Place) -> tuple[float, Piece] | None:
+    """Driving straight along a shared segment, when its direction allows."""
+    if a.row != b.row or a.at_node is not None or b.at_node is not None:
+        return None
+    way = int(graph.segs.oneway[a.row])
+    ahead = b.fraction >= a.fraction
+    if (ahead and way < 0) or (not ahead and way > 0):
+        return None
+    return abs(b.fraction - a.fraction) * float(cg.seg_cost[a.row]), Piece(a.row, a.fraction,
+                                                                          b.fraction)
+
+
+class Router:
+    """Searches one graph under one cost model for one request."""
+
+    def __init__(self, graph: RoadGraph, cg: CostGraph, snaps: Sequence[Snap]) -> None:
+        self.graph, self.cg = graph, cg
+        self.places = [place(graph, s) for s in snaps]
+
+    def costs_from(self, i: int, targets: Sequence[int]) -> list[float]:
+        """Cheapest cost from place i to each target place (inf where unreachable)."""
+        a = self.places[i]
+        dist, _ = self.cg.search((n, c) for n, c, _ in departures(self.graph, self.cg, a))
+        out = []
+        for j in targets:
+            b = self.places[j]
+            best = min((dist[n] + c for n, c, _ in arrivals(self.graph, self.cg, b)),
+                       default=np.inf)
+            straight = direct(self.graph, self.cg, a, b)
+            out.append(min(best, straight[0]) if straight else float(best))
+        return out
+
+    def _first_limit(self, a: Place, b: Place) -> float:
+        """A cost bound that usually covers the route: a few times the straight-line cost."""
+        crow = haversine_m(a.loc, b.loc) / self.cg.max_rate
+        c_a, c_b = (float(self.cg.seg_cost[p.row]) for p in (a, b))
+        return FIRST_LIMIT_FACTOR * crow + c_a + c_b + 1.0
+
+    def leg(self, i: int, j: int) -> Leg:
+        """Cheapest way from place i to place j.
+
+        The search is bounded (scipy's ``limit``) and the bound grows until the best arrival
+        lies within it: every node cheaper than the bound has its exact cost, so a route found
+        within the bound is optimal. Short legs on a large network then touch only the
+        neighbourhood of their end points instead of the whole graph.
+        """
+        a, b = self.places[i], self.places[j]
+        outs, ins = departures(self.graph, self.cg, a), arrivals(self.graph, self.cg, b)
+        limit = self._first_limit(a, b)
+        while True:
+            if limit > self.cg.total_cost:
+                limit = np.inf
+            dist, pred = self.cg.search(((n, c) for n, c, _ in outs), limit=limit)
+            weight, end_node, last = np.inf, -1, None
+            for n, c, piece in ins:
+                if dist[n] + c < weight:
+                    weight, end_node, last = float(dist[n] + c), n, piece
+            if weight <= limit or limit == np.inf:
+                break
+            limit *= LIMIT_GROWTH
+        straight = direct(self.graph, self.cg, a, b)
+        if straight and straight[0] <= weight:
+            return Leg(a.snap, b.snap, straight[0], [straight[1]])
+        if not np.isfinite(weight):
+            raise NoRouteError(f"no route from point {a.snap.index} to point {b.snap.index} "
+                               "in the allowed directions")
+        nodes = [end_node]
+        while pred[nodes[-1]] != self.cg.origin:
+            nodes.append(int(pred[nodes[-1]]))
+        nodes.reverse()
+        _, first = min(((c, piece) for n, c, piece in outs if n == nodes[0]),
+                       key=lambda cp: cp[0])
+        pieces = [first] if first is not None else []
+        rows, ways = self.cg.path_arcs(nodes)
+        pieces.extend(Piece(row, 0.0, 1.0) if way > 0 else Piece(row, 1.0, 0.0)
+                      for row, way in zip(rows.tolist(), ways.tolist(), strict=True))
+        if last is not None:
+            pieces.append(last)
+        return Leg(a.snap, b.snap, weight, pieces)

@@ -1,0 +1,175 @@
+"""Graphs kept current in every worker process: load once, then follow LISTEN/NOTIFY.
+
+Each process runs one listener thread on channel ``network_changed`` (sent by the trigger of
+migration ``0002_network_change_notify`` when an edit commits). A notification whose version
+directly follows the graph's patches just the announced bounding box; a gap (missed
+notification, reconnect) reloads the network. Requests add a stronger guarantee: the snap query
+reads ``networks.version`` and :meth:`GraphRegistry.get` waits until the graph has caught up,
+so an edit is visible to the very next route query in any worker.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+
+import psycopg
+from sqlalchemy.engine import make_url
+
+from app.routing.costs import Cost
+from app.routing.errors import DatabaseUnavailableError
+from app.routing.graph import SEGMENT_COLUMNS, RoadGraph, Segments
+
+log = logging.getLogger("ugvmap.routing")
+
+CHANNEL = "network_changed"
+# Box edges are widened by this much (degrees, ~1 cm) so float rounding never drops a segment.
+BOX_EPS = 1e-7
+CATCH_UP_TIMEOUT_S = 2.0
+
+
+def libpq_dsn(url: str) -> str:
+    """A psycopg conninfo from a SQLAlchemy URL."""
+    return make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
+
+
+def read_segments(conn: psycopg.Connection, network_id: int,
+                  box: list[float] | None = None) -> tuple[Segments, int]:
+    """Segments (all, or those meeting ``box``) and the network version, in one snapshot."""
+    with conn.transaction():
+        conn.execute("SET TRANSACTION ISOLATION LEVEL REPEATABLE READ")
+        row = conn.execute("SELECT version FROM networks WHERE id = %s", (network_id,)).fetchone()
+        if row is None:
+            return Segments.from_rows([]), -1
+        sql = f"SELECT {SEGMENT_COLUMNS} FROM road_segments WHERE network_id = %s"
+        params: tuple = (network_id,)
+        if box is not None:
+            sql += " AND geom && ST_MakeEnvelope(%s, %s, %s, %s, 4326)"
+            params += (box[0] - BOX_EPS, box[1] - BOX_EPS, box[2] + BOX_EPS, box[3] + BOX_EPS)
+        rows = conn.execute(sql, params, binary=True).fetchall()
+    return Segments.from_rows(rows), int(row[0])
+
+
+class GraphRegistry:
+    """The graphs of one database, shared by all request threads of a process."""
+
+    def __init__(self, database_url: str) -> None:
+        self._dsn = libpq_dsn(database_url)
+        self._graphs: dict[int, RoadGraph] = {}
+        self._changed = threading.Condition()
+        self._update = threading.RLock()  # one writer at a time: loads and patches
+        self._listening = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.stats = {"loads": 0, "patches": 0}  # for logs and tests: patches should dominate
+
+    # -- queries -------------------------------------------------------------------------
+    def get(self, network_id: int, min_version: int) -> RoadGraph:
+        """The network's graph, at ``min_version`` or later (loading it the first time)."""
+        self._ensure_listener()
+        graph = self._graphs.get(network_id)
+        if graph is None:
+            return self._reload(network_id)
+        if graph.version >= min_version:
+            return graph
+        with self._changed:  # the listener is normally a few milliseconds behind
+            self._changed.wait_for(
+                lambda: self._graphs[network_id].version >= min_version, CATCH_UP_TIMEOUT_S)
+        graph = self._graphs[network_id]
+        return graph if graph.version >= min_version else self._reload(network_id)
+
+    def _reload(self, network_id: int) -> RoadGraph:
+        try:
+            return self._load(network_id)
+        except psycopg.OperationalError as exc:
+            raise DatabaseUnavailableError(f"cannot load the road graph: {exc}") from exc
+
+    def _load(self, network_id: int) -> RoadGraph:
+        with self._update, psycopg.connect(self._dsn) as conn:
+            segs, version = read_segments(conn, network_id)
+            current = self._graphs.get(network_id)
+            if current is not None and current.version >= version:
+                return current
+            graph = RoadGraph(network_id, version, segs)
+            self._publish(graph)
+            self.stats["loads"] += 1
+        return graph
+
+    def _publish(self, graph: RoadGraph) -> None:
+        graph.costs(Cost.TIME)  # warm the default cost model off the request path
+        with self._changed:
+            self._graphs[graph.network_id] = graph
+            self._changed.notify_all()
+
+    # -- listening -----------------------------------------------------------------------
+    def _ensure_listener(self) -> None:
+        if self._thread is None:
+            with self._update:
+                if self._thread is None:
+                    self._thread = threading.Thread(target=self._listen, daemon=True,
+                                                    name="routing-listener")
+                    self._thread.start()
+        # LISTEN must be in place before a graph's snapshot is read, or an edit committed in
+        # between would never be announced to us.
+        self._listening.wait(timeout=CATCH_UP_TIMEOUT_S)
+
+    def _listen(self) -> None:
+        backoff = 0.5
+        while not self._stop.is_set():
+            try:
+                with psycopg.connect(self._dsn, autocommit=True) as conn:
+                    conn.execute(f"LISTEN {CHANNEL}")
+                    self._listening.set()
+                    self._resync()
+                    backoff = 0.5
+                    while not self._stop.is_set():
+                        for note in conn.notifies(timeout=1.0):
+                            self._apply(json.loads(note.payload))
+            except (psycopg.Error, OSError) as exc:
+                (log.warning if backoff == 0.5 else log.debug)(
+                    "routing listener lost its connection (%s); retrying", exc)
+                self._listening.set()  # requests fall back to the version check meanwhile
+                time.sleep(backoff)
+                backoff = min(backoff * 2, 10.0)
+
+    def _resync(self) -> None:
+        """After (re)connecting, reload any graph whose network moved while we were away."""
+        if not self._graphs:
+            return
+        with psycopg.connect(self._dsn, autocommit=True) as conn:
+            rows = conn.execute("SELECT id, version FROM networks WHERE id = ANY(%s)",
+                                (list(self._graphs),)).fetchall()
+        for net_id, version in rows:
+            if self._graphs[net_id].version != version:
+                self._load(net_id)
+
+    def _apply(self, note: dict) -> None:
+        net_id, version, box = note["network_id"], note["version"], note.get("bbox")
+        # Under the update lock: a first load in progress finishes (and publishes) before this
+        # note is judged, so a change committed during that load is patched, not dropped.
+        with self._update:
+            graph = self._graphs.get(net_id)
+            if graph is None or version <= graph.version:
+                return
+            if version != graph.version + 1 or box is None:
+                self._load(net_id)
+                return
+            with psycopg.connect(self._dsn) as conn:
+                fresh, _ = read_segments(conn, net_id, box)
+            wide = [box[0] - BOX_EPS, box[1] - BOX_EPS, box[2] + BOX_EPS, box[3] + BOX_EPS]
+            self._publish(graph.patched(version, wide, fresh))
+            self.stats["patches"] += 1
+
+
+_registries: dict[str, GraphRegistry] = {}
+_registries_lock = threading.Lock()
+
+
+def registry(database_url: str) -> GraphRegistry:
+    """The process-wide registry for a database."""
+    with _registries_lock:
+        if database_url not in _registries:
+            _registries[database_url] = GraphRegistry(database_url)
+        return _registries[database_url]

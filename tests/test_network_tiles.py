@@ -1,0 +1,131 @@
+"""Vector tiles: decoded content, errors, and an edit visible right after it commits, with the
+cache invalidated by NOTIFY (only for tiles the edit touches)."""
+
+from __future__ import annotations
+
+import time
+
+import httpx
+import mapbox_vector_tile
+import morecantile
+import pytest
+
+from tests.conftest import running_server
+from tests.network_helpers import bearer, grid_network
+
+TMS = morecantile.tms.get("WebMercatorQuad")
+
+
+def _tile_url(network: str, lon: float, lat: float, z: int) -> str:
+    t = TMS.tile(lon, lat, z)
+    return f"/networks/{network}/tiles/{z}/{t.x}/{t.y}.mvt"
+
+
+def _names(body: bytes) -> set[str]:
+    layers = mapbox_vector_tile.decode(body)
+    return {f["properties"].get("name") for f in layers.get("segments", {}).get("features", [])}
+
+
+def _wait_for_hit(get) -> None:
+    deadline = time.monotonic() + 5
+    while get().headers["x-tile-cache"] != "hit":
+        assert time.monotonic() < deadline, "tile never became cached"
+        time.sleep(0.05)
+
+
+@pytest.fixture()
+def grid(database_url: str):
+    return grid_network()
+
+
+def test_tile_layers_and_attributes(client, grid) -> None:
+    r = client.get(_tile_url(grid.network, 10.001, 50.001, 14))  # the whole grid
+    assert r.status_code == 200
+    assert r.headers["content-type"] == "application/vnd.mapbox-vector-tile"
+    layers = mapbox_vector_tile.decode(r.content)
+    segments = layers["segments"]["features"]
+    assert len(segments) == 12
+    assert {f["properties"]["lanes_forward"] for f in segments} == {2}
+    assert {f["properties"]["road_class"] for f in segments} == {"residential"}
+    nodes = layers["nodes"]["features"]
+    assert len(nodes) == 9 and {f["properties"]["kind"] for f in nodes} >= {"junction"}
+    # At zoom 5 the whole grid is a few pixels: no nodes, sub-pixel segments dropped.
+    low = client.get(_tile_url(grid.network, 10.001, 50.001, 5))
+    layers = mapbox_vector_tile.decode(low.content)
+    assert "nodes" not in layers and 0 < len(layers["segments"]["features"]) < 12
+    assert len(low.content) < len(r.content)
+
+
+def test_empty_and_bad_tiles(client, grid) -> None:
+    empty = client.get(_tile_url(grid.network, -120.0, -40.0, 14))
+    assert empty.status_code == 200 and empty.content == b""
+    assert client.get("/networks/nope/tiles/1/0/0.mvt").status_code == 404
+    for bad in ("25/0/0", "1/2/0", "1/0/-1", "a/0/0", "3/0/99999999999999999999"):
+        r = client.get(f"/networks/{grid.network}/tiles/{bad}.mvt")
+        assert r.status_code == 400 and r.json()["code"] == "InvalidParameterValue", bad
+
+
+def test_edit_shows_in_tile_at_once_and_only_touched_tiles_drop(client, grid) -> None:
+    here = _tile_url(grid.network, 10.001, 50.001, 14)
+    elsewhere_net = grid_network()  # an edit in another network never touches this tile
+    get = lambda: client.get(here)  # noqa: E731
+    assert "Row 0" in _names(get().content)
+    _wait_for_hit(get)
+
+    items = f"/collections/{grid.network}-segments/items"
+    fid = client.get(items, params={"limit": 1}).json()["features"][0]["id"]
+    r = client.patch(f"{items}/{fid}", json={"name": "Renamed Road"},
+                     headers={**bearer("editor"), "If-Match": '"1"'})
+    assert r.status_code == 200
+    # Right after the commit, before or after the NOTIFY is applied: never the stale tile.
+    assert "Renamed Road" in _names(get().content)
+    _wait_for_hit(get)
+    assert "Renamed Road" in _names(get().content)
+
+    other = f"/collections/{elsewhere_net.network}-segments/items"
+    ofid = client.get(other, params={"limit": 1}).json()["features"][0]["id"]
+    client.patch(f"{other}/{ofid}", json={"name": "Far away"},
+                 headers={**bearer("editor"), "If-Match": '"1"'})
+    time.sleep(0.3)
+    assert get().headers["x-tile-cache"] == "hit"
+
+
+@pytest.mark.slow
+def test_every_worker_sees_the_edit(database_url: str, grid) -> None:
+    env = {"DATABASE_URL": database_url}
+    with running_server(env, workers=2) as base, httpx.Client(base_url=base) as http:
+        tile = _tile_url(grid.network, 10.001, 50.001, 14)
+        for _ in range(8):  # warm both workers' caches
+            assert "Row 1" in _names(http.get(tile).content)
+        items = f"/collections/{grid.network}-segments/items"
+        feature = next(f for f in http.get(items, params={"limit": 20}).json()["features"]
+                       if f["properties"]["name"] == "Row 1")
+        r = http.patch(f"{items}/{feature['id']}", json={"name": "Row One"},
+                       headers={**bearer("editor"), "If-Match": '"1"'})
+        assert r.status_code == 200
+        for _ in range(8):
+            segments = mapbox_vector_tile.decode(http.get(tile).content)["segments"]["features"]
+            (edited,) = [f for f in segments if f["id"] == feature["id"]]
+            assert edited["properties"]["name"] == "Row One"
+
+
+def test_cache_rules_without_a_server() -> None:
+    from app.network.tile_cache import TileCache
+
+    cache = TileCache(max_tiles=2)
+    cache.put((1, 0, 0, 0), 5, (0, 0, 1, 1), b"x")
+    assert cache.get((1, 0, 0, 0), 5) is None  # not listening yet: nothing is cached
+    cache.reset(healthy=True)
+    assert cache.get((1, 14, 0, 0), 5) is None  # first sight of network 1 at version 5
+    cache.put((1, 14, 0, 0), 5, (0, 0, 1, 1), b"a")
+    cache.put((1, 14, 1, 0), 5, (2, 0, 3, 1), b"b")
+    assert cache.get((1, 14, 0, 0), 6) is None  # a newer version is not yet applied
+    assert cache.invalidate(1, 6, (0.5, 0.5, 0.6, 0.6)) == 1
+    assert cache.get((1, 14, 0, 0), 6) is None and cache.get((1, 14, 1, 0), 6) == b"b"
+    cache.put((1, 14, 0, 0), 5, (0, 0, 1, 1), b"stale")  # rendered before version 6
+    assert cache.get((1, 14, 0, 0), 6) is None
+    cache.put((1, 14, 2, 0), 6, (4, 0, 5, 1), b"c")
+    cache.put((1, 14, 3, 0), 6, (6, 0, 7, 1), b"d")  # evicts the least recently used
+    assert cache.get((1, 14, 1, 0), 6) is None and cache.get((1, 14, 3, 0), 6) == b"d"
+    cache.reset(healthy=False)
+    assert cache.get((1, 14, 3, 0), 6) is None

@@ -14,6 +14,7 @@ from app.logs import RequestLogMiddleware
 from app.network.router import include_network
 from app.routing.router import include_routing
 from app.tiles.router import router as tiles_router
+from app.web.router import include_web
 
 
 def create_app() -> FastAPI:
@@ -26,6 +27,7 @@ def create_app() -> FastAPI:
     app.include_router(tiles_router)
     include_network(app)
     include_routing(app)
+    include_web(app)
     install_error_handlers(app)
     app.add_middleware(RequestLogMiddleware)
     return app

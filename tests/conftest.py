@@ -136,3 +136,12 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"shared sample data not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+@pytest.hookimpl(wrapper=True, tryfirst=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):
+    """Keep each phase's report on the item (``item.rep_call``), so fixtures can tell whether
+    the test failed, e.g. to save a browser screenshot."""
+    report = yield
+    setattr(item, f"rep_{report.when}", report)
+    return report

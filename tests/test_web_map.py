@@ -265,3 +265,43 @@ def test_phone_width_collapses_the_panel(browser, world, request, tmp_path) -> N
     page.click("#panel-toggle")
     assert page.locator("#panel").is_visible()
     assert page.locator("#raster-layers li[data-layer=web-magenta]").is_visible()
+
+
+def marker_labels(page) -> list[str]:
+    return [t.strip() for t in page.locator(".task-point").all_inner_texts()]
+
+
+def test_optimize_order_and_drag_a_point(browser, world, request, tmp_path) -> None:
+    page = open_map(browser, world, request, tmp_path)
+    page.check("#route-active")
+    # Up the detour's west edge to 50.0008, back down to 50.0002, then to its top: a zig-zag
+    # that visiting the two middle points the other way round avoids.
+    for lon, lat in [(10.0002, 50.0), (10.0, 50.0008), (10.0, 50.0002), (10.0015, 50.001)]:
+        click_lonlat(page, lon, lat)
+    page.locator("#route-result .distance").wait_for()
+    page.wait_for_function("!document.querySelector('#route-result').textContent.includes('…')")
+    zigzag_text = page.locator(".distance").inner_text()
+    zigzag = route_distance_m(page)
+    assert marker_labels(page) == ["1", "2", "3", "4"]
+
+    page.check("#route-optimize")
+    page.wait_for_function("(old) => document.querySelector('#route-result .distance')"
+                           "?.textContent !== old", arg=zigzag_text)
+    assert marker_labels(page) == ["1", "3", "2", "4"]  # labels give the visiting order
+    assert route_distance_m(page) < zigzag - 100  # 2 x 67 m of back-and-forth saved
+
+    # Drag the last point east along the detour's top: the route grows, no point is removed.
+    before = page.locator(".distance").inner_text()
+    box = page.locator(".task-point").nth(3).bounding_box()
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    tx, ty = page.evaluate("([lon, lat]) => { const p = window.ugvmap.map.project([lon, lat]);"
+                           " const r = window.ugvmap.map.getContainer().getBoundingClientRect();"
+                           " return [r.left + p.x, r.top + p.y]; }", [10.002, 50.0008])
+    page.mouse.move(x, y)
+    page.mouse.down()
+    page.mouse.move(tx, ty, steps=8)
+    page.mouse.up()
+    page.wait_for_function("(old) => document.querySelector('#route-result .distance')"
+                           "?.textContent !== old", arg=before)
+    assert page.locator(".task-point").count() == 4
+    assert route_distance_m(page) > float(before.split()[0]) + 30

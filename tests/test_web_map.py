@@ -28,11 +28,20 @@ pytestmark = pytest.mark.slow
 CHROMIUM = Path("/usr/bin/chromium")
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
 MAGENTA = (230, 20, 200)
-RASTER_BOUNDS = (9.9994, 49.9994, 10.0026, 50.0018)
-A, B = (10.0, 50.0), (10.002, 50.0)
+# The scene sits where no other test puts data (the session database is shared): network tests
+# use (10, 50). Latitude 50 keeps the metre figures below: 0.001 deg = 71.5 m east, 111 m north.
+ORIGIN = (7.777, 50.0)
+
+
+def at(east_deg: float, north_deg: float) -> tuple[float, float]:
+    return (round(ORIGIN[0] + east_deg, 7), round(ORIGIN[1] + north_deg, 7))
+
+
+RASTER_BOUNDS = (*at(-0.0006, -0.0006), *at(0.0026, 0.0018))
+A, B = at(0, 0), at(0.002, 0)
 DIRECT = [A, B]
-DETOUR = [A, (10.0, 50.001), (10.002, 50.001), B]
-SPUR = [(10.001, 50.001), (10.001, 50.0016)]
+DETOUR = [A, at(0, 0.001), at(0.002, 0.001), B]
+SPUR = [at(0.001, 0.001), at(0.001, 0.0016)]
 
 
 def cli(*args: str) -> str:
@@ -86,22 +95,32 @@ def open_map(browser, world, request, tmp_path, viewport=(1100, 750)):
     page = context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
+    page.on("console", lambda m: m.type == "error" and print(f"browser console: {m.text}"))
+    page.on("requestfailed", lambda r: print(f"request failed: {r.url} {r.failure}"))
     outside: list[str] = []
     page.on("request", lambda r: None if r.url.startswith(world["base"])
             or r.url.startswith(("data:", "blob:")) else outside.append(r.url))
     request.addfinalizer(lambda: finish(page, context, request, tmp_path, errors, outside))
     page.goto(world["base"] + "/")
     page.wait_for_selector("body[data-ready=true]", timeout=20_000)
+    # The page opens on everything in the (shared) database; look at this test's scene.
+    page.evaluate("(b) => window.ugvmap.map.fitBounds(b, {padding: 30, duration: 0})",
+                  list(RASTER_BOUNDS))
     wait_idle(page)
     return page
+
+
+def plan_route(page) -> None:
+    page.check("#route-active")
+    page.select_option("#route-network", "webnet")
 
 
 def finish(page, context, request, tmp_path, errors, outside) -> None:
     report = getattr(request.node, "rep_call", None)
     if report is not None and report.failed:
         shot = tmp_path / "failure.png"
-        page.screenshot(path=str(shot), full_page=True)
-        print(f"screenshot of the failed page: {shot}")
+        page.screenshot(path=str(shot), full_page=True, timeout=10_000)
+        print(f"screenshot of the failed page: {shot}; page errors: {errors}")
     context.close()
     assert not errors, f"JavaScript errors on the page: {errors}"
     assert not outside, f"the page requested outside resources: {outside}"
@@ -147,6 +166,13 @@ def test_raster_layer_is_drawn_and_toggles(browser, world, request, tmp_path) ->
     assert colour_pixels(page, MAGENTA) == 0
 
     entry.locator("input.visible").check()
+    page.evaluate("window.ugvmap.map.jumpTo({center: [0, 0], zoom: 3})")
+    wait_idle(page)
+    assert colour_pixels(page, MAGENTA) == 0
+    entry.locator("button.zoom").click()  # back to the layer's TileJSON bounds
+    wait_idle(page)
+    assert colour_pixels(page, MAGENTA) > 0.2 * canvas["width"] * canvas["height"]
+
     entry.locator("input.opacity").fill("0")
     wait_idle(page)
     assert colour_pixels(page, MAGENTA) == 0
@@ -155,12 +181,12 @@ def test_raster_layer_is_drawn_and_toggles(browser, world, request, tmp_path) ->
     page.mouse.move(canvas["x"] + canvas["width"] / 2, canvas["y"] + canvas["height"] / 2)
     shown_at = page.locator("#coords").inner_text()
     lat, lon = (float(v) for v in re.findall(r"-?\d+\.\d+", shown_at)[:2])
-    assert abs(lon - 10.001) < 0.002 and abs(lat - 50.0006) < 0.002
+    assert np.allclose((lon, lat), at(0.001, 0.0006), atol=0.002)
 
 
 def test_segment_click_shows_attributes_and_history(browser, world, request, tmp_path) -> None:
     page = open_map(browser, world, request, tmp_path)
-    click_lonlat(page, 10.0005, 50.0)
+    click_lonlat(page, *at(0.0005, 0))
     inspector = page.locator("#inspector")
     inspector.wait_for(state="visible")
     page.wait_for_function("document.querySelector('#f-name').value !== ''")
@@ -171,16 +197,16 @@ def test_segment_click_shows_attributes_and_history(browser, world, request, tmp
     assert page.locator("#f-speed_limit_kph").is_disabled()
     assert page.locator("#seg-history").inner_text().strip() != ""
 
-    click_lonlat(page, 10.0015, 50.001)  # the detour's top edge, east of the spur
+    click_lonlat(page, *at(0.0015, 0.001))  # the detour's top edge, east of the spur
     page.wait_for_function("document.querySelector('#f-name').value === 'Detour road'")
 
 
 def test_edit_speed_limit_then_route_takes_the_detour(browser, world, request,
                                                       tmp_path) -> None:
     page = open_map(browser, world, request, tmp_path)
-    page.check("#route-active")
-    click_lonlat(page, 10.0002, 50.0)
-    click_lonlat(page, 10.0018, 50.0)
+    plan_route(page)
+    click_lonlat(page, *at(0.0002, 0))
+    click_lonlat(page, *at(0.0018, 0))
     page.locator("#route-result .distance").wait_for()
     before_text = page.locator("#route-result .distance").inner_text()
     before = route_distance_m(page)
@@ -189,7 +215,7 @@ def test_edit_speed_limit_then_route_takes_the_detour(browser, world, request,
     assert colour_pixels(page, (31, 79, 255), tolerance=12) > 100  # the drawn route line
     page.uncheck("#route-active")
 
-    click_lonlat(page, 10.001, 50.0)
+    click_lonlat(page, *at(0.001, 0))
     page.wait_for_function("document.querySelector('#f-name').value === 'Direct road'")
     page.fill("#token", world["token"])
     page.fill("#f-speed_limit_kph", "900")
@@ -202,10 +228,15 @@ def test_edit_speed_limit_then_route_takes_the_detour(browser, world, request,
     page.click("#seg-save")
     page.wait_for_function("document.querySelector('#seg-message').textContent.startsWith('Saved')")
     assert page.locator("#f-speed_limit_kph-error").inner_text() == ""
-    assert "speed_limit_kph: 50 → 5" in page.locator("#seg-history").inner_text()
+    page.wait_for_function("document.querySelector('#seg-history').textContent"
+                           ".includes('speed_limit_kph: 50 → 5')")
     stored = httpx.get(f"{world['base']}/collections/webnet-segments/items/"
                        f"{page.evaluate('window.ugvmap.inspector.id')}").json()
     assert stored["properties"]["speed_limit_kph"] == 5
+    # The map's vector tiles were reloaded: the drawn segment carries the new speed limit.
+    page.wait_for_function(
+        "(fid) => window.ugvmap.map.queryRenderedFeatures({layers: ['net-webnet-segments']})"
+        ".some((f) => f.id === fid && f.properties.speed_limit_kph === 5)", arg=stored["id"])
 
     # The route re-plans after the save: the slow direct road is now avoided.
     page.wait_for_function("(old) => { const d = document.querySelector('#route-result .distance');"
@@ -221,7 +252,7 @@ def test_edit_speed_limit_then_route_takes_the_detour(browser, world, request,
 
 def test_stale_edit_shows_conflict_and_reload(browser, world, request, tmp_path) -> None:
     page = open_map(browser, world, request, tmp_path)
-    click_lonlat(page, 10.0, 50.0005)  # the detour's west edge
+    click_lonlat(page, *at(0, 0.0005))  # the detour's west edge
     page.wait_for_function("document.querySelector('#f-name').value === 'Detour road'")
     page.fill("#token", world["token"])
     fid = page.evaluate("window.ugvmap.inspector.id")
@@ -245,16 +276,16 @@ def test_stale_edit_shows_conflict_and_reload(browser, world, request, tmp_path)
 
 def test_route_errors_are_shown_in_words(browser, world, request, tmp_path) -> None:
     page = open_map(browser, world, request, tmp_path)
-    page.check("#route-active")
-    click_lonlat(page, 10.0002, 50.0)
-    click_lonlat(page, 10.0024, 50.0017)  # on the magenta image, far from every road
+    plan_route(page)
+    click_lonlat(page, *at(0.0002, 0))
+    click_lonlat(page, *at(0.0024, 0.0017))  # on the magenta image, far from every road
     error = page.locator("#route-result .route-error")
     error.wait_for()
     assert "No route" in error.inner_text() and len(error.inner_text()) > 20
     # Clicking the far point removes it; with the two on-road points the route is back.
     page.locator(".task-point").nth(1).click()
     assert page.locator(".task-point").count() == 1
-    click_lonlat(page, 10.0018, 50.0)
+    click_lonlat(page, *at(0.0018, 0))
     page.locator("#route-result .distance").wait_for()
     assert route_distance_m(page) > 0
 
@@ -273,11 +304,11 @@ def marker_labels(page) -> list[str]:
 
 def test_optimize_order_and_drag_a_point(browser, world, request, tmp_path) -> None:
     page = open_map(browser, world, request, tmp_path)
-    page.check("#route-active")
+    plan_route(page)
     # Up the detour's west edge to 50.0008, back down to 50.0002, then to its top: a zig-zag
     # that visiting the two middle points the other way round avoids.
-    for lon, lat in [(10.0002, 50.0), (10.0, 50.0008), (10.0, 50.0002), (10.0015, 50.001)]:
-        click_lonlat(page, lon, lat)
+    for point in [at(0.0002, 0), at(0, 0.0008), at(0, 0.0002), at(0.0015, 0.001)]:
+        click_lonlat(page, *point)
     page.locator("#route-result .distance").wait_for()
     page.wait_for_function("!document.querySelector('#route-result').textContent.includes('…')")
     zigzag_text = page.locator(".distance").inner_text()
@@ -296,7 +327,7 @@ def test_optimize_order_and_drag_a_point(browser, world, request, tmp_path) -> N
     x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
     tx, ty = page.evaluate("([lon, lat]) => { const p = window.ugvmap.map.project([lon, lat]);"
                            " const r = window.ugvmap.map.getContainer().getBoundingClientRect();"
-                           " return [r.left + p.x, r.top + p.y]; }", [10.002, 50.0008])
+                           " return [r.left + p.x, r.top + p.y]; }", at(0.002, 0.0008))
     page.mouse.move(x, y)
     page.mouse.down()
     page.mouse.move(tx, ty, steps=8)

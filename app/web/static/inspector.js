@@ -52,8 +52,9 @@ function writeField(form, field, value) {
   else input.value = value ?? '';
 }
 
-function formatValue(value) {
+function formatValue(value, key) {
   if (value === null || value === undefined) return '—';
+  if (key === 'updated_at') return new Date(value).toLocaleString();
   if (typeof value === 'number') return Number.isInteger(value) ? String(value) : value.toFixed(1);
   return String(value);
 }
@@ -148,7 +149,7 @@ export class Inspector {
     const props = this.feature.properties;
     for (const field of FIELDS) writeField(this.form, field, props[field.key]);
     document.getElementById('seg-readonly').innerHTML = READ_ONLY
-      .map(([key, label]) => `<dt>${label}</dt><dd data-field="${key}">${formatValue(props[key])}</dd>`).join('');
+      .map(([key, label]) => `<dt>${label}</dt><dd data-field="${key}">${formatValue(props[key], key)}</dd>`).join('');
   }
 
   async loadHistory() {

@@ -34,8 +34,14 @@ function tileUrl(name, stamp) {
   return `${location.origin}/networks/${encodeURIComponent(name)}/tiles/{z}/{x}/{y}.mvt?v=${stamp}`;
 }
 
+// Networks are drawn from this zoom on: a low-zoom tile would hold a whole city's roads (or
+// every network in the database) for lines too small to see, and costs the server most.
+export const NETWORK_MINZOOM = 10;
+
 function addNetwork(map, name) {
-  map.addSource(sourceId(name), { type: 'vector', tiles: [tileUrl(name, Date.now())], minzoom: 0, maxzoom: 18 });
+  map.addSource(sourceId(name), {
+    type: 'vector', tiles: [tileUrl(name, Date.now())], minzoom: NETWORK_MINZOOM, maxzoom: 18,
+  });
   map.addLayer({
     id: segmentsLayerId(name), type: 'line', source: sourceId(name), 'source-layer': 'segments',
     layout: { 'line-cap': 'round', 'line-join': 'round' },
@@ -53,7 +59,11 @@ function addNetwork(map, name) {
     id: nodesLayerId(name), type: 'circle', source: sourceId(name), 'source-layer': 'nodes',
     paint: {
       // Traffic lights: big red with a white ring; junctions: orange; other nodes: small grey.
-      'circle-radius': ['case', ['get', 'traffic_light'], 6, ['==', ['get', 'kind'], 'junction'], 4, 2.5],
+      // Plain (degree-2) nodes only appear from z16, where they no longer crowd the roads.
+      'circle-radius': ['case', ['get', 'traffic_light'], 6, ['==', ['get', 'kind'], 'junction'], 4,
+        ['step', ['zoom'], 0, 16, 2.5]],
+      'circle-stroke-opacity': ['case', ['get', 'traffic_light'], 1, ['==', ['get', 'kind'], 'junction'], 1,
+        ['step', ['zoom'], 0, 16, 1]],
       'circle-color': ['case', ['get', 'traffic_light'], '#e02020',
         ['==', ['get', 'kind'], 'junction'], '#ff9800', '#607080'],
       'circle-stroke-color': '#ffffff',
@@ -99,6 +109,10 @@ export class Networks {
       if (bbox) this.extents.push(bbox);
       list.appendChild(this.entry(name, bbox));
     }
+    const hint = document.getElementById('net-hint');
+    const showHint = () => { hint.hidden = !this.names.length || this.map.getZoom() >= NETWORK_MINZOOM; };
+    this.map.on('zoomend', showHint);
+    showHint();
     const select = document.getElementById('net-style');
     select.addEventListener('change', () => this.setMode(select.value));
     this.setMode(select.value);

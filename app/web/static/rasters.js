@@ -38,8 +38,9 @@ export async function loadRasterLayers(map) {
   }
   list.innerHTML = result.body.layers.length ? '' : '<li class="empty">no raster layers</li>';
   const bounds = [];
-  for (const layer of result.body.layers) {
-    const tj = await request(layer.links.tilejson);
+  const tilejsons = await Promise.all(result.body.layers.map((layer) => request(layer.links.tilejson)));
+  for (const [i, layer] of result.body.layers.entries()) {
+    const tj = tilejsons[i];
     if (!tj.ok) {
       setStatus(`${layer.slug}: ${describeError(tj)}`);
       continue;

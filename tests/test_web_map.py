@@ -153,6 +153,12 @@ def route_distance_m(page) -> float:
     return float(value) * (1000 if unit == "km" else 1)
 
 
+def wait_route_change(page, old_distance: str) -> None:
+    """Wait for a new route summary (while routing, the old one is already gone)."""
+    page.wait_for_function("(old) => { const d = document.querySelector('#route-result .distance');"
+                           " return d && d.textContent !== old; }", arg=old_distance)
+
+
 def test_raster_layer_is_drawn_and_toggles(browser, world, request, tmp_path) -> None:
     page = open_map(browser, world, request, tmp_path)
     entry = page.locator("#raster-layers li[data-layer=web-magenta]")
@@ -239,8 +245,7 @@ def test_edit_speed_limit_then_route_takes_the_detour(browser, world, request,
         ".some((f) => f.id === fid && f.properties.speed_limit_kph === 5)", arg=stored["id"])
 
     # The route re-plans after the save: the slow direct road is now avoided.
-    page.wait_for_function("(old) => { const d = document.querySelector('#route-result .distance');"
-                           " return d && d.textContent !== old; }", arg=before_text)
+    wait_route_change(page, before_text)
     after = route_distance_m(page)
     assert 350 < after < 450, after
     # Put the speed back so the other tests see the original network.
@@ -316,8 +321,7 @@ def test_optimize_order_and_drag_a_point(browser, world, request, tmp_path) -> N
     assert marker_labels(page) == ["1", "2", "3", "4"]
 
     page.check("#route-optimize")
-    page.wait_for_function("(old) => document.querySelector('#route-result .distance')"
-                           "?.textContent !== old", arg=zigzag_text)
+    wait_route_change(page, zigzag_text)
     assert marker_labels(page) == ["1", "3", "2", "4"]  # labels give the visiting order
     assert route_distance_m(page) < zigzag - 100  # 2 x 67 m of back-and-forth saved
 
@@ -332,7 +336,6 @@ def test_optimize_order_and_drag_a_point(browser, world, request, tmp_path) -> N
     page.mouse.down()
     page.mouse.move(tx, ty, steps=8)
     page.mouse.up()
-    page.wait_for_function("(old) => document.querySelector('#route-result .distance')"
-                           "?.textContent !== old", arg=before)
+    wait_route_change(page, before)
     assert page.locator(".task-point").count() == 4
     assert route_distance_m(page) > float(before.split()[0]) + 30

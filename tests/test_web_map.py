@@ -121,8 +121,10 @@ def finish(page, context, request, tmp_path, errors, outside) -> None:
         shot = tmp_path / "failure.png"
         page.screenshot(path=str(shot), full_page=True, timeout=10_000)
         print(f"screenshot of the failed page: {shot}; page errors: {errors}")
+    status = page.locator("#status").inner_text()  # the page reports map/style errors here
     context.close()
     assert not errors, f"JavaScript errors on the page: {errors}"
+    assert not status, f"the page reported: {status}"
     assert not outside, f"the page requested outside resources: {outside}"
 
 
@@ -202,6 +204,10 @@ def test_segment_click_shows_attributes_and_history(browser, world, request, tmp
     # Read-only without a token.
     assert page.locator("#f-speed_limit_kph").is_disabled()
     assert page.locator("#seg-history").inner_text().strip() != ""
+    # Nodes are drawn by kind: the spur meets the detour at a junction, the spur's end is not.
+    kinds = page.evaluate("window.ugvmap.map.queryRenderedFeatures({layers: ['net-webnet-nodes']})"
+                          ".map((f) => f.properties.kind)")
+    assert "junction" in kinds and "endpoint" in kinds, kinds
 
     click_lonlat(page, *at(0.0015, 0.001))  # the detour's top edge, east of the spur
     page.wait_for_function("document.querySelector('#f-name').value === 'Detour road'")

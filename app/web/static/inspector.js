@@ -148,8 +148,16 @@ export class Inspector {
   fill() {
     const props = this.feature.properties;
     for (const field of FIELDS) writeField(this.form, field, props[field.key]);
-    document.getElementById('seg-readonly').innerHTML = READ_ONLY
-      .map(([key, label]) => `<dt>${label}</dt><dd data-field="${key}">${formatValue(props[key], key)}</dd>`).join('');
+    const list = document.getElementById('seg-readonly');
+    list.replaceChildren();
+    for (const [key, label] of READ_ONLY) {
+      const dt = document.createElement('dt');
+      const dd = document.createElement('dd');
+      dt.textContent = label;
+      dd.dataset.field = key;
+      dd.textContent = formatValue(props[key], key); // server text (e.g. a token's name): never HTML
+      list.append(dt, dd);
+    }
   }
 
   async loadHistory() {
@@ -157,7 +165,10 @@ export class Inspector {
     const result = await request(`${this.itemUrl()}/history`);
     list.innerHTML = '';
     if (!result.ok) {
-      list.innerHTML = `<li class="error">${describeError(result)}</li>`;
+      const li = document.createElement('li');
+      li.className = 'error';
+      li.textContent = describeError(result);
+      list.appendChild(li);
       return;
     }
     if (!result.body.edits.length) list.innerHTML = '<li class="empty">no edits yet</li>';

@@ -38,6 +38,11 @@ function tileUrl(name, stamp) {
 // every network in the database) for lines too small to see, and costs the server most.
 export const NETWORK_MINZOOM = 10;
 
+/** A value per node kind: traffic light, junction, other. */
+function nodeValue(light, junction, other) {
+  return ['case', ['get', 'traffic_light'], light, ['==', ['get', 'kind'], 'junction'], junction, other];
+}
+
 function addNetwork(map, name) {
   map.addSource(sourceId(name), {
     type: 'vector', tiles: [tileUrl(name, Date.now())], minzoom: NETWORK_MINZOOM, maxzoom: 18,
@@ -58,16 +63,13 @@ function addNetwork(map, name) {
   map.addLayer({
     id: nodesLayerId(name), type: 'circle', source: sourceId(name), 'source-layer': 'nodes',
     paint: {
-      // Traffic lights: big red with a white ring; junctions: orange; other nodes: small grey.
-      // Plain (degree-2) nodes only appear from z16, where they no longer crowd the roads.
-      'circle-radius': ['case', ['get', 'traffic_light'], 6, ['==', ['get', 'kind'], 'junction'], 4,
-        ['step', ['zoom'], 0, 16, 2.5]],
-      'circle-stroke-opacity': ['case', ['get', 'traffic_light'], 1, ['==', ['get', 'kind'], 'junction'], 1,
-        ['step', ['zoom'], 0, 16, 1]],
-      'circle-color': ['case', ['get', 'traffic_light'], '#e02020',
-        ['==', ['get', 'kind'], 'junction'], '#ff9800', '#607080'],
+      // Traffic lights: big red with a white ring; junctions: orange; plain (degree-2) nodes:
+      // small grey, only from z16 where they no longer crowd the roads. Zoom must be the input
+      // of the top-level step, so the kind cases repeat on both sides of it.
+      'circle-radius': ['step', ['zoom'], nodeValue(6, 4, 0), 16, nodeValue(6, 4, 2.5)],
+      'circle-stroke-width': ['step', ['zoom'], nodeValue(2, 1, 0), 16, nodeValue(2, 1, 1)],
+      'circle-color': nodeValue('#e02020', '#ff9800', '#607080'),
       'circle-stroke-color': '#ffffff',
-      'circle-stroke-width': ['case', ['get', 'traffic_light'], 2, 1],
     },
   });
 }

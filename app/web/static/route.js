@@ -32,7 +32,7 @@ export class RouteTool {
     this.optimize = document.getElementById('route-optimize');
     this.network = document.getElementById('route-network');
     this.result = document.getElementById('route-result');
-    this.network.innerHTML = networkNames.map((n) => `<option>${n}</option>`).join('');
+    this.network.replaceChildren(...networkNames.map((n) => new Option(n, n)));
     this.requestSeq = 0;
     map.addSource(ROUTE_SOURCE, { type: 'geojson', data: { type: 'FeatureCollection', features: [] } });
     map.addLayer({ id: 'route-casing', type: 'line', source: ROUTE_SOURCE,

@@ -284,6 +284,11 @@ def test_stale_edit_shows_conflict_and_reload(browser, world, request, tmp_path)
     page.wait_for_function("document.querySelector('#f-name').value === 'Renamed elsewhere'")
     assert page.locator("#seg-reload").is_hidden()
 
+    # The token is entered once per browser tab: after a reload the form is still editable.
+    page.reload()
+    page.wait_for_selector("body[data-ready=true]")
+    assert page.locator("#token").input_value() == world["token"]
+
 
 def test_route_errors_are_shown_in_words(browser, world, request, tmp_path) -> None:
     page = open_map(browser, world, request, tmp_path)

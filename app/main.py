@@ -15,6 +15,7 @@ from app.logs import RequestLogMiddleware
 from app.network.router import include_network
 from app.routing.router import include_routing
 from app.tiles.router import router as tiles_router
+from app.web.router import include_web
 
 
 def create_app() -> FastAPI:
@@ -28,6 +29,7 @@ def create_app() -> FastAPI:
     include_network(app)
     app.include_router(tiles_router)
     include_routing(app)
+    include_web(app)
     install_error_handlers(app)
     app.add_middleware(RequestLogMiddleware)
     return app

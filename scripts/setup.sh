@@ -5,7 +5,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-APT_PACKAGES=(postgresql-15 postgresql-15-postgis-3 postgresql-15-pgrouting gdal-bin osmium-tool wrk)
+APT_PACKAGES=(postgresql-15 postgresql-15-postgis-3 postgresql-15-pgrouting gdal-bin wrk osmium-tool
+              nodejs chromium chromium-driver)
+# Debian ships npm apart from nodejs; other nodejs builds (e.g. NodeSource) bundle it and
+# conflict with Debian's npm package, so only ask for it when there is no npm command.
+command -v npm >/dev/null || APT_PACKAGES+=(npm)
 
 missing=()
 for pkg in "${APT_PACKAGES[@]}"; do
@@ -45,5 +49,15 @@ if [[ ! -f $stamp || $(cat "$stamp") != "$want" ]]; then
     .venv/bin/python -m pip install -q --upgrade pip
     .venv/bin/python -m pip install -q -e ".[dev]"
     echo "$want" > "$stamp"
+fi
+
+# The web map's browser library (MapLibre GL JS), at the version pinned in the lockfile; the
+# app serves it from app/web/node_modules, so nothing is fetched from a CDN at run time.
+web_stamp=app/web/node_modules/.ugvmap-installed
+web_want=$(sha256sum app/web/package-lock.json | cut -d' ' -f1)
+if [[ ! -f $web_stamp || $(cat "$web_stamp") != "$web_want" ]]; then
+    echo "setup: installing the web map's npm packages"
+    (cd app/web && npm ci --omit=dev --no-audit --no-fund --loglevel=error)
+    echo "$web_want" > "$web_stamp"
 fi
 echo "setup: ok"

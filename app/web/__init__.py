@@ -1,0 +1,1 @@
+"""The browser map at ``GET /``: a static single-page app over the public HTTP API."""

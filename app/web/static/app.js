@@ -1,0 +1,91 @@
+// Bootstraps the map: MapLibre from the app's own /vendor route, then imagery, networks, tools.
+import { setStatus } from './api.js';
+import { Inspector } from './inspector.js';
+import { Networks } from './networks.js';
+import { loadRasterLayers } from './rasters.js';
+import { RouteTool } from './route.js';
+
+// A style with no glyphs or sprites: nothing is fetched from outside this server.
+const STYLE = {
+  version: 8,
+  sources: {},
+  layers: [{ id: 'background', type: 'background', paint: { 'background-color': '#e9ecef' } }],
+};
+
+function union(boxes) {
+  if (!boxes.length) return null;
+  return boxes.reduce((a, b) => [Math.min(a[0], b[0]), Math.min(a[1], b[1]), Math.max(a[2], b[2]), Math.max(a[3], b[3])]);
+}
+
+function setupPanelToggle(map) {
+  const button = document.getElementById('panel-toggle');
+  const narrow = window.matchMedia('(max-width: 700px)');
+  const apply = (open) => {
+    document.body.classList.toggle('panel-closed', !open);
+    button.setAttribute('aria-expanded', String(open));
+    map.resize();
+  };
+  apply(!narrow.matches);
+  button.addEventListener('click', () => apply(document.body.classList.contains('panel-closed')));
+  narrow.addEventListener('change', () => apply(!narrow.matches));
+}
+
+function setupCoordinates(map) {
+  const box = document.getElementById('coords');
+  map.on('mousemove', (ev) => {
+    box.textContent = `${ev.lngLat.lat.toFixed(6)}, ${ev.lngLat.lng.toFixed(6)}  z${map.getZoom().toFixed(1)}`;
+  });
+}
+
+async function start() {
+  let maplibregl;
+  try {
+    maplibregl = await import('/vendor/maplibre-gl/maplibre-gl.mjs');
+  } catch (err) {
+    setStatus('Map library missing: run scripts/setup.sh (npm ci in app/web).');
+    throw err;
+  }
+  const map = new maplibregl.Map({ container: 'map', style: STYLE, center: [0, 0], zoom: 1, attributionControl: false });
+  map.addControl(new maplibregl.NavigationControl({ showCompass: false }), 'top-right');
+  map.addControl(new maplibregl.ScaleControl({ unit: 'metric', maxWidth: 120 }), 'bottom-right');
+  map.on('error', (ev) => setStatus(ev.error?.message || 'map error'));
+  setupPanelToggle(map);
+  setupCoordinates(map);
+  await new Promise((resolve) => map.on('load', resolve));
+
+  const rasterBounds = await loadRasterLayers(map);
+  const networks = new Networks(map);
+  await networks.load();
+  const route = new RouteTool(map, maplibregl, networks.names);
+  const inspector = new Inspector({
+    onSaved: (network) => {
+      networks.refresh(network);
+      route.update(); // the next route must see the edit
+    },
+    onClose: () => networks.select(null, -1),
+    onLayout: () => map.resize(),
+  });
+
+  map.on('click', (ev) => {
+    if (route.isActive()) {
+      route.addPoint(ev.lngLat);
+      return;
+    }
+    const hit = networks.segmentAt(ev.point);
+    if (!hit) return;
+    networks.select(hit.network, hit.id);
+    inspector.open(hit.network, hit.id);
+  });
+  map.on('mousemove', (ev) => {
+    if (route.isActive()) return;
+    map.getCanvas().style.cursor = networks.segmentAt(ev.point) ? 'pointer' : '';
+  });
+
+  const extent = union([...networks.extents, ...rasterBounds]);
+  if (extent) map.fitBounds(extent, { padding: 30, duration: 0, maxZoom: 18 });
+  // Exposed for the browser tests and for debugging from the console.
+  window.ugvmap = { map, networks, route, inspector };
+  document.body.dataset.ready = 'true';
+}
+
+start();

@@ -1,0 +1,239 @@
+// Segment side panel: attributes, edit history, and editing with a bearer token (PATCH + If-Match).
+import { request, describeError } from './api.js';
+
+const TOKEN_KEY = 'ugvmap.token';
+
+// Editable attributes in display order; `kind` picks the input and how its value is read back.
+const FIELDS = [
+  { key: 'name', label: 'Name', kind: 'text', nullable: true },
+  { key: 'road_class', label: 'Road class', kind: 'text', list: 'road-classes' },
+  { key: 'speed_limit_kph', label: 'Speed limit (km/h)', kind: 'number', nullable: true },
+  { key: 'lanes_forward', label: 'Lanes forward', kind: 'integer' },
+  { key: 'lanes_backward', label: 'Lanes backward', kind: 'integer' },
+  { key: 'oneway', label: 'One-way', kind: 'select', options: ['none', 'forward', 'backward'] },
+  { key: 'is_junction', label: 'Junction', kind: 'checkbox' },
+  { key: 'surface', label: 'Surface', kind: 'text', nullable: true },
+  { key: 'width_m', label: 'Width (m)', kind: 'number', nullable: true },
+];
+const READ_ONLY = [['length_m', 'Length (m)'], ['version', 'Version'], ['updated_by', 'Updated by'], ['updated_at', 'Updated at']];
+const ROAD_CLASSES = ['motorway', 'trunk', 'primary', 'secondary', 'tertiary', 'unclassified',
+  'residential', 'living_street', 'service', 'track', 'road', 'path'];
+
+function fieldHtml(field) {
+  const id = `f-${field.key}`;
+  let input;
+  if (field.kind === 'select') {
+    input = `<select id="${id}" name="${field.key}">${field.options.map((o) => `<option>${o}</option>`).join('')}</select>`;
+  } else if (field.kind === 'checkbox') {
+    input = `<input type="checkbox" id="${id}" name="${field.key}">`;
+  } else {
+    const type = field.kind === 'text' ? 'text' : 'number';
+    const step = field.kind === 'integer' ? '1' : 'any';
+    const list = field.list ? ` list="${field.list}"` : '';
+    input = `<input type="${type}" step="${step}" id="${id}" name="${field.key}"${list}>`;
+  }
+  return `<div class="field" data-field="${field.key}"><label for="${id}">${field.label}</label>${input}
+    <span class="error" id="${id}-error"></span></div>`;
+}
+
+function readField(form, field) {
+  const input = form.elements[field.key];
+  if (field.kind === 'checkbox') return input.checked;
+  if (field.kind === 'select' || field.kind === 'text') {
+    return input.value === '' && field.nullable ? null : input.value;
+  }
+  if (input.value.trim() === '') return field.nullable ? null : '';
+  return Number(input.value);
+}
+
+function writeField(form, field, value) {
+  const input = form.elements[field.key];
+  if (field.kind === 'checkbox') input.checked = Boolean(value);
+  else input.value = value ?? '';
+}
+
+function formatValue(value, key) {
+  if (value === null || value === undefined) return '—';
+  if (key === 'updated_at') return new Date(value).toLocaleString();
+  if (typeof value === 'number') return Number.isInteger(value) ? String(value) : value.toFixed(1);
+  return String(value);
+}
+
+function historyItem(edit) {
+  const li = document.createElement('li');
+  const changes = Object.keys(edit.new || {}).filter((k) => k !== 'version')
+    .map((k) => `${k}: ${formatValue(edit.old?.[k])} → ${formatValue(edit.new[k])}`);
+  li.textContent = `v${edit.version_to} ${edit.action} by ${edit.edited_by}, ${new Date(edit.edited_at).toLocaleString()}`
+    + (changes.length ? ` — ${changes.join('; ')}` : '');
+  return li;
+}
+
+/** The side panel for one road segment at a time. `onSaved(network)` runs after each save,
+ * `onLayout()` after the panel opens or closes (the map must resize). */
+export class Inspector {
+  constructor({ onSaved, onClose, onLayout }) {
+    this.onSaved = onSaved;
+    this.onClose = onClose;
+    this.onLayout = () => {
+      document.body.classList.toggle('inspector-open', !this.panel.hidden);
+      onLayout();
+    };
+    this.panel = document.getElementById('inspector');
+    this.form = document.getElementById('seg-form');
+    this.message = document.getElementById('seg-message');
+    this.reloadButton = document.getElementById('seg-reload');
+    this.token = document.getElementById('token');
+    document.getElementById('seg-fields').innerHTML = FIELDS.map(fieldHtml).join('')
+      + `<datalist id="road-classes">${ROAD_CLASSES.map((c) => `<option value="${c}">`).join('')}</datalist>`
+      + '<dl id="seg-readonly" class="readonly"></dl>';
+    this.token.value = sessionStorage.getItem(TOKEN_KEY) || '';
+    this.token.addEventListener('input', () => {
+      sessionStorage.setItem(TOKEN_KEY, this.token.value.trim());
+      this.updateEditable();
+    });
+    document.getElementById('token-forget').addEventListener('click', () => {
+      sessionStorage.removeItem(TOKEN_KEY);
+      this.token.value = '';
+      this.updateEditable();
+    });
+    this.form.addEventListener('submit', (ev) => { ev.preventDefault(); this.save(); });
+    this.reloadButton.addEventListener('click', () => this.open(this.network, this.id));
+    document.getElementById('inspector-close').addEventListener('click', () => this.close());
+  }
+
+  itemUrl() {
+    return `/collections/${encodeURIComponent(`${this.network}-segments`)}/items/${this.id}`;
+  }
+
+  updateEditable() {
+    const editable = Boolean(this.token.value.trim()) && Boolean(this.feature);
+    for (const field of FIELDS) this.form.elements[field.key].disabled = !editable;
+    document.getElementById('seg-save').disabled = !editable;
+  }
+
+  showMessage(text, kind) {
+    this.message.textContent = text;
+    this.message.className = kind || '';
+  }
+
+  clearErrors() {
+    for (const span of this.form.querySelectorAll('.error')) span.textContent = '';
+    for (const div of this.form.querySelectorAll('.field')) div.classList.remove('invalid');
+  }
+
+  async open(network, id) {
+    this.network = network;
+    this.id = id;
+    this.feature = null;
+    this.panel.hidden = false;
+    this.onLayout();
+    this.reloadButton.hidden = true;
+    this.clearErrors();
+    this.showMessage('loading…');
+    document.getElementById('seg-title').textContent = `Segment ${id} (${network})`;
+    const result = await request(this.itemUrl());
+    if (!result.ok) {
+      this.showMessage(describeError(result), 'error');
+      this.updateEditable();
+      return;
+    }
+    this.feature = result.body;
+    this.etag = result.etag || `"${result.body.properties.version}"`;
+    this.fill();
+    this.showMessage(this.token.value.trim() ? '' : 'Enter an editor token to edit.');
+    this.updateEditable();
+    await this.loadHistory();
+  }
+
+  fill() {
+    const props = this.feature.properties;
+    for (const field of FIELDS) writeField(this.form, field, props[field.key]);
+    const list = document.getElementById('seg-readonly');
+    list.replaceChildren();
+    for (const [key, label] of READ_ONLY) {
+      const dt = document.createElement('dt');
+      const dd = document.createElement('dd');
+      dt.textContent = label;
+      dd.dataset.field = key;
+      dd.textContent = formatValue(props[key], key); // server text (e.g. a token's name): never HTML
+      list.append(dt, dd);
+    }
+  }
+
+  async loadHistory() {
+    const list = document.getElementById('seg-history');
+    const result = await request(`${this.itemUrl()}/history`);
+    list.innerHTML = '';
+    if (!result.ok) {
+      const li = document.createElement('li');
+      li.className = 'error';
+      li.textContent = describeError(result);
+      list.appendChild(li);
+      return;
+    }
+    if (!result.body.edits.length) list.innerHTML = '<li class="empty">no edits yet</li>';
+    for (const edit of result.body.edits.slice().reverse()) list.appendChild(historyItem(edit));
+  }
+
+  /** The merge patch: only the fields whose value differs from the loaded feature. */
+  patch() {
+    const props = this.feature.properties;
+    const patch = {};
+    for (const field of FIELDS) {
+      const value = readField(this.form, field);
+      if (value !== (props[field.key] ?? null)) patch[field.key] = value;
+    }
+    return patch;
+  }
+
+  async save() {
+    this.clearErrors();
+    const patch = this.patch();
+    if (!Object.keys(patch).length) {
+      this.showMessage('Nothing changed.');
+      return;
+    }
+    this.showMessage('saving…');
+    const result = await request(this.itemUrl(), {
+      method: 'PATCH',
+      headers: {
+        'Content-Type': 'application/merge-patch+json',
+        Authorization: `Bearer ${this.token.value.trim()}`,
+        'If-Match': this.etag,
+      },
+      body: JSON.stringify(patch),
+    });
+    if (result.ok) {
+      this.feature = result.body;
+      this.etag = result.etag || `"${result.body.properties.version}"`;
+      this.fill();
+      this.showMessage(`Saved: version ${result.body.properties.version}.`, 'ok');
+      this.onSaved(this.network);
+      await this.loadHistory();
+    } else if (result.status === 412) {
+      this.showMessage('Conflict: someone else changed this segment since you opened it. '
+        + 'Your changes were not saved; reload to see the current values.', 'error conflict');
+      this.reloadButton.hidden = false;
+    } else if (result.status === 422 && result.body.errors) {
+      for (const [key, problem] of Object.entries(result.body.errors)) {
+        const span = document.getElementById(`f-${key}-error`);
+        if (span) {
+          span.textContent = problem;
+          span.parentElement.classList.add('invalid');
+        }
+      }
+      this.showMessage('Not saved: fix the highlighted fields.', 'error');
+    } else if (result.status === 401 || result.status === 403) {
+      this.showMessage(`Not saved: ${describeError(result)} (check the editor token).`, 'error');
+    } else {
+      this.showMessage(`Not saved: ${describeError(result)}`, 'error');
+    }
+  }
+
+  close() {
+    this.panel.hidden = true;
+    this.feature = null;
+    this.onLayout();
+    this.onClose();
+  }
+}

@@ -49,6 +49,8 @@ def logging_config(level: str = "INFO") -> dict[str, Any]:
             "uvicorn.error": {"handlers": [], "propagate": True},
             # uvicorn's own access log would duplicate our request line.
             "uvicorn.access": {"handlers": [], "propagate": False, "level": "CRITICAL"},
+            # Alembic announces its plugins at INFO when /readyz first reads the head revision.
+            "alembic": {"level": "WARNING"},
         },
     }
 

@@ -90,7 +90,7 @@ def browser() -> Iterator:
         b.close()
 
 
-def open_map(browser, world, request, tmp_path, viewport=(1100, 750)):
+def open_map(browser, world, request, tmp_path, viewport=(1100, 750), fit=True, path="/"):
     context = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]})
     page = context.new_page()
     errors: list[str] = []
@@ -101,13 +101,33 @@ def open_map(browser, world, request, tmp_path, viewport=(1100, 750)):
     page.on("request", lambda r: None if r.url.startswith(world["base"])
             or r.url.startswith(("data:", "blob:")) else outside.append(r.url))
     request.addfinalizer(lambda: finish(page, context, request, tmp_path, errors, outside))
-    page.goto(world["base"] + "/")
+    page.goto(world["base"] + path)
     page.wait_for_selector("body[data-ready=true]", timeout=20_000)
-    # The page opens on everything in the (shared) database; look at this test's scene.
-    page.evaluate("(b) => window.ugvmap.map.fitBounds(b, {padding: 30, duration: 0})",
-                  list(RASTER_BOUNDS))
+    if fit:  # the (shared) test database holds other tests' data too; look at this scene
+        page.evaluate("(b) => window.ugvmap.map.fitBounds(b, {padding: 30, duration: 0})",
+                      list(RASTER_BOUNDS))
     wait_idle(page)
     return page
+
+
+def test_opens_on_imagery_with_roads_and_keeps_the_view_in_the_url(browser, world, request,
+                                                                    tmp_path) -> None:
+    """No empty world view: the page opens where a layer has roads on it; the URL keeps it."""
+    far = tmp_path / "far.geojson"  # roads on another continent, with no imagery under them
+    far.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {"name": "Far road"},
+        "geometry": {"type": "LineString", "coordinates": [[100.0, -40.0], [100.01, -40.0]]}}]}))
+    cli("ingest", "network", str(far), "--network", "web-far")
+    page = open_map(browser, world, request, tmp_path, fit=False)
+    zoom = page.evaluate("() => window.ugvmap.map.getZoom()")
+    assert zoom > 12, f"opened at zoom {zoom:.1f}: a world view, not on imagery with roads"
+    view = "#map=17/" + "/".join(f"{(a + b) / 2:.5f}" for a, b in (
+        (RASTER_BOUNDS[1], RASTER_BOUNDS[3]), (RASTER_BOUNDS[0], RASTER_BOUNDS[2])))
+    shared = open_map(browser, world, request, tmp_path, fit=False, path="/" + view)
+    lon, lat = shared.evaluate("() => window.ugvmap.map.getCenter().toArray()")
+    assert abs(lon - (RASTER_BOUNDS[0] + RASTER_BOUNDS[2]) / 2) < 1e-4
+    assert abs(lat - (RASTER_BOUNDS[1] + RASTER_BOUNDS[3]) / 2) < 1e-4
+    assert shared.evaluate("() => window.location.hash").startswith("#map=17/")
 
 
 def plan_route(page) -> None:
@@ -203,11 +223,13 @@ def test_segment_click_shows_attributes_and_history(browser, world, request, tmp
     assert page.locator("#f-road_class").input_value() == "residential"
     # Read-only without a token.
     assert page.locator("#f-speed_limit_kph").is_disabled()
-    assert page.locator("#seg-history").inner_text().strip() != ""
+    # The history arrives by its own request: wait for it rather than race it.
+    page.wait_for_function("document.querySelector('#seg-history').innerText.trim() !== ''")
     # Nodes are drawn by kind: the spur meets the detour at a junction, the spur's end is not.
-    kinds = page.evaluate("window.ugvmap.map.queryRenderedFeatures({layers: ['net-webnet-nodes']})"
-                          ".map((f) => f.properties.kind)")
-    assert "junction" in kinds and "endpoint" in kinds, kinds
+    kinds_js = ("window.ugvmap.map.queryRenderedFeatures({layers: ['net-webnet-nodes']})"
+                ".map((f) => f.properties.kind)")
+    page.wait_for_function(f"(() => {{ const k = {kinds_js}; "
+                           "return k.includes('junction') && k.includes('endpoint'); })()")
 
     click_lonlat(page, *at(0.0015, 0.001))  # the detour's top edge, east of the spur
     page.wait_for_function("document.querySelector('#f-name').value === 'Detour road'")

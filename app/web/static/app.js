@@ -17,6 +17,22 @@ function union(boxes) {
   return boxes.reduce((a, b) => [Math.min(a[0], b[0]), Math.min(a[1], b[1]), Math.max(a[2], b[2]), Math.max(a[3], b[3])]);
 }
 
+function meets(a, b) {
+  return a[0] <= b[2] && b[0] <= a[2] && a[1] <= b[3] && b[1] <= a[3];
+}
+
+/**
+ * Where the map opens when the URL carries no view: the smallest imagery layer that has a
+ * road network on it (where there is something to inspect and route), else everything.
+ * Sample data spread over several continents would otherwise open on an empty world.
+ */
+function openingView(rasterBounds, networkExtents) {
+  const area = (b) => (b[2] - b[0]) * (b[3] - b[1]);
+  const covered = rasterBounds.filter((r) => networkExtents.some((n) => meets(r, n)));
+  if (covered.length) return covered.reduce((a, b) => (area(b) < area(a) ? b : a));
+  return union([...networkExtents, ...rasterBounds]);
+}
+
 function setupPanelToggle(map) {
   const button = document.getElementById('panel-toggle');
   const narrow = window.matchMedia('(max-width: 700px)');
@@ -45,7 +61,13 @@ async function start() {
     setStatus('Map library missing: run scripts/setup.sh (npm ci in app/web).');
     throw err;
   }
-  const map = new maplibregl.Map({ container: 'map', style: STYLE, center: [0, 0], zoom: 1, attributionControl: false });
+  // hash: the view lives in the URL (#map=zoom/lat/lon), so a view can be shared or reloaded.
+  // Read before the map exists: the map writes its own view into the hash at once.
+  const sharedView = window.location.hash.includes('map=');
+  const map = new maplibregl.Map({
+    container: 'map', style: STYLE, center: [0, 0], zoom: 1, attributionControl: false,
+    hash: 'map',
+  });
   map.addControl(new maplibregl.NavigationControl({ showCompass: false }), 'top-right');
   map.addControl(new maplibregl.ScaleControl({ unit: 'metric', maxWidth: 120 }), 'bottom-right');
   map.on('error', (ev) => setStatus(ev.error?.message || 'map error'));
@@ -81,8 +103,8 @@ async function start() {
     map.getCanvas().style.cursor = networks.segmentAt(ev.point) ? 'pointer' : '';
   });
 
-  const extent = union([...networks.extents, ...rasterBounds]);
-  if (extent) map.fitBounds(extent, { padding: 30, duration: 0, maxZoom: 18 });
+  const extent = openingView(rasterBounds, networks.extents);
+  if (extent && !sharedView) map.fitBounds(extent, { padding: 30, duration: 0, maxZoom: 18 });
   // Exposed for the browser tests and for debugging from the console.
   window.ugvmap = { map, networks, route, inspector };
   document.body.dataset.ready = 'true';

@@ -1,11 +1,19 @@
-# The app image for docker-compose. GDAL comes inside the rasterio wheel.
+# The app image for docker-compose. GDAL comes inside the rasterio wheel; the map library
+# comes from the npm registry at the version pinned in app/web/package-lock.json.
+FROM node:20-bookworm-slim AS web
+WORKDIR /web
+COPY app/web/package.json app/web/package-lock.json ./
+RUN npm ci --omit=dev
+
 FROM python:3.11-slim-bookworm
 WORKDIR /srv/ugvmap
 COPY pyproject.toml README.md alembic.ini ./
 COPY app ./app
 COPY ingest ./ingest
 COPY migrations ./migrations
-RUN pip install --no-cache-dir .
-ENV UGVMAP_RASTER_STORE=/data/rasters
+# Installed in place: the web router serves app/web/node_modules next to its own files.
+RUN pip install --no-cache-dir -e .
+COPY --from=web /web/node_modules ./app/web/node_modules
+ENV UGVMAP_RASTER_STORE=/data/rasters UGVMAP_DATA_DIR=/data
 EXPOSE 8000
 CMD ["sh", "-c", "ugvmap db upgrade && ugvmap serve --host 0.0.0.0 --port 8000 --workers 2"]

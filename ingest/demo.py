@@ -97,7 +97,7 @@ def load_synthetic(say: Say) -> None:
             _layer("synthetic-town", [path], "Synthetic town (generated)", say)
     to_lonlat = Transformer.from_crs(utm, "EPSG:4326", always_xy=True).transform
     row = spacing // 2  # a horizontal road; sample 40 m of it
-    (lon0, lat1), (lon1, lat0) = (to_lonlat(*(transform * (x, y)))
+    (lon0, lat1), (lon1, lat0) = (to_lonlat(*(transform @ (x, y)))
                                   for x, y in ((200, row - 4), (280, row + 4)))
     _extracted("synthetic-town", "synthetic-town",
                GeoSample(road_boxes=[(lon0, lat0, lon1, lat1)]), say)

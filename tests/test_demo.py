@@ -37,7 +37,7 @@ def test_demo_without_samples_generates_a_routable_town(client, tmp_path: Path) 
     east, north = utm.transform(*SYNTHETIC_ORIGIN)
     grid = from_origin(round(east), round(north), 0.5, 0.5)
     to_lonlat = Transformer.from_crs("EPSG:32611", "EPSG:4326", always_xy=True).transform
-    a, b = (to_lonlat(*(grid * (x, 375.5))) for x in (375.5, 1375.5))
+    a, b = (to_lonlat(*(grid @ (x, 375.5))) for x in (375.5, 1375.5))
     route = client.get("/networks/synthetic-town/route",
                        params={"points": f"{a[0]},{a[1]};{b[0]},{b[1]}", "cost": "distance"})
     assert route.status_code == 200, route.text

@@ -31,7 +31,7 @@ def _layer(tmp_path: Path, slug: str) -> Transformer:
     to_lonlat = Transformer.from_crs(UTM33, "EPSG:4326", always_xy=True)
 
     def pixel_to_lonlat(x: float, y: float) -> tuple[float, float]:
-        return to_lonlat.transform(*(transform * (x, y)))
+        return to_lonlat.transform(*(transform @ (x, y)))
 
     return pixel_to_lonlat
 

@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import rasterio
+import shapely
 from pyproj import Transformer
 from rasterio.crs import CRS
 from rasterio.features import rasterize
 from rasterio.merge import merge
 from rasterio.transform import Affine
 from shapely.geometry import box, shape
-from shapely.ops import transform as reproject_geometry
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
@@ -90,21 +90,25 @@ def merge_sources(paths: Sequence[str], dst: Path) -> None:
 def sample_labels(shape: tuple[int, int], to_map: Affine, crs: CRS,
                   sample: GeoSample) -> np.ndarray:
     """Burn a lon/lat training sample into a 255 road / 128 not road / 0 label image."""
-    to_crs = Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform
+    transformer = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+
+    def reproject_geometry(geom: object) -> object:
+        return shapely.transform(geom, lambda xy: np.column_stack(
+            transformer.transform(xy[:, 0], xy[:, 1])))
 
     def burn(geoms: list, value: int, labels: np.ndarray) -> None:
         if geoms:
             rasterize([(g, value) for g in geoms], out=labels, transform=to_map)
 
     labels = np.zeros(shape, np.uint8)
-    burn([reproject_geometry(to_crs, box(*b)) for b in sample.not_road_boxes], NOT_ROAD, labels)
-    lines = [reproject_geometry(to_crs, g) for g in sample.road_lines]
+    burn([reproject_geometry(box(*b)) for b in sample.not_road_boxes], NOT_ROAD, labels)
+    lines = [reproject_geometry(g) for g in sample.road_lines]
     if lines:
         # Far from every known road is "not road"; near the centerline is road.
         near = np.zeros(shape, np.uint8)
         burn([g.buffer(sample.line_width_m * 3) for g in lines], 1, near)
         labels[(near == 0) & (labels == 0)] = NOT_ROAD
-    burn([reproject_geometry(to_crs, box(*b)) for b in sample.road_boxes], ROAD, labels)
+    burn([reproject_geometry(box(*b)) for b in sample.road_boxes], ROAD, labels)
     burn([g.buffer(sample.line_width_m / 2) for g in lines], ROAD, labels)
     if not (labels == ROAD).any():
         raise RoadsInputError("the training sample does not cover any road pixel of the layer: "

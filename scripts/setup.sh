@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 APT_PACKAGES=(postgresql-15 postgresql-15-postgis-3 postgresql-15-pgrouting gdal-bin wrk osmium-tool
-              nodejs chromium chromium-driver)
+              nodejs chromium chromium-driver fonts-liberation)
 # Debian ships npm apart from nodejs; other nodejs builds (e.g. NodeSource) bundle it and
 # conflict with Debian's npm package, so only ask for it when there is no npm command.
 command -v npm >/dev/null || APT_PACKAGES+=(npm)

@@ -15,9 +15,8 @@ demo: setup
 	$(UGVMAP) serve --host 127.0.0.1 --port 8000
 
 ## make test: lint + the whole pytest suite against a throwaway PostGIS database
-test: setup
+test: lint
 	$(UGVMAP) db start
-	$(VENV)/bin/ruff check .
 	$(VENV)/bin/pytest
 
 lint: setup

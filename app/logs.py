@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import logging
-import logging.config
 import time
 from typing import Any
 
@@ -53,10 +52,6 @@ def logging_config(level: str = "INFO") -> dict[str, Any]:
             "alembic": {"level": "WARNING"},
         },
     }
-
-
-def configure_logging(level: str = "INFO") -> None:
-    logging.config.dictConfig(logging_config(level))
 
 
 class RequestLogMiddleware:

@@ -19,6 +19,7 @@ from rasterio.transform import from_origin
 from sqlalchemy import text
 
 from app.db.session import session_scope
+from app.tiles.catalog import layer_row
 from ingest.network import import_network
 from ingest.raster.job import ingest_raster
 from ingest.raster.samples import ingest_sample_orthophotos
@@ -34,22 +35,27 @@ HELSINKI = Path("osm/Helsinki.osm.pbf")
 SYNTHETIC_ORIGIN = (-115.1690, 36.2400)  # lon/lat of the synthetic town's north-west corner
 
 
-def _exists(table: str, column: str, value: str) -> bool:
+def _layer_exists(slug: str, say: Say) -> bool:
+    with session_scope() as session:
+        found = layer_row(session.connection(), slug) is not None
+    if found:
+        say(f"layer {slug}: already there")
+    return found
+
+
+def _network_exists(name: str) -> bool:
     with session_scope() as session:
         return bool(session.execute(
-            text(f"SELECT 1 FROM {table} WHERE {column} = :v"), {"v": value}).first())
+            text("SELECT 1 FROM networks WHERE name = :n"), {"n": name}).first())
 
 
 def _layer(slug: str, paths: list[Path], title: str, say: Say) -> None:
-    if _exists("layers", "slug", slug):
-        say(f"layer {slug}: already there")
-        return
     ingest_raster(paths, slug, title=title)
     say(f"layer {slug}: ingested")
 
 
 def _network(name: str, path: Path, say: Say) -> None:
-    if _exists("networks", "name", name):
+    if _network_exists(name):
         say(f"network {name}: already there")
         return
     with session_scope() as session:
@@ -57,20 +63,22 @@ def _network(name: str, path: Path, say: Say) -> None:
     say(f"network {name}: {summary.segments} segments imported from {path.name}")
 
 
-def _extracted(name: str, layer: str, sample: GeoSample, say: Say) -> None:
-    if _exists("networks", "name", name):
+def _extracted(name: str, layer: str, sample: Callable[[], GeoSample], say: Say) -> None:
+    """``sample`` is built only when the network is missing (parsing labels costs time)."""
+    if _network_exists(name):
         say(f"network {name}: already there")
         return
     with session_scope() as session:
-        _, summary = ingest_layer_roads(session, layer, name, sample, ExtractParams())
+        _, summary = ingest_layer_roads(session, layer, name, sample(), ExtractParams())
     say(f"network {name}: {summary.segments} segments extracted from layer {layer}")
 
 
 def load_shared(data: Path, say: Say) -> None:
-    _layer("vegas", [data / VEGAS_IMAGE], "SpaceNet Las Vegas (WorldView-3)", say)
+    if not _layer_exists("vegas", say):
+        _layer("vegas", [data / VEGAS_IMAGE], "SpaceNet Las Vegas (WorldView-3)", say)
     _network("vegas", data / VEGAS_LABELS, say)
     _extracted("vegas-extracted", "vegas",
-               GeoSample(road_lines=read_sample_lines(data / VEGAS_LABELS)), say)
+               lambda: GeoSample(road_lines=read_sample_lines(data / VEGAS_LABELS)), say)
     for report in ingest_sample_orthophotos(data / "orthophotos"):
         say(f"layer {report.layer}: ingested")
     _network("helsinki", data / HELSINKI, say)
@@ -85,7 +93,7 @@ def load_synthetic(say: Say) -> None:
         *SYNTHETIC_ORIGIN)
     res, size, spacing = 0.5, 2000, 250
     transform = from_origin(round(east), round(north), res, res)
-    if not _exists("layers", "slug", "synthetic-town"):
+    if not _layer_exists("synthetic-town", say):
         import rasterio
 
         rgb, _ = render(grid_scene(size, spacing, 14, seed=7))
@@ -100,7 +108,7 @@ def load_synthetic(say: Say) -> None:
     (lon0, lat1), (lon1, lat0) = (to_lonlat(*(transform @ (x, y)))
                                   for x, y in ((200, row - 4), (280, row + 4)))
     _extracted("synthetic-town", "synthetic-town",
-               GeoSample(road_boxes=[(lon0, lat0, lon1, lat1)]), say)
+               lambda: GeoSample(road_boxes=[(lon0, lat0, lon1, lat1)]), say)
 
 
 def demo_token(path: Path) -> str:

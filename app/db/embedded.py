@@ -16,6 +16,7 @@ import shutil
 import subprocess
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import psycopg
@@ -50,6 +51,7 @@ def cluster_from(settings: Settings) -> Cluster:
     return Cluster(settings.pg_data_dir, settings.pg_port, settings.pg_database)
 
 
+@lru_cache(maxsize=1)
 def pg_bindir() -> Path:
     """Locate the server binaries (initdb, pg_ctl); Debian keeps them off PATH."""
     candidates = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"), reverse=True)

@@ -23,10 +23,10 @@ MAX_ERROR = 2000
 class JobRecorder:
     """``with JobRecorder("raster", "my-layer", {...}) as job: job.progress(0.5, "tiles")``."""
 
-    def __init__(self, kind: str, target: str | None, params: dict[str, Any] | None = None,
-                 database_url: str | None = None) -> None:
+    def __init__(self, kind: str, target: str | None,
+                 params: dict[str, Any] | None = None) -> None:
         self.kind, self.target, self.params = kind, target, params or {}
-        self.engine = get_engine(database_url)
+        self.engine = get_engine()
         self.id: int | None = None
 
     def _write(self, sql: str, **values: Any) -> Any:

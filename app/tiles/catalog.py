@@ -41,7 +41,6 @@ def tile_sources(conn: Connection, slug: str,
     rows = conn.execute(text(
         "SELECT l.id, l.version, l.overview_uri, s.uri, s.meta->'display_range' FROM layers l "
         "LEFT JOIN raster_sources s ON s.layer_id = l.id "
-        " AND s.footprint && ST_MakeEnvelope(:x0, :y0, :x1, :y1, 3857) "
         " AND ST_Intersects(s.footprint, ST_MakeEnvelope(:x0, :y0, :x1, :y1, 3857)) "
         "WHERE l.slug = :slug ORDER BY s.priority, s.ingested_at, s.id"),
         {"slug": slug, "x0": bbox[0], "y0": bbox[1], "x1": bbox[2], "y1": bbox[3]},
@@ -58,12 +57,18 @@ def list_layers(conn: Connection) -> list[dict[str, Any]]:
     return [dict(r._mapping) for r in rows]
 
 
-def get_layer(conn: Connection, slug: str) -> dict[str, Any] | None:
+def layer_row(conn: Connection, slug: str) -> dict[str, Any] | None:
+    """The layer's own row, without its sources (TileJSON, existence checks)."""
     row = conn.execute(text(f"SELECT {LAYER_COLUMNS} FROM layers l WHERE l.slug = :slug"),
                        {"slug": slug}).first()
-    if row is None:
+    return None if row is None else dict(row._mapping)
+
+
+def get_layer(conn: Connection, slug: str) -> dict[str, Any] | None:
+    """The layer and its sources (paint order)."""
+    layer = layer_row(conn, slug)
+    if layer is None:
         return None
-    layer = dict(row._mapping)
     sources = conn.execute(text(
         "SELECT id, name, uri, priority, ingested_at, width, height, band_count, dtype, "
         " resolution_m, meta->>'georef' AS georef, (meta->>'zoom')::int AS zoom "

@@ -18,7 +18,7 @@ from rasterio.errors import RasterioIOError
 from rasterio.windows import Window
 
 from app.tiles.catalog import TileSource
-from app.tiles.readers import forget, open_dataset
+from app.tiles.readers import open_dataset
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +50,6 @@ def paint(canvas: np.ndarray, source: TileSource,
         ds = open_dataset(source.uri)
     except RasterioIOError:
         log.warning("raster source %s is missing; skipped", source.uri)
-        forget(source.uri)
         return
     size_y, size_x = canvas.shape[:2]
     left, top = ds.transform.c, ds.transform.f

@@ -36,13 +36,6 @@ def open_dataset(uri: str) -> DatasetReader:
     return ds
 
 
-def forget(uri: str) -> None:
-    """Drop a handle whose file went away (deleted or replaced layer)."""
-    cache = getattr(_local, "cache", None)
-    if cache is not None and uri in cache:
-        cache.pop(uri).close()
-
-
 @lru_cache(maxsize=1024)
 def overview_zoom(uri: str) -> int:
     """The XYZ zoom a layer overview COG was written at (files are immutable: cache it)."""

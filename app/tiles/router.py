@@ -94,7 +94,7 @@ def tilejson(slug: str, request: Request,
     if fmt is None:
         return problem(400, "UnsupportedFormat", f"format must be one of {sorted(FORMATS)}")
     with get_engine().connect() as conn:
-        found = catalog.get_layer(conn, slug)
+        found = catalog.layer_row(conn, slug)
     if found is None:
         return problem(404, "LayerNotFound", f"no raster layer {slug!r}")
     bounds = found["bounds"] or [-180.0, -85.0511, 180.0, 85.0511]

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from app.db.session import get_engine
-from app.tiles.catalog import get_layer
+from app.tiles.catalog import layer_row
 from ingest.raster.job import IngestReport, ingest_raster
 
 SAMPLE_LAYERS = {
@@ -22,11 +22,11 @@ SAMPLE_LAYERS = {
 
 def ingest_sample_orthophotos(orthophotos_dir: Path) -> list[IngestReport]:
     """Ingest the samples under ``orthophotos_dir`` (``shared/data/orthophotos``)."""
+    with get_engine().connect() as conn:
+        missing = {slug: spec for slug, spec in SAMPLE_LAYERS.items()
+                   if layer_row(conn, slug) is None}
     reports = []
-    for slug, (title, names) in SAMPLE_LAYERS.items():
-        with get_engine().connect() as conn:
-            if get_layer(conn, slug) is not None:
-                continue
+    for slug, (title, names) in missing.items():
         paths = [orthophotos_dir / n for n in names if (orthophotos_dir / n).is_file()]
         if paths:
             reports.append(ingest_raster(paths, slug, title=title, kind="orthophoto"))

@@ -26,9 +26,9 @@ from rasterio.features import rasterize
 from rasterio.merge import merge
 from rasterio.transform import Affine
 from shapely.geometry import box, shape
-from sqlalchemy import text
 from sqlalchemy.orm import Session
 
+from app.tiles.catalog import get_layer
 from ingest.network import ImportSummary, RoadAttributes, RoadLine, write_network
 from ingest.roads import RoadsInputError
 from ingest.roads.classify import NOT_ROAD, ROAD
@@ -54,13 +54,10 @@ class GeoSample:
 
 def layer_source_paths(session: Session, slug: str) -> list[str]:
     """The layer's COGs, the one drawn on top first (what ``merge`` keeps where they overlap)."""
-    layer_id = session.execute(text("SELECT id FROM layers WHERE slug = :s"),
-                               {"s": slug}).scalar()
-    if layer_id is None:
+    layer = get_layer(session.connection(), slug)
+    if layer is None:
         raise RoadsInputError(f"no raster layer {slug!r} (see `ugvmap layers list`)")
-    return list(session.execute(text(
-        "SELECT uri FROM raster_sources WHERE layer_id = :id "
-        "ORDER BY priority DESC, ingested_at DESC, id DESC"), {"id": layer_id}).scalars())
+    return [source["uri"] for source in reversed(layer["sources"])]
 
 
 def merge_sources(paths: Sequence[str], dst: Path) -> None:

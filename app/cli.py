@@ -11,12 +11,12 @@ from pathlib import Path
 
 import click
 
-from app.cli_errors import CliError
+from app.cli_errors import CliError, UgvmapGroup
 from app.db import embedded
 from app.settings import get_settings
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=UgvmapGroup, context_settings={"help_option_names": ["-h", "--help"]})
 def main() -> None:
     """ugvmap: imagery to map tiles, road network to routes, for unmanned ground vehicles."""
 
@@ -66,15 +66,9 @@ def db_status() -> None:
 @click.argument("revision", default="head")
 def db_upgrade(revision: str) -> None:
     """Migrate the schema to REVISION (default: head)."""
-    from sqlalchemy.exc import OperationalError
-
     from app.db import migrate
 
-    url = get_settings().database_url
-    try:
-        migrate.upgrade(url, revision)
-    except OperationalError as exc:
-        raise CliError(f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
+    migrate.upgrade(get_settings().database_url, revision)
     click.echo(f"schema at {revision}")
 
 

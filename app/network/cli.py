@@ -14,22 +14,18 @@ from typing import Any
 import click
 from tqdm import tqdm
 
+from app.cli_errors import CliError
+
 
 def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     """Turn the domain's ValueErrors into one-line CLI errors (exit 1, no traceback)."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from sqlalchemy.exc import OperationalError
-
-        from app.cli_errors import CliError
-
         try:
             return func(*args, **kwargs)
         except ValueError as exc:
             raise CliError(str(exc)) from exc
-        except OperationalError as exc:
-            raise CliError(f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
 
     return wrapper
 
@@ -111,7 +107,6 @@ def network() -> None:
 @_user_errors
 def validate(name: str) -> None:
     """Check NAME's topology invariants; exit 1 if any is broken."""
-    from app.cli_errors import CliError
     from app.db.session import session_scope
     from app.network.integrity import check_network
 

@@ -1,8 +1,8 @@
 """In-process MVT cache, kept fresh by PostgreSQL NOTIFY in every server worker.
 
 Every committed change to a network's segments or nodes NOTIFYs ``network_changed`` with the
-new network version and the changed bbox (migration 0002). Each worker process runs one
-LISTEN thread that drops the cached tiles meeting that bbox.
+new network version and the changed bbox (migration 0002). The worker's network-change
+listener (:mod:`app.db.notify`) drops the cached tiles meeting that bbox.
 
 Read-your-writes without waiting for the listener: a request passes the network version it
 read from the database; if that is newer than the last version the listener has applied, a
@@ -14,19 +14,11 @@ notifications sent meanwhile are lost.
 
 from __future__ import annotations
 
-import json
-import logging
 import threading
-import time
 from collections import OrderedDict
 
-import psycopg
+from app.db.notify import Subscriber, network_changes
 
-from app.db.session import libpq_dsn
-
-log = logging.getLogger(__name__)
-
-CHANNEL = "network_changed"
 Bounds = tuple[float, float, float, float]
 TileKey = tuple[int, int, int, int]  # network id, z, x, y
 
@@ -79,50 +71,23 @@ class TileCache:
 
 
 
-class Listener(threading.Thread):
-    """LISTEN on ``network_changed`` forever, reconnecting after errors."""
-
-    def __init__(self, cache: TileCache, database_url: str) -> None:
-        super().__init__(name="mvt-invalidation", daemon=True)
-        self.cache, self.dsn = cache, libpq_dsn(database_url)
-        self.ready = threading.Event()
-
-    def run(self) -> None:
-        while True:
-            try:
-                with psycopg.connect(self.dsn, autocommit=True, connect_timeout=5) as conn:
-                    conn.execute(f"LISTEN {CHANNEL}")
-                    self.cache.reset(healthy=True)
-                    self.ready.set()
-                    while True:
-                        for note in conn.notifies(timeout=10):
-                            self._apply(note.payload)
-                        conn.execute("SELECT 1")  # notice a dead connection while idle
-            except Exception as exc:  # keep the worker serving; tiles bypass the cache
-                self.cache.reset(healthy=False)
-                log.warning("tile cache listener disconnected: %s", exc)
-                time.sleep(1.0)
-
-    def _apply(self, payload: str) -> None:
-        try:
-            note = json.loads(payload)
-            bbox = tuple(note["bbox"]) if note.get("bbox") else None
-            self.cache.invalidate(int(note["network_id"]), int(note["version"]), bbox)
-        except (ValueError, KeyError, TypeError):
-            log.warning("ignoring malformed %s payload %r", CHANNEL, payload[:200])
+def _invalidate(note: dict) -> None:
+    bbox = tuple(note["bbox"]) if note.get("bbox") else None
+    _cache.invalidate(int(note["network_id"]), int(note["version"]), bbox)
 
 
 _cache = TileCache()
-_listener: Listener | None = None
-_start_lock = threading.Lock()
+_subscribed: set[str] = set()
+_subscribe_lock = threading.Lock()
 
 
 def shared_cache(database_url: str) -> TileCache:
-    """This process's cache, starting its listener on first use (once per worker)."""
-    global _listener
-    with _start_lock:
-        if _listener is None or not _listener.is_alive():
-            _listener = Listener(_cache, database_url)
-            _listener.start()
-            _listener.ready.wait(timeout=2.0)
+    """This process's cache, subscribed to the process's network-change listener once."""
+    with _subscribe_lock:
+        if database_url not in _subscribed:
+            _subscribed.add(database_url)
+            network_changes(database_url, Subscriber(
+                on_note=_invalidate,
+                on_connect=lambda: _cache.reset(healthy=True),
+                on_disconnect=lambda: _cache.reset(healthy=False)))
     return _cache

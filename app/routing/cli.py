@@ -9,8 +9,8 @@ from __future__ import annotations
 import json
 
 import click
-from sqlalchemy.exc import OperationalError
 
+from app.cli_errors import CliError
 from app.routing.costs import Cost
 from app.routing.errors import RoutingError
 from app.routing.planner import (
@@ -40,8 +40,6 @@ from app.routing.planner import (
 def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geometries: str,
           fmt: str, spacing: float, radius: float | None) -> None:
     """Plan a route on NETWORK through the given points."""
-    from app.cli_errors import CliError
-
     opts = RouteOptions(Cost(cost), frozenset(a for a in avoid.split(",") if a), optimize,
                         geometries, "waypoints" if fmt == "waypoints" else "osrm", spacing,
                         radius)
@@ -50,8 +48,6 @@ def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geom
             body = plan_route(conn, network, parse_points(points), opts)
     except RoutingError as exc:
         raise CliError(f"{exc.code}: {exc.message}") from exc
-    except OperationalError as exc:
-        raise CliError(f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
     if fmt != "summary":
         click.echo(json.dumps(body))
         return

@@ -1,7 +1,8 @@
 """Graphs kept current in every worker process: load once, then follow LISTEN/NOTIFY.
 
-Each process runs one listener thread on channel ``network_changed`` (sent by the trigger of
-migration ``0002_network_change_notify`` when an edit commits). A notification whose version
+Each process follows channel ``network_changed`` (sent by the trigger of migration
+``0002_network_change_notify`` when an edit commits) through its shared listener,
+:mod:`app.db.notify`. A notification whose version
 directly follows the graph's patches just the announced bounding box; a gap (missed
 notification, reconnect) reloads the network. Requests add a stronger guarantee: the snap query
 reads ``networks.version`` and :meth:`GraphRegistry.get` waits until the graph has caught up,
@@ -10,13 +11,12 @@ so an edit is visible to the very next route query in any worker.
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
-import time
 
 import psycopg
 
+from app.db.notify import Subscriber, network_changes
 from app.db.session import libpq_dsn
 from app.routing.costs import Cost
 from app.routing.errors import DatabaseUnavailableError
@@ -24,7 +24,6 @@ from app.routing.graph import SEGMENT_COLUMNS, RoadGraph, Segments
 
 log = logging.getLogger("ugvmap.routing")
 
-CHANNEL = "network_changed"
 # Box edges are widened by this much (degrees, ~1 cm) so float rounding never drops a segment.
 BOX_EPS = 1e-7
 CATCH_UP_TIMEOUT_S = 2.0
@@ -56,9 +55,8 @@ class GraphRegistry:
         self._graphs: dict[int, RoadGraph] = {}
         self._changed = threading.Condition()
         self._update = threading.RLock()  # one writer at a time: loads and patches
-        self._listening = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._database_url = database_url
+        self._subscribed = False
         self.stats = {"loads": 0, "patches": 0}  # for logs and tests: patches should dominate
 
     # -- queries -------------------------------------------------------------------------
@@ -101,34 +99,15 @@ class GraphRegistry:
 
     # -- listening -----------------------------------------------------------------------
     def _ensure_listener(self) -> None:
-        if self._thread is None:
-            with self._update:
-                if self._thread is None:
-                    self._thread = threading.Thread(target=self._listen, daemon=True,
-                                                    name="routing-listener")
-                    self._thread.start()
         # LISTEN must be in place before a graph's snapshot is read, or an edit committed in
-        # between would never be announced to us.
-        self._listening.wait(timeout=CATCH_UP_TIMEOUT_S)
-
-    def _listen(self) -> None:
-        backoff = 0.5
-        while not self._stop.is_set():
-            try:
-                with psycopg.connect(self._dsn, autocommit=True) as conn:
-                    conn.execute(f"LISTEN {CHANNEL}")
-                    self._listening.set()
-                    self._resync()
-                    backoff = 0.5
-                    while not self._stop.is_set():
-                        for note in conn.notifies(timeout=1.0):
-                            self._apply(json.loads(note.payload))
-            except (psycopg.Error, OSError) as exc:
-                (log.warning if backoff == 0.5 else log.debug)(
-                    "routing listener lost its connection (%s); retrying", exc)
-                self._listening.set()  # requests fall back to the version check meanwhile
-                time.sleep(backoff)
-                backoff = min(backoff * 2, 10.0)
+        # between would never be announced to us (network_changes waits for it).
+        if not self._subscribed:
+            with self._update:
+                if not self._subscribed:
+                    self._subscribed = True
+                    network_changes(self._database_url, Subscriber(
+                        on_note=self._apply, on_connect=self._resync, on_disconnect=_fallback),
+                        wait_s=CATCH_UP_TIMEOUT_S)
 
     def _resync(self) -> None:
         """After (re)connecting, reload any graph whose network moved while we were away."""
@@ -161,6 +140,12 @@ class GraphRegistry:
 
 _registries: dict[str, GraphRegistry] = {}
 _registries_lock = threading.Lock()
+
+
+def _fallback() -> None:
+    """While disconnected, requests rely on the snap query's version check (``get`` waits
+    for, then reloads, a graph older than the version the database reports)."""
+    log.debug("routing graphs follow the per-request version check until reconnected")
 
 
 def registry(database_url: str) -> GraphRegistry:

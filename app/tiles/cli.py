@@ -29,8 +29,6 @@ def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, k
                       crs: str | None, priority: int, gcps_file: Path | None,
                       gcp_method: str) -> None:
     """Ingest GeoTIFFs / world-file images / zone mosaics / GCP images into layer SLUG."""
-    from sqlalchemy.exc import OperationalError
-
     from app.jobs.recorder import JobRecorder
     from ingest.raster.gcps import ingest_with_gcps
     from ingest.raster.job import ingest_raster
@@ -52,8 +50,6 @@ def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, k
                 click.echo(accuracy.table())
     except SourceError as exc:
         raise CliError(str(exc)) from exc
-    except OperationalError as exc:
-        raise CliError(f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
     for src in report.sources:
         click.echo(f"{src.name}: {src.width}x{src.height} px at z{src.zoom} "
                    f"({src.resolution_m:.3f} m/px) -> {src.uri}")

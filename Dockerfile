@@ -11,6 +11,8 @@ COPY pyproject.toml README.md alembic.ini ./
 COPY app ./app
 COPY ingest ./ingest
 COPY migrations ./migrations
+# The road model (ONNX, run by onnxruntime; torch is only for training and stays out).
+COPY models ./models
 # Installed in place: the web router serves app/web/node_modules next to its own files.
 RUN pip install --no-cache-dir -e .
 COPY --from=web /web/node_modules ./app/web/node_modules

@@ -138,6 +138,7 @@ def _register_capabilities() -> None:
     main.add_command(roads_cli.extract_roads)
     main.add_command(roads_cli.evaluate_roads)
     ingest.add_command(roads_cli.ingest_roads)
+    main.add_command(roads_cli.roads)
 
 
 _register_capabilities()

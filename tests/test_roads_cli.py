@@ -45,7 +45,8 @@ def box(b: tuple[int, int, int, int]) -> str:
 def test_extract_then_evaluate(files: dict[str, Path], tmp_path: Path) -> None:
     debug = tmp_path / "debug"
     result = invoke("extract-roads", files["image"], "--train-box", box(ROAD_BOX),
-                    "--resolution", 0.5, "--out", files["out"], "--debug-dir", debug)
+                    "--classifier", "spectral", "--resolution", 0.5, "--out", files["out"],
+                    "--debug-dir", debug)
     assert result.exit_code == 0, result.output
     assert "7 segments, 8 nodes (2 junctions), spectral" in result.output
     doc = json.loads(files["out"].read_text())
@@ -70,9 +71,19 @@ def test_extract_then_evaluate(files: dict[str, Path], tmp_path: Path) -> None:
 def test_learned_from_a_label_image(files: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "learned.geojson"
     result = invoke("extract-roads", files["image"], "--train-mask", files["labels"],
-                    "--resolution", 0.5, "--out", out)
+                    "--classifier", "learned", "--resolution", 0.5, "--out", out)
     assert result.exit_code == 0, result.output
     assert "learned classifier" in result.output
+
+
+def test_a_sample_adapts_the_road_model_by_default(files: dict[str, Path], tmp_path: Path
+                                                   ) -> None:
+    out = tmp_path / "adapted.geojson"
+    result = invoke("extract-roads", files["image"], "--train-mask", files["labels"],
+                    "--resolution", 0.5, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "adapted classifier" in result.output
+    assert len(json.loads(out.read_text())["features"]) >= 4
 
 
 def test_evaluate_two_geojson_files_in_map_coordinates(tmp_path: Path) -> None:
@@ -98,8 +109,8 @@ def test_evaluate_two_geojson_files_in_map_coordinates(tmp_path: Path) -> None:
     (["--train-box", "1,1,5,5", "--resolution", 1, "IMG:junk"], "not a readable image"),
     (["--train-box", "0,0,1,1", "--resolution", 1, "IMG:tiny"], "too small"),
     (["--train-box", "100,146,1400,154", "--resolution", 0.5, "IMG:image"], "not inside"),
-    (["--train-box", "0,0,20,20", "--resolution", 0.5, "IMG:grass"], "no road found"),
-    (["--resolution", 0.5, "IMG:image"], "no training sample"),
+    (["--classifier", "learned", "--resolution", 0.5, "IMG:image"], "needs a training sample"),
+    (["--resolution", 5, "IMG:image"], "coarser than"),
     (["--train-box", box(ROAD_BOX), "IMG:image"], "--resolution"),
     (["--train-box", box(ROAD_BOX), "--resolution", 0.5, "--classifier", "learned",
       "IMG:image"], "needs not-road pixels"),
@@ -115,6 +126,16 @@ def test_bad_input_is_one_clear_line(files: dict[str, Path], tmp_path: Path, arg
     assert not isinstance(result.exception, Exception) or isinstance(result.exception,
                                                                      SystemExit)
     assert not (tmp_path / "o.geojson").exists()
+
+
+def test_no_road_is_an_empty_result_not_an_error(files: dict[str, Path], tmp_path: Path
+                                                 ) -> None:
+    out = tmp_path / "o.geojson"
+    result = invoke("extract-roads", files["grass"], "--train-box", "0,0,20,20",
+                    "--classifier", "spectral", "--resolution", 0.5, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "no road found" in result.output and "0 segments" in result.output
+    assert json.loads(out.read_text())["features"] == []
 
 
 def test_empty_training_mask_is_an_error(files: dict[str, Path], tmp_path: Path) -> None:

@@ -78,10 +78,22 @@ def test_ingest_roads_bad_input_changes_nothing(database_url: str, tmp_path: Pat
     far = runner.invoke(main, ["ingest", "roads", "--layer", "roads-scene-2", "--network",
                                "never-written", "--train-box", "10,10,10.001,10.001"])
     assert far.exit_code == 1 and "does not cover any road pixel" in far.output
-    nothing = runner.invoke(main, ["ingest", "roads", "--layer", "roads-scene-2",
-                                   "--network", "never-written"])
-    assert nothing.exit_code == 1 and "no training sample" in nothing.output
-    assert "Traceback" not in far.output + unknown.output + nothing.output
+    assert "Traceback" not in far.output + unknown.output
     with session_scope() as session:
         assert session.execute(text(
             "SELECT count(*) FROM networks WHERE name = 'never-written'")).scalar() == 0
+
+
+def test_ingest_roads_zero_shot_uses_the_road_model(database_url: str, tmp_path: Path) -> None:
+    _layer(tmp_path, "roads-scene-3")
+    result = CliRunner().invoke(main, ["ingest", "roads", "--layer", "roads-scene-3",
+                                       "--network", "zero-shot"])
+    assert result.exit_code == 0, result.output
+    assert "(model classifier)" in result.output
+    with session_scope() as session:
+        rows = session.execute(text(
+            "SELECT s.attrs->>'classifier', sum(s.length_m) FROM road_segments s "
+            "JOIN networks n ON n.id = s.network_id WHERE n.name = 'zero-shot' "
+            "GROUP BY 1")).all()
+    assert [r[0] for r in rows] == ["model"]
+    assert rows[0][1] > 150  # the scene's roads are ~260 m long in all

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -22,6 +23,8 @@ RING = ((300, 235), 45)
 HOUSE = (280, 30, 330, 70)
 HAIRS = [[(120, 156), (120, 178)], [(250, 144), (262, 124)], [(200, 100), (215, 95)]]
 ROAD_BOX = (100, 146, 140, 154)
+SPECTRAL = ExtractParams(classifier="spectral")
+"""These tests pin the stages after classification on the survey's colour line (exact)."""
 
 
 def scene(seed: int = 1, **kw) -> Scene:
@@ -43,7 +46,7 @@ def as_image(rgb: np.ndarray, res: float = RES) -> Image:
 
 def run(rgb: np.ndarray, **params) -> Extraction:
     labels = training_labels(rgb.shape[:2], [ROAD_BOX])
-    return extract_roads(as_image(rgb), labels, ExtractParams(**params))
+    return extract_roads(as_image(rgb), labels, replace(SPECTRAL, **params))
 
 
 @pytest.fixture(scope="module")
@@ -107,9 +110,9 @@ def test_spurs_from_a_bumpy_outline_are_pruned() -> None:
                           houses=[(80, 50, 86, 76), (150, 44, 158, 74), (220, 52, 225, 72)],
                           seed=3))
     labels = training_labels(rgb.shape[:2], [(100, 56, 140, 64)])
-    result = extract_roads(as_image(rgb), labels, ExtractParams(spur_max_m=10.0))
+    result = extract_roads(as_image(rgb), labels, replace(SPECTRAL, spur_max_m=10.0))
     assert len(result.graph.edges) == 1
-    unpruned = extract_roads(as_image(rgb), labels, ExtractParams(spur_max_m=0.5))
+    unpruned = extract_roads(as_image(rgb), labels, replace(SPECTRAL, spur_max_m=0.5))
     assert len(unpruned.graph.edges) > 1
 
 
@@ -124,7 +127,7 @@ def test_edge_attributes_from_the_image(extraction: Extraction) -> None:
 def test_wider_roads_get_more_lanes() -> None:
     rgb, _ = render(Scene((200, 300), roads=[[(10, 100), (290, 100)]], road_width_px=30))
     labels = training_labels(rgb.shape[:2], [(100, 95, 140, 105)])
-    edge = extract_roads(as_image(rgb), labels).graph.edges[0]
+    edge = extract_roads(as_image(rgb), labels, SPECTRAL).graph.edges[0]
     assert 13.5 <= edge.width_m <= 17.0
     assert edge.lanes == 4
 
@@ -157,7 +160,7 @@ def test_georeferenced_image_gives_map_coordinates(tmp_path) -> None:
     # On the central meridian a UTM metre is 0.9996 ground metres.
     assert image.resolution_m == pytest.approx(RES / 0.9996, rel=1e-5)
     labels = training_labels(rgb.shape[:2], [ROAD_BOX])
-    doc = extract_roads(image, labels).geojson()
+    doc = extract_roads(image, labels, SPECTRAL).geojson()
     assert doc["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::32633"
     cross = next(f for f in doc["nodes"] if f["properties"]["degree"] == 4)
     x, y = cross["geometry"]["coordinates"]
@@ -194,7 +197,8 @@ def test_fine_images_run_on_a_coarser_grid_in_source_pixels() -> None:
                 road_width_px=24, seed=4)
     rgb, _ = render(big)
     labels = training_labels(rgb.shape[:2], [(200, 292, 280, 308)])
-    result = extract_roads(as_image(rgb, 0.25), labels, ExtractParams(work_resolution_m=0.5))
+    result = extract_roads(as_image(rgb, 0.25), labels,
+                           replace(SPECTRAL, work_resolution_m=0.5))
     assert result.stages["binary"].shape == (300, 400)
     doc = result.geojson()
     assert doc["crs"] is None and doc["coordinate_space"] == "pixel"

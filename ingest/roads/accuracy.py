@@ -4,23 +4,33 @@ Shared by ``tests/test_roads_real.py`` (which asserts measured floors) and
 ``bench/roads_accuracy.py`` (which prints the full table), so both measure the same thing.
 The training quadrant is the one with the most labelled road (a user would also put the
 sample where the roads are); its ground truth becomes the sample (road = 255, the rest 128).
-Scores count only centerline pixels outside that quadrant.
+Scores count only centerline pixels outside that quadrant, for every classifier, the
+zero-shot road model included (it gets no sample at all), so all rows are comparable.
+Connectivity (APLS, :mod:`ingest.roads.connectivity`) is measured on the same three quadrants.
 """
 
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
+import shapely
+from shapely.geometry import LineString, box
 
 from ingest.roads.classify import NOT_ROAD, ROAD
+from ingest.roads.connectivity import apls
 from ingest.roads.evaluate import BufferScore, buffer_scores, rasterize_lines
 from ingest.roads.georef import Image, read_band, read_image
+from ingest.roads.graph import build_graph
 from ingest.roads.pipeline import ExtractParams, extract_roads
 from ingest.roads.skeleton import thin
+
+APLS_SNAP_M = 5.0
+"""A node of one graph matches the other graph within this distance (SpaceNet uses ~4 m)."""
 
 
 @dataclass(frozen=True)
@@ -51,13 +61,15 @@ CENTERLINE_CLEAR_M = 8.0
 
 
 def truth_rasters(sample: Sample, root: Path, image: Image
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(road mask, scoring centerline, pixels too near a road to call "not road" or None)
-    on the image's pixel grid."""
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[np.ndarray]]:
+    """(road mask, scoring centerline, pixels too near a road to call "not road" or None,
+    centerlines as pixel-coordinate polylines) on the image's pixel grid."""
     path = root / sample.truth
     if path.suffix != ".geojson":
         road = read_band(path)[0] >= 128
-        return road, thin(road), None
+        centerline = thin(road)
+        graph = build_graph(centerline, road, image.resolution_m)
+        return road, centerline, None, [e.coords for e in graph.edges]
     inverse = ~image.transform
     lines = []
     for feature in json.loads(path.read_text())["features"]:
@@ -67,7 +79,7 @@ def truth_rasters(sample: Sample, root: Path, image: Image
     metres = cv2.distanceTransform((~centerline).astype(np.uint8), cv2.DIST_L2,
                                    cv2.DIST_MASK_PRECISE) * image.resolution_m
     road = metres <= CENTERLINE_ROAD_M
-    return road, centerline, ~road & (metres <= CENTERLINE_CLEAR_M)
+    return road, centerline, ~road & (metres <= CENTERLINE_CLEAR_M), lines
 
 
 def quadrant_labels(road: np.ndarray, unsure: np.ndarray | None = None
@@ -84,15 +96,49 @@ def quadrant_labels(road: np.ndarray, unsure: np.ndarray | None = None
     return labels, region
 
 
+@dataclass(frozen=True)
+class Evaluation:
+    """Scores of one classifier on one sample."""
+
+    scores: list[BufferScore]
+    """Buffer precision/recall, one per requested radius."""
+    apls: float
+    """Symmetric APLS on the scored quadrants."""
+    seconds: float
+
+
+def _clip_lines(lines: list[np.ndarray], region_box: tuple[float, float, float, float],
+                scale: float) -> list[np.ndarray]:
+    """Polylines (pixels) minus the training quadrant, in metres."""
+    cut = box(*region_box)
+    out = []
+    for line in lines:
+        if len(line) < 2:
+            continue
+        rest = LineString(line).difference(cut)
+        for part in getattr(rest, "geoms", [rest]):
+            if not part.is_empty and part.length > 0:
+                out.append(shapely.get_coordinates(part) * scale)
+    return out
+
+
 def evaluate_sample(sample: Sample, root: Path, classifier: str,
                     radii_m: tuple[float, ...] = (1.0, 2.0),
-                    params: ExtractParams | None = None) -> list[BufferScore]:
+                    params: ExtractParams | None = None) -> Evaluation:
     """Extract roads from ``sample`` with ``classifier`` and score them (see module doc)."""
     image = read_image(root / sample.image, sample.resolution_m)
-    road, centerline, unsure = truth_rasters(sample, root, image)
+    road, centerline, unsure, truth_lines = truth_rasters(sample, root, image)
     labels, region = quadrant_labels(road, unsure)
     params = replace(params or ExtractParams(), classifier=classifier)
-    result = extract_roads(image, labels, params)
-    pred = rasterize_lines(result.source_lines(), road.shape)
+    start = time.perf_counter()
+    result = extract_roads(image, None if classifier == "model" else labels, params)
+    seconds = time.perf_counter() - start
+    pred_lines = result.source_lines()
+    pred = rasterize_lines(pred_lines, road.shape)
     res = image.resolution_m
-    return buffer_scores(pred, centerline, [r / res for r in radii_m], res, region=~region)
+    scores = buffer_scores(pred, centerline, [r / res for r in radii_m], res, region=~region)
+    rows, cols = np.nonzero(region)
+    train_box = (cols.min(), rows.min(), cols.max() + 1, rows.max() + 1)
+    connectivity = apls(_clip_lines(truth_lines, train_box, res),
+                        _clip_lines(pred_lines, train_box, res), snap_radius=APLS_SNAP_M)
+    return Evaluation(scores, connectivity, seconds)

@@ -228,14 +228,16 @@ def tiles(shape: tuple[int, int], size: int) -> Iterator[tuple[slice, slice]]:
             yield slice(r, min(r + size, shape[0])), slice(c, min(c + size, shape[1]))
 
 
-def _tile_features(pixels: np.ndarray, rs: slice, cs: slice, resolution_m: float
-                   ) -> np.ndarray:
-    """Features of one tile, computed on the tile plus halo and cropped back."""
+def _tile_features(pixels: np.ndarray, rs: slice, cs: slice, resolution_m: float,
+                   extra: np.ndarray | None = None) -> np.ndarray:
+    """Features of one tile, computed on the tile plus halo and cropped back, followed by
+    the tile's slice of ``extra`` (rows, cols, E) per-pixel features when given."""
     halo = feature_halo_px(resolution_m)
     r0, c0 = max(rs.start - halo, 0), max(cs.start - halo, 0)
     r1, c1 = min(rs.stop + halo, pixels.shape[0]), min(cs.stop + halo, pixels.shape[1])
     f = classifier_features(pixels[r0:r1, c0:c1], resolution_m)
-    return f[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
+    f = f[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
+    return f if extra is None else np.concatenate([f, extra[rs, cs]], axis=-1)
 
 
 def _balanced_sample(labels: np.ndarray, per_class: int, seed: int) -> np.ndarray:
@@ -250,9 +252,10 @@ def _balanced_sample(labels: np.ndarray, per_class: int, seed: int) -> np.ndarra
 
 
 def train_pixel_classifier(pixels: np.ndarray, labels: np.ndarray, resolution_m: float,
-                           per_class: int = 20_000, tile: int = 1024,
-                           seed: int = 0) -> HistGradientBoostingClassifier:
-    """Fit gradient-boosted trees on features of a balanced subsample of labelled pixels."""
+                           per_class: int = 20_000, tile: int = 1024, seed: int = 0,
+                           extra: np.ndarray | None = None) -> HistGradientBoostingClassifier:
+    """Fit gradient-boosted trees on features of a balanced subsample of labelled pixels
+    (``extra``: more per-pixel features, e.g. the road model's, appended to ours)."""
     chosen = _balanced_sample(labels, per_class, seed)
     rows, cols = np.unravel_index(chosen, labels.shape)
     xs, ys = [], []
@@ -260,7 +263,7 @@ def train_pixel_classifier(pixels: np.ndarray, labels: np.ndarray, resolution_m:
         inside = (rows >= rs.start) & (rows < rs.stop) & (cols >= cs.start) & (cols < cs.stop)
         if not inside.any():
             continue
-        f = _tile_features(pixels, rs, cs, resolution_m)
+        f = _tile_features(pixels, rs, cs, resolution_m, extra)
         xs.append(f[rows[inside] - rs.start, cols[inside] - cs.start])
         ys.append(labels[rows[inside], cols[inside]] == ROAD)
     model = HistGradientBoostingClassifier(max_iter=60, learning_rate=0.2, max_leaf_nodes=31,
@@ -270,13 +273,13 @@ def train_pixel_classifier(pixels: np.ndarray, labels: np.ndarray, resolution_m:
 
 
 def road_probability(pixels: np.ndarray, model: HistGradientBoostingClassifier,
-                     resolution_m: float, tile: int = 1024, progress: bool = False
-                     ) -> np.ndarray:
+                     resolution_m: float, tile: int = 1024, progress: bool = False,
+                     extra: np.ndarray | None = None) -> np.ndarray:
     """Per-pixel road probability, float32, tile by tile so memory is bounded."""
     out = np.empty(pixels.shape[:2], np.float32)
     blocks = list(tiles(pixels.shape[:2], tile))
     for rs, cs in tqdm(blocks, desc="classify", unit="tile", disable=not progress, leave=False):
-        f = _tile_features(pixels, rs, cs, resolution_m)
+        f = _tile_features(pixels, rs, cs, resolution_m, extra)
         p = model.predict_proba(f.reshape(-1, f.shape[-1]))[:, 1]
         out[rs, cs] = p.reshape(f.shape[:2])
     return out

@@ -48,15 +48,17 @@ def _box(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
 def extraction_options(command: Callable[..., Any]) -> Callable[..., Any]:
     """The pipeline's tuning options, shared by ``extract-roads`` and ``ingest roads``."""
     options = [
-        click.option("--classifier", type=click.Choice(["auto", "spectral", "learned"]),
+        click.option("--classifier",
+                     type=click.Choice(["auto", "model", "adapted", "learned", "spectral"]),
                      default="auto", show_default=True,
-                     help="auto = learned when the sample has not-road labels, else spectral."),
+                     help="auto = the road model, adapted to the training sample when one is "
+                          "given; learned/spectral = per-job classifiers (need a sample)."),
         click.option("--k", "k", type=float, default=3.0, show_default=True,
                      help="Spectral: keep pixels within k x mean training distance to the "
                           "colour line."),
         click.option("--work-resolution", type=float, default=0.5, show_default=True,
-                     help="Average finer images down to this many metres per pixel "
-                          "(0 = keep source)."),
+                     help="learned/spectral: average finer images down to this many metres "
+                          "per pixel (0 = keep source); the road model uses its own."),
         click.option("--spur-max", type=float, default=15.0, show_default=True,
                      help="Longest hair (m) pruned from the skeleton."),
         click.option("--simplify", type=float, default=0.5, show_default=True,
@@ -95,7 +97,12 @@ def extract_params(classifier: str, k: float, work_resolution: float, spur_max: 
 def extract_roads(image: Path, train_boxes: list, not_road_boxes: list, train_mask: Path | None,
                   resolution: float | None, out_path: Path, debug_dir: Path | None,
                   **tuning: float | str) -> None:
-    """Extract the road network of IMAGE from a training sample into GeoJSON."""
+    """Extract the road network of IMAGE into GeoJSON.
+
+    With no sample the shipped road model runs zero-shot; a sample (--train-box,
+    --not-road-box, --train-mask) adapts it to this job. An image without roads gives an
+    empty FeatureCollection (and says so), not an error.
+    """
     from ingest.roads.classify import training_labels
     from ingest.roads.georef import read_band, read_image
     from ingest.roads.pipeline import extract_roads
@@ -103,21 +110,18 @@ def extract_roads(image: Path, train_boxes: list, not_road_boxes: list, train_ma
     with _user_errors():
         img = read_image(image, resolution)
         mask = read_band(train_mask)[0] if train_mask else None
-        if not (train_boxes or mask is not None):
-            raise RoadsInputError("no training sample: give --train-box x0,y0,x1,y1 around a "
-                                  "bit of road, or --train-mask")
-        labels = training_labels(img.pixels.shape[:2], train_boxes, not_road_boxes, mask)
+        labels = (training_labels(img.pixels.shape[:2], train_boxes, not_road_boxes, mask)
+                  if train_boxes or not_road_boxes or mask is not None else None)
         result = extract_roads(img, labels, extract_params(**tuning), debug_dir=debug_dir,
                                progress=sys.stderr.isatty())
-        if not result.graph.edges:
-            raise RoadsInputError(
-                f"no road found in {image} ({result.classifier} classifier): the sample's road "
-                "colour does not form road-like shapes here; check the training box"
-                + (f" and the images in {debug_dir}" if debug_dir else " (see --debug-dir)"))
         try:
             out_path.write_text(json.dumps(result.geojson()))
         except OSError as exc:
             raise RoadsInputError(f"cannot write {out_path}: {exc.strerror}") from exc
+    if not result.graph.edges:
+        click.echo(f"no road found in {image} ({result.classifier} classifier)"
+                   + (f"; see the images in {debug_dir}" if debug_dir else " (see --debug-dir)"),
+                   err=True)
     junctions = sum(n.is_junction for n in result.graph.nodes)
     click.echo(f"{len(result.graph.edges)} segments, {len(result.graph.nodes)} nodes "
                f"({junctions} junctions), {result.classifier} classifier -> {out_path}")
@@ -187,17 +191,18 @@ def _lonlat_box(ctx: click.Context, param: click.Parameter, values: tuple[str, .
 def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: list,
                  train_lines: Path | None, line_width: float, replace: bool,
                  **tuning: float | str) -> None:
-    """Extract the roads of raster layer SLUG into road network NETWORK (PostGIS)."""
+    """Extract the roads of raster layer SLUG into road network NETWORK (PostGIS).
+
+    The road model runs zero-shot without a sample and adapts to one when given.
+    """
     from app.db.session import session_scope
     from app.jobs.recorder import JobRecorder
     from ingest.roads.layer import GeoSample, ingest_layer_roads, read_sample_lines
 
     with _user_errors():
         lines = read_sample_lines(train_lines) if train_lines else []
-        if not (train_boxes or lines):
-            raise RoadsInputError("no training sample: give --train-box (lon/lat) around a bit "
-                                  "of road, or --train-lines")
-        sample = GeoSample(train_boxes, not_road_boxes, lines, line_width)
+        sample = (GeoSample(train_boxes, not_road_boxes, lines, line_width)
+                  if train_boxes or not_road_boxes or lines else None)
         try:
             with JobRecorder("ingest-roads", network, {"layer": slug, **tuning}), \
                     session_scope() as session:
@@ -209,3 +214,52 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
     click.echo(f"network {summary.network}: {summary.segments} segments, {summary.nodes} nodes, "
                f"{summary.total_length_m / 1000:.3f} km extracted from layer {slug} "
                f"({extraction.classifier} classifier)")
+
+
+@click.group("roads")
+def roads() -> None:
+    """The road model: train it (needs the ``train`` extra: torch)."""
+
+
+@roads.command("train")
+@click.option("--data", type=click.Path(path_type=Path, file_okay=False, exists=True),
+              required=True, help="Folder with pairs.json (image, mask, m_per_px per pair).")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False),
+              required=True, help="Model folder to write (model.onnx, README.md, ...).")
+@click.option("--exclude-images", "exclude_dirs", multiple=True,
+              type=click.Path(path_type=Path, file_okay=False, exists=True),
+              help="Never train on images byte-identical to one under this folder "
+                   "(the validation set; repeatable).")
+@click.option("--epochs", type=int, default=32, show_default=True)
+@click.option("--steps-per-epoch", type=int, default=80, show_default=True)
+@click.option("--batch", type=int, default=8, show_default=True)
+@click.option("--crop", type=int, default=224, show_default=True, help="Crop side in pixels.")
+@click.option("--resolution", type=float, default=1.0, show_default=True,
+              help="Ground resolution (m/px) the model works at.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--hue-jitter", type=float, default=0.0, show_default=True,
+              help="Random hue rotation, as a fraction of the colour wheel.")
+@click.option("--grey-p", type=float, default=0.05, show_default=True,
+              help="Share of training crops turned grey.")
+@click.option("--max-scenes", type=int, help="Use only the first N scenes (quick runs).")
+def roads_train(data: Path, out_dir: Path, exclude_dirs: tuple[Path, ...], epochs: int,
+                steps_per_epoch: int, batch: int, crop: int, resolution: float, seed: int,
+                hue_jitter: float, grey_p: float, max_scenes: int | None) -> None:
+    """Train the road segmentation model and export it to ONNX with its model card."""
+    try:
+        from ingest.roads.model.train import TrainConfig, train
+    except ImportError as exc:
+        raise CliError(f"training needs torch: pip install -e '.[train]' ({exc})") from exc
+    from ingest.roads.model.data import image_hashes
+
+    if crop % 16:
+        raise CliError("--crop must be a multiple of 16 (the network's grid)")
+    with _user_errors():
+        exclude = sorted(set().union(*(image_hashes(d) for d in exclude_dirs)))
+        config = TrainConfig(resolution_m=resolution, crop_px=crop, batch=batch, epochs=epochs,
+                             steps_per_epoch=steps_per_epoch, seed=seed, max_scenes=max_scenes,
+                             hue_jitter=hue_jitter, grey_p=grey_p, exclude=exclude)
+        report = train(data, out_dir, config, progress=True)
+    click.echo(f"best epoch {report['best_epoch']}: hold-out F1 {report['holdout']['f1']:.3f} "
+               f"at threshold {report['threshold']:.2f}; {report['train_minutes']:.1f} min -> "
+               f"{out_dir / 'model.onnx'}")

@@ -129,10 +129,11 @@ def road_lines(extraction: Extraction, attrs: dict) -> list[RoadLine]:
     return lines
 
 
-def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSample,
+def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSample | None,
                        params: ExtractParams, *, replace: bool = False,
                        progress: bool = False) -> tuple[Extraction, ImportSummary]:
-    """Extract layer ``slug``'s roads into network ``network`` in the caller's transaction."""
+    """Extract layer ``slug``'s roads into network ``network`` in the caller's transaction
+    (``sample`` None: the road model zero-shot)."""
     paths = layer_source_paths(session, slug)
     if not paths:
         raise RoadsInputError(f"layer {slug!r} has no sources")
@@ -140,7 +141,8 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
         mosaic = Path(tmp) / "mosaic.tif"
         merge_sources(paths, mosaic)
         image = read_image(mosaic)
-    labels = sample_labels(image.pixels.shape[:2], image.transform, image.crs, sample)
+    labels = (None if sample is None
+              else sample_labels(image.pixels.shape[:2], image.transform, image.crs, sample))
     extraction = extract_roads(image, labels, params, progress=progress)
     if not extraction.graph.edges:
         raise RoadsInputError(f"no road found in layer {slug!r} with the "

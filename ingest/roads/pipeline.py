@@ -1,8 +1,14 @@
-"""The road-extraction pipeline: image + training labels -> road graph (+ debug images).
+"""The road-extraction pipeline: image (+ optional training labels) -> road graph.
 
 Composition only; each stage lives in its own module. Images finer than the working
-resolution are first averaged down to it: a road is metres wide, so 0.5 m pixels keep every
-centerline within the survey's accuracy while a 0.16 m mosaic would cost ten times the work.
+resolution are first averaged down to it: a road is metres wide, so 0.5-1 m pixels keep every
+centerline within the survey's accuracy while a 0.16 m mosaic would cost 40 times the work.
+
+Classifiers: ``model`` (the shipped road network, zero-shot, on its own 1 m grid),
+``adapted`` (the same, adapted to the job's labels: :mod:`ingest.roads.model.adapt`),
+``learned`` (per-job trees on hand-made features) and ``spectral`` (the survey's colour line).
+The model paths keep the road probability, which the topology clean-up uses to decide which
+gaps in the skeleton are real roads the threshold broke.
 """
 
 from __future__ import annotations
@@ -13,16 +19,20 @@ from typing import Literal
 
 import cv2
 import numpy as np
+from skimage.filters import apply_hysteresis_threshold
 
 from ingest.roads import RoadsInputError
-from ingest.roads.classify import NOT_ROAD, ROAD, learned_classify, spectral_classify
+from ingest.roads.classify import ROAD, learned_classify, spectral_classify
 from ingest.roads.clean import clean_mask
 from ingest.roads.georef import Frame, Image, crs_member, resize, to_working_grid
 from ingest.roads.graph import GraphParams, RoadGraph, build_graph, feature_collection
 from ingest.roads.houses import HouseRule, remove_houses
 from ingest.roads.skeleton import prune_spurs, thin
+from ingest.roads.topology import TopologyParams, clean_topology
 
-Classifier = Literal["auto", "spectral", "learned"]
+Classifier = Literal["auto", "model", "adapted", "learned", "spectral"]
+MODEL_MAX_COARSER = 1.4
+"""The model saw scales down to 1/1.4 in training: coarser pixels hide its roads."""
 
 
 @dataclass(frozen=True)
@@ -30,11 +40,11 @@ class ExtractParams:
     """Every knob of the pipeline; sizes in metres."""
 
     classifier: Classifier = "auto"
-    """``auto``: learned when the sample has not-road labels, else spectral."""
+    """``auto``: the road model, adapted to the sample when there is one."""
     k: float = 3.0
     """Spectral: keep pixels within k x the mean training distance to the colour line."""
     threshold: float = 0.5
-    """Learned: road probability above which a pixel is road..."""
+    """Learned: road probability above which a pixel is road (model: its own threshold)..."""
     seed_threshold: float = 0.85
     """...when connected to a pixel at least this probable (hysteresis)."""
     work_resolution_m: float | None = 0.5
@@ -47,6 +57,9 @@ class ExtractParams:
     spur_max_m: float = 15.0
     spur_steps: int = 4
     graph: GraphParams = field(default_factory=GraphParams)
+    topology: TopologyParams = field(default_factory=TopologyParams)
+    model_path: Path | None = None
+    """ONNX road model; None = ``UGVMAP_ROAD_MODEL`` or the shipped ``models/roads-v1``."""
 
 
 @dataclass(frozen=True)
@@ -69,40 +82,97 @@ class Extraction:
                 for e in self.graph.edges]
 
 
-def choose_classifier(requested: Classifier, labels: np.ndarray) -> str:
-    """Resolve ``auto``: the learned classifier needs not-road examples."""
+def choose_classifier(requested: Classifier, labels: np.ndarray | None) -> str:
+    """Resolve ``auto``: the road model, adapted when the user gave road labels."""
     if requested != "auto":
         return requested
-    return "learned" if (labels == NOT_ROAD).any() else "spectral"
+    return "adapted" if labels is not None and (labels == ROAD).any() else "model"
 
 
-def extract_roads(image: Image, labels: np.ndarray, params: ExtractParams = ExtractParams(),
-                  debug_dir: Path | None = None, progress: bool = False) -> Extraction:
-    """Run every stage; ``labels`` (255 road / 128 not road / 0) are on the source grid."""
-    pixels, valid, frame = to_working_grid(image, params.work_resolution_m)
-    if labels.shape != pixels.shape[:2]:
-        labels = resize(labels, pixels.shape[:2], cv2.INTER_NEAREST)
-        if not (labels == ROAD).any():
-            raise RoadsInputError("the road sample is too small for the working grid: draw a "
-                                  "bigger --train-box or pass a finer --work-resolution")
-    res = frame.resolution_m
-    method = choose_classifier(params.classifier, labels)
-    if method == "learned":
-        binary = learned_classify(pixels, labels, res, params.threshold, params.seed_threshold,
-                                  progress=progress)
+def _on_grid(labels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Source-grid labels on the working grid (nearest: a label is a class, not a value)."""
+    if labels.shape == shape:
+        return labels
+    labels = resize(labels, shape, cv2.INTER_NEAREST)
+    if not (labels == ROAD).any():
+        raise RoadsInputError("the road sample is too small for the working grid: draw a "
+                              "bigger --train-box or pass a finer --work-resolution")
+    return labels
+
+
+def model_mask(image: Image, labels: np.ndarray | None, adapt: bool, params: ExtractParams,
+               progress: bool = False) -> tuple[np.ndarray, np.ndarray, Frame]:
+    """(road mask, road probability, frame) from the road model on its own grid."""
+    from ingest.roads.model.adapt import adapted_probability
+    from ingest.roads.model.data import rgb_bands, stretch, stretch_limits
+    from ingest.roads.model.runtime import load_model, predict
+
+    model = load_model(params.model_path)
+    pixels, valid, frame = to_working_grid(image, model.resolution_m)
+    if frame.resolution_m > model.resolution_m * MODEL_MAX_COARSER:
+        raise RoadsInputError(
+            f"the image is {frame.resolution_m:.2f} m/px but the road model works at "
+            f"{model.resolution_m:g} m/px and cannot see roads in pixels coarser than "
+            f"{model.resolution_m * MODEL_MAX_COARSER:g} m: use --classifier learned or "
+            "spectral with a training sample")
+    rgb = stretch(rgb_bands(pixels), stretch_limits(image.pixels, image.valid))
+    del pixels
+    if adapt:
+        if labels is None:
+            raise RoadsInputError("--classifier adapted needs a training sample (--train-box, "
+                                  "--train-mask or --train-lines)")
+        prob, _ = adapted_probability(model, rgb, _on_grid(labels, rgb.shape[:2]),
+                                      frame.resolution_m, progress=progress)
+        low = params.threshold
     else:
-        binary = spectral_classify(pixels, labels, params.k)
+        prob, _ = predict(model, rgb, progress=progress)
+        low = model.threshold
+    binary = apply_hysteresis_threshold(prob, low, max(params.seed_threshold, low))
     if valid is not None:
         binary &= valid
+    return binary, prob, frame
+
+
+def extract_roads(image: Image, labels: np.ndarray | None = None,
+                  params: ExtractParams = ExtractParams(), debug_dir: Path | None = None,
+                  progress: bool = False) -> Extraction:
+    """Run every stage; ``labels`` (255 road / 128 not road / 0) are on the source grid and
+    optional for the road model (zero-shot)."""
+    method = choose_classifier(params.classifier, labels)
+    prob = None
+    if method in ("model", "adapted"):
+        binary, prob, frame = model_mask(image, labels, method == "adapted", params, progress)
+    else:
+        if labels is None:
+            raise RoadsInputError(f"the {method} classifier needs a training sample: give "
+                                  "--train-box, --train-mask or --train-lines")
+        pixels, valid, frame = to_working_grid(image, params.work_resolution_m)
+        labels = _on_grid(labels, pixels.shape[:2])
+        if method == "learned":
+            binary = learned_classify(pixels, labels, frame.resolution_m, params.threshold,
+                                      params.seed_threshold, progress=progress)
+        else:
+            binary = spectral_classify(pixels, labels, params.k)
+        del pixels
+        if valid is not None:
+            binary &= valid
+    res = frame.resolution_m
     cleaned = clean_mask(binary, res, params.open_m, params.close_m, params.min_area_m2,
                          params.max_hole_m2)
-    no_houses = remove_houses(cleaned, params.houses)
+    # Roof-like blobs are what colour classifiers confuse with roads; the network has learned
+    # them, and the rectangle rule would cut its wide junctions and parking aisles.
+    no_houses = cleaned if prob is not None else remove_houses(cleaned, params.houses)
     skeleton = prune_spurs(thin(no_houses), params.spur_max_m / res, params.spur_steps)
-    graph = build_graph(skeleton, no_houses, res, params.graph)
     stages = {"binary": binary, "cleaned": cleaned, "houses_removed": no_houses,
               "skeleton": skeleton}
+    if prob is not None:
+        skeleton = clean_topology(skeleton, prob, res, params.topology)
+        stages["topology"] = skeleton
+    graph = build_graph(skeleton, no_houses, res, params.graph)
     if debug_dir is not None:
         write_debug_images(stages, debug_dir)
+        if prob is not None:
+            cv2.imwrite(str(debug_dir / "0_probability.png"), np.round(prob * 255).astype(np.uint8))
     return Extraction(graph, frame, method, stages, image.resolution_m)
 
 

@@ -1,0 +1,133 @@
+"""Run the shipped road model with onnxruntime: no torch, bounded memory, any image size.
+
+The network sees the image through overlapping tiles whose origins sit on its 16 px grid
+(so pooling windows line up with an untiled run), and the tile outputs are blended with a
+weight that ramps down over the overlap, where a tile's own border padding spoils its view.
+Away from the image border the result matches one whole-image run to within a few thousandths
+of probability and the same road mask (``tests/test_roads_model.py``), while memory holds one
+tile of activations.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from ingest.roads import RoadsInputError
+
+MODEL_DIR = Path(__file__).resolve().parents[3] / "models" / "roads-v1"
+GRID_PX = 16
+TILE_PX = 1024
+OVERLAP_PX = 128
+
+
+@dataclass(frozen=True)
+class RoadModel:
+    """An ONNX road model and what its metadata says about it."""
+
+    path: Path
+    resolution_m: float
+    """Ground resolution the model was trained at."""
+    threshold: float
+    """Probability threshold chosen on the training hold-out."""
+    session: object
+    """onnxruntime.InferenceSession (typed loosely: the import is deferred)."""
+
+
+def default_model_path() -> Path:
+    """``UGVMAP_ROAD_MODEL`` or the model committed under ``models/roads-v1``."""
+    return Path(os.environ.get("UGVMAP_ROAD_MODEL") or MODEL_DIR / "model.onnx")
+
+
+@lru_cache(maxsize=4)
+def load_model(path: Path | None = None, threads: int = 2) -> RoadModel:
+    """Open the ONNX file once per process (sessions are thread-safe for ``run``)."""
+    import onnxruntime as ort
+
+    path = path or default_model_path()
+    if not path.is_file():
+        raise RoadsInputError(f"road model {path} not found: train one with `ugvmap roads "
+                              "train` or set UGVMAP_ROAD_MODEL")
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    try:
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own untyped errors for bad files
+        raise RoadsInputError(f"{path}: not a usable ONNX road model ({exc})") from exc
+    meta = {k: json.loads(v) for k, v in session.get_modelmeta().custom_metadata_map.items()}
+    if "resolution_m" not in meta:
+        raise RoadsInputError(f"{path}: ONNX file lacks ugvmap's metadata (resolution_m)")
+    return RoadModel(path=path, resolution_m=float(meta["resolution_m"]),
+                     threshold=float(meta.get("threshold", 0.5)), session=session)
+
+
+def _ramp(n: int, overlap: int) -> np.ndarray:
+    """1-D blend weight: rises over ``overlap`` px at both ends, 1 in between, never 0."""
+    w = np.ones(n, np.float32)
+    if overlap:
+        edge = (np.arange(overlap, dtype=np.float32) + 0.5) / overlap
+        k = min(overlap, n // 2)
+        w[:k] = edge[:k]
+        w[n - k:] = np.minimum(w[n - k:], edge[:k][::-1])
+    return w
+
+
+def _axis_plan(n: int, tile: int, overlap: int) -> tuple[int, int, list[int]]:
+    """(tile size, padded length, tile starts) along one axis of ``n`` pixels.
+
+    The image is padded by ``overlap`` in front, so padded 0 is image -overlap; full tiles
+    step by ``tile - 2 * overlap`` and each one's full-weight middle abuts the next one's.
+    An axis that fits in one tile gets one tile rounded up to the 16 px grid.
+    """
+    if n + 2 * overlap <= tile:
+        size = -(-(n + 2 * overlap) // GRID_PX) * GRID_PX
+        return size, size, [0]
+    step = tile - 2 * overlap
+    count = -(-n // step)
+    return tile, count * step + 2 * overlap, [i * step for i in range(count)]
+
+
+def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
+            tile: int = TILE_PX, overlap: int = OVERLAP_PX, progress: bool = False
+            ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Road probability (rows, cols) float32 of normalised RGB on the model grid, and the
+    decoder features (rows, cols, C) when asked for.
+
+    ``tile`` and ``overlap`` must be multiples of the 16 px grid; images smaller than a tile
+    run as one (padded) tile.
+    """
+    if tile % GRID_PX or overlap % GRID_PX or tile <= 2 * overlap:
+        raise ValueError("tile and overlap must be multiples of 16 with tile > 2 x overlap")
+    rows, cols = rgb.shape[:2]
+    th, ph, row_starts = _axis_plan(rows, tile, overlap)
+    tw, pw, col_starts = _axis_plan(cols, tile, overlap)
+    padded = np.pad(rgb.astype(np.float32, copy=False),
+                    ((overlap, ph - rows - overlap), (overlap, pw - cols - overlap), (0, 0)),
+                    mode="reflect" if min(rows, cols) > 1 else "edge")
+    acc = np.zeros((ph, pw), np.float32)
+    weight = np.zeros((ph, pw), np.float32)
+    feat_acc = None
+    window = np.outer(_ramp(th, overlap), _ramp(tw, overlap))
+    boxes = [(r, c) for r in row_starts for c in col_starts]
+    names = ["road", "features"] if features else ["road"]
+    for r, c in tqdm(boxes, desc="road model", unit="tile", disable=not progress, leave=False):
+        x = np.ascontiguousarray(padded[r:r + th, c:c + tw].transpose(2, 0, 1))[None]
+        out = model.session.run(names, {"rgb": x})
+        acc[r:r + th, c:c + tw] += out[0][0, 0] * window
+        weight[r:r + th, c:c + tw] += window
+        if features:
+            f = out[1][0].transpose(1, 2, 0)
+            if feat_acc is None:
+                feat_acc = np.zeros((ph, pw, f.shape[-1]), np.float32)
+            feat_acc[r:r + th, c:c + tw] += f * window[..., None]
+    inner = (slice(overlap, overlap + rows), slice(overlap, overlap + cols))
+    prob = acc[inner] / weight[inner]
+    feats = None if feat_acc is None else feat_acc[inner] / weight[inner][..., None]
+    return prob, feats

@@ -9,7 +9,10 @@ multi-scale features of :mod:`ingest.roads.classify`. Where the network is right
 learn to follow its logit; where the job's labels disagree, they learn the exception.
 
 A sample with road labels only (a ``--train-box`` around a road) gets pseudo not-road labels
-where the network is confidently not road, so adaptation never needs more than it has.
+where the network is confidently not road *and* the colour is unlike the sampled road (the
+survey's spectral line, :func:`ingest.roads.classify.spectral_classify`): on imagery the
+network does not know, its "not road" covers the very roads the user pointed at, and those
+must not be taught as negatives.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from ingest.roads.classify import (
     ROAD,
     UNLABELLED,
     road_probability,
+    spectral_classify,
     train_pixel_classifier,
 )
 from ingest.roads.model.runtime import RoadModel, predict
@@ -36,12 +40,14 @@ def model_features(prob: np.ndarray, features: np.ndarray) -> np.ndarray:
     return np.concatenate([logit[..., None], features], axis=-1)
 
 
-def with_pseudo_labels(labels: np.ndarray, prob: np.ndarray) -> np.ndarray:
-    """``labels`` plus not-road where unlabelled and the network is sure, if none was given."""
+def with_pseudo_labels(labels: np.ndarray, prob: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+    """``labels`` plus not-road where unlabelled, the network is sure and the colour is not
+    the sampled road's, if the sample has no not-road of its own."""
     if (labels == NOT_ROAD).any():
         return labels
     out = labels.copy()
-    out[(labels == UNLABELLED) & (prob < PSEUDO_NOT_ROAD_BELOW)] = NOT_ROAD
+    road_coloured = spectral_classify(rgb, labels)
+    out[(labels == UNLABELLED) & (prob < PSEUDO_NOT_ROAD_BELOW) & ~road_coloured] = NOT_ROAD
     return out
 
 
@@ -52,7 +58,7 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     prob, feats = predict(model, rgb, features=True, progress=progress)
     extra = model_features(prob, feats)
     del feats
-    labels = with_pseudo_labels(labels, prob)
+    labels = with_pseudo_labels(labels, prob, rgb)
     if not ((labels == ROAD).any() and (labels == NOT_ROAD).any()):
         return prob, prob
     trees = train_pixel_classifier(rgb, labels, resolution_m, extra=extra)

@@ -216,3 +216,14 @@ def test_apls_of_empty_inputs_is_zero() -> None:
     assert apls([], grid_lines(), snap_radius=5) == 0.0
     assert apls([], [], snap_radius=5) == 0.0
     assert connectivity_report([], [], 5.0)["pairs_preserved"] == 0.0
+
+
+def test_apls_snaps_onto_edges_of_different_vertex_counts() -> None:
+    """Regression: edges with different vertex counts crashed the edge snapping (a ragged
+    array handed to shapely.linestrings)."""
+    truth = [np.array([[0, 0], [50, 0]]), np.array([[50, 0], [100, 0]]),
+             np.array([[50, 0], [50, 50]])]
+    # The T's junction has no predicted node within 5 m: it snaps onto the 3-vertex edge.
+    pred = [np.array([[0, 1], [30, 1], [100, 1]]), np.array([[50, 8], [50, 50]])]
+    report = connectivity_report(truth, pred, snap_radius=5)
+    assert 0.0 < report["apls"] < 1.0

@@ -186,7 +186,7 @@ def _snap(g: nx.Graph, points: np.ndarray, radius: float) -> tuple[nx.Graph, lis
     edges = list(g.edges(data=True))
     if not len(rest) or not edges:
         return g, match
-    geoms = shapely.linestrings([d["coords"] for _, _, d in edges])
+    geoms = np.array([shapely.LineString(d["coords"]) for _, _, d in edges], dtype=object)
     probes = shapely.points(points[rest])
     hit, on = shapely.STRtree(geoms).query_nearest(probes, max_distance=radius,
                                                    all_matches=False)

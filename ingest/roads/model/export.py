@@ -58,6 +58,7 @@ def write_model_card(out: Path, report: dict) -> None:
     ``bench/roads_accuracy.py --card`` (it needs the extraction pipeline, not just pixels).
     """
     cfg = report["config"]
+    hue, grey = cfg.get("hue_jitter", 0.0), cfg.get("grey_p", 0.05)
     rows = "\n".join(
         f"| {h['epoch']} | {h['loss']:.4f} | {h['f1']:.3f} | {h['precision']:.3f} | "
         f"{h['recall']:.3f} | {h['threshold']:.2f} | {h['minutes']:.1f} |"
@@ -88,7 +89,7 @@ pip install -e '.[train]'
 ugvmap roads train --data ../shared/data/road_training \\
     --exclude-images ../shared/data/road_imagery \\
     --out models/roads-v1 --epochs {cfg['epochs']} --steps-per-epoch {cfg['steps_per_epoch']} \\
-    --seed {cfg['seed']}
+    --seed {cfg['seed']} --hue-jitter {hue} --grey-p {grey}
 ```
 - Data: `shared/data/road_training/pairs.json` minus every image byte-identical to one in
   `shared/data/road_imagery` (the validation set), split into {len(report['train_scenes'])}
@@ -99,7 +100,8 @@ ugvmap roads train --data ../shared/data/road_training \\
 - Crops {cfg['crop_px']} px, batch {cfg['batch']}, {cfg['epochs']} epochs x
   {cfg['steps_per_epoch']} steps, AdamW lr {cfg['lr']} one-cycle, seed {cfg['seed']},
   {cfg['threads']} CPU threads; augmentation: scale 0.7–1.4, 90° rotations, flips, saturation,
-  per-channel gain, contrast, brightness, gamma, blur, noise, occasional greyscale.
+  per-channel gain, contrast, brightness, gamma, blur, noise, greyscale
+  (p = {grey}), hue rotation (±{hue} of the wheel).
 - Loss: BCE + soft Dice (masked). Checkpoint and threshold chosen by hold-out pixel F1:
   epoch {report['best_epoch']}, threshold {report['threshold']:.2f}, hold-out F1
   {report['holdout']['f1']:.3f} (P {report['holdout']['precision']:.3f},

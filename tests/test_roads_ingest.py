@@ -14,7 +14,7 @@ from sqlalchemy import text
 from app.cli import main
 from app.db.session import session_scope
 from ingest.raster.job import ingest_raster
-from ingest.roads.synthetic import Scene, render
+from ingest.roads.synthetic import Scene, grid_scene, render
 from tests.raster_synth import UTM33, utm_origin, write_tif
 
 RES = 0.5
@@ -22,10 +22,11 @@ RES = 0.5
 ROADS = [[(20, 150), (380, 150)], [(200, 20), (200, 280)], [(60, 150), (60, 280)]]
 
 
-def _layer(tmp_path: Path, slug: str) -> Transformer:
-    rgb, _ = render(Scene((300, 400), roads=ROADS, seed=3))
+def _layer(tmp_path: Path, slug: str, scene: Scene | None = None, res: float = RES
+           ) -> Transformer:
+    rgb, _ = render(scene or Scene((300, 400), roads=ROADS, seed=3))
     east, north = utm_origin(15.3, 48.31)
-    transform = from_origin(round(east), round(north), RES, RES)
+    transform = from_origin(round(east), round(north), res, res)
     write_tif(tmp_path / "scene.tif", np.moveaxis(rgb, -1, 0), UTM33, transform)
     ingest_raster([tmp_path / "scene.tif"], slug)
     to_lonlat = Transformer.from_crs(UTM33, "EPSG:4326", always_xy=True)
@@ -85,7 +86,8 @@ def test_ingest_roads_bad_input_changes_nothing(database_url: str, tmp_path: Pat
 
 
 def test_ingest_roads_zero_shot_uses_the_road_model(database_url: str, tmp_path: Path) -> None:
-    _layer(tmp_path, "roads-scene-3")
+    # A 400 m town at 1 m/px: four streets each way, roofs in the blocks (~3.2 km of road).
+    _layer(tmp_path, "roads-scene-3", grid_scene(400, 100, 8), res=1.0)
     result = CliRunner().invoke(main, ["ingest", "roads", "--layer", "roads-scene-3",
                                        "--network", "zero-shot"])
     assert result.exit_code == 0, result.output
@@ -96,4 +98,4 @@ def test_ingest_roads_zero_shot_uses_the_road_model(database_url: str, tmp_path:
             "JOIN networks n ON n.id = s.network_id WHERE n.name = 'zero-shot' "
             "GROUP BY 1")).all()
     assert [r[0] for r in rows] == ["model"]
-    assert rows[0][1] > 150  # the scene's roads are ~260 m long in all
+    assert rows[0][1] > 2000

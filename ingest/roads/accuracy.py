@@ -11,19 +11,23 @@ Connectivity (APLS, :mod:`ingest.roads.connectivity`) is measured on the same th
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 import shapely
 from shapely.geometry import LineString, box
 
 from ingest.roads.classify import NOT_ROAD, ROAD
 from ingest.roads.connectivity import apls
-from ingest.roads.evaluate import BufferScore, buffer_scores, rasterize_lines
+from ingest.roads.evaluate import (
+    BufferScore,
+    buffer_scores,
+    distance_to_lines_m,
+    line_pixels,
+    rasterize_lines,
+)
 from ingest.roads.georef import Image, read_band, read_image
 from ingest.roads.graph import build_graph
 from ingest.roads.pipeline import ExtractParams, extract_roads
@@ -70,14 +74,8 @@ def truth_rasters(sample: Sample, root: Path, image: Image
         centerline = thin(road)
         graph = build_graph(centerline, road, image.resolution_m)
         return road, centerline, None, [e.coords for e in graph.edges]
-    inverse = ~image.transform
-    lines = []
-    for feature in json.loads(path.read_text())["features"]:
-        pts = np.asarray(feature["geometry"]["coordinates"], float)[:, :2]
-        lines.append(np.column_stack(inverse @ (pts[:, 0], pts[:, 1])))
-    centerline = rasterize_lines(lines, image.pixels.shape[:2])
-    metres = cv2.distanceTransform((~centerline).astype(np.uint8), cv2.DIST_L2,
-                                   cv2.DIST_MASK_PRECISE) * image.resolution_m
+    lines = line_pixels(path, ~image.transform)
+    centerline, metres = distance_to_lines_m(lines, image.pixels.shape[:2], image.resolution_m)
     road = metres <= CENTERLINE_ROAD_M
     return road, centerline, ~road & (metres <= CENTERLINE_CLEAR_M), lines
 

@@ -85,6 +85,20 @@ def rasterize_lines(lines: Sequence[np.ndarray], shape: tuple[int, int]) -> np.n
     return canvas.astype(bool)
 
 
+def line_pixels(path: Path, to_pixel: Affine) -> list[np.ndarray]:
+    """A GeoJSON file's (multi)linestrings in an image's pixel-corner coordinates
+    (``to_pixel``: the image's inverse transform; the file must be in the image's CRS)."""
+    lines, _, _ = _read_geojson(path)
+    return [np.column_stack(to_pixel @ (line[:, 0], line[:, 1])) for line in lines]
+
+
+def distance_to_lines_m(lines: Sequence[np.ndarray], shape: tuple[int, int],
+                        resolution_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(one-pixel centerline raster, every pixel's distance to it in metres)."""
+    centre = rasterize_lines(lines, shape)
+    return centre, _distance_to(centre) * resolution_m
+
+
 # --- loading PRED / GT files ---------------------------------------------------------------
 
 @dataclass(frozen=True)

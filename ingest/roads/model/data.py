@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from ingest.roads import RoadsInputError
-from ingest.roads.evaluate import rasterize_lines
+from ingest.roads.evaluate import distance_to_lines_m, line_pixels
 from ingest.roads.georef import Image, read_band, read_image, resize
 
 STRETCH_PERCENTILES = (0.5, 99.5)
@@ -107,19 +107,8 @@ def _line_labels(path: Path, image: Image) -> tuple[np.ndarray, np.ndarray]:
     """(road, known) from GeoJSON centerlines in the image's CRS."""
     if image.transform is None:
         raise RoadsInputError(f"{path}: centerline labels need a georeferenced image")
-    inverse = ~image.transform
-    lines = []
-    for feature in json.loads(path.read_text())["features"]:
-        geom = feature.get("geometry") or {}
-        parts = ([geom["coordinates"]] if geom.get("type") == "LineString"
-                 else geom.get("coordinates", []) if geom.get("type") == "MultiLineString"
-                 else [])
-        for part in parts:
-            pts = np.asarray(part, float)[:, :2]
-            lines.append(np.column_stack(inverse @ (pts[:, 0], pts[:, 1])))
-    centre = rasterize_lines(lines, image.pixels.shape[:2])
-    metres = cv2.distanceTransform((~centre).astype(np.uint8), cv2.DIST_L2,
-                                   cv2.DIST_MASK_PRECISE) * image.resolution_m
+    _, metres = distance_to_lines_m(line_pixels(path, ~image.transform),
+                                    image.pixels.shape[:2], image.resolution_m)
     return metres <= LINE_ROAD_M, (metres <= LINE_ROAD_M) | (metres > LINE_UNSURE_M)
 
 

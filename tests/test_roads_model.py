@@ -47,12 +47,15 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
+TINY = {"crop_px": 64, "batch": 4, "epochs": 3, "steps_per_epoch": 10, "lr": 3e-3}
+
+
 @pytest.fixture(scope="module")
 def tiny_run(dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     from ingest.roads.model.train import TrainConfig, initial_loss, train
 
     out = tmp_path_factory.mktemp("model")
-    config = TrainConfig(crop_px=64, batch=4, epochs=3, steps_per_epoch=10, lr=3e-3)
+    config = TrainConfig(**TINY)
     report = train(dataset, out, config, progress=False)
     report["initial_loss"] = initial_loss(config, dataset)
     return out, report
@@ -84,6 +87,19 @@ def test_onnx_and_torch_agree(tiny_run: tuple[Path, dict]) -> None:
     prob_onnx, feats_onnx = load_model(out / "model.onnx").session.run(None, {"rgb": x})
     np.testing.assert_allclose(prob_onnx, torch.sigmoid(logit).numpy(), atol=1e-5)
     np.testing.assert_allclose(feats_onnx, feats.numpy(), atol=1e-4)
+
+
+def test_training_is_reproducible(dataset: Path, tiny_run: tuple[Path, dict],
+                                  tmp_path: Path) -> None:
+    from ingest.roads.model.train import TrainConfig, train
+
+    out, first = tiny_run
+    again = train(dataset, tmp_path, TrainConfig(**TINY), progress=False)
+    assert [h["loss"] for h in again["history"]] == [h["loss"] for h in first["history"]]
+    x = np.random.default_rng(2).random((1, 3, 64, 64), dtype=np.float32)
+    a = load_model(out / "model.onnx").session.run(["road"], {"rgb": x})[0]
+    b = load_model(tmp_path / "model.onnx").session.run(["road"], {"rgb": x})[0]
+    np.testing.assert_array_equal(a, b)
 
 
 def test_validation_images_are_kept_out_of_training(dataset: Path) -> None:

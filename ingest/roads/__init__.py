@@ -1,9 +1,11 @@
-"""Road extraction: aerial/mosaic image + a small training sample -> topological road graph.
+"""Road extraction: aerial/mosaic image (+ an optional training sample) -> road graph.
 
 Stages, one module each, composed by :mod:`ingest.roads.pipeline`:
-``classify`` (road pixels) -> ``clean`` (morphology in metres) -> ``houses`` (rectangle-like
-blobs out) -> ``skeleton`` (thinning, spur pruning) -> ``graph`` (nodes/edges with attributes)
--> ``georef`` (pixel -> map coordinates). ``evaluate`` scores centerlines against ground truth.
+``model`` (the shipped road network, zero-shot or adapted; its own package) or ``classify``
+(per-job classifiers) -> ``clean`` (morphology in metres) -> ``houses`` (rectangle-like blobs
+out; colour classifiers) -> ``skeleton`` (thinning, spur pruning) -> ``topology`` (gap
+bridging, crumbs) -> ``graph`` (nodes/edges with attributes) -> ``georef`` (pixel -> map
+coordinates). ``evaluate`` and ``connectivity`` score centerlines against ground truth.
 Everything here is a pure function of arrays and geometries: no database.
 """
 

@@ -96,7 +96,8 @@ def _on_grid(labels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     labels = resize(labels, shape, cv2.INTER_NEAREST)
     if not (labels == ROAD).any():
         raise RoadsInputError("the road sample is too small for the working grid: draw a "
-                              "bigger --train-box or pass a finer --work-resolution")
+                              "bigger --train-box (learned/spectral: or pass a finer "
+                              "--work-resolution; the road model's grid is fixed)")
     return labels
 
 

@@ -1,24 +1,206 @@
-"""Error responses shared by all routers: a JSON body with ``code`` and ``message``.
+"""The service's one error model: every fault a client can cause or see has one class here.
 
-A database outage anywhere becomes 503 with the reason, never a 500 traceback.
+Each :class:`ApiError` subclass fixes its HTTP status and public ``code`` at class level (the
+pygeoapi/titiler pattern), so the same fault gives the same answer whichever endpoint meets
+it. Raising one anywhere in a request (router, query or logic) ends the request with the body
+``{"code", "message"[, "errors"]}`` and leaves the transaction rolled back, so bad input never
+changes stored data. The handlers below also turn the framework's own errors (unknown path,
+wrong method, request validation) and a lost database into the same body; ``app.main``
+installs them as one table.
+
+:class:`UserError` is the command line's counterpart: a mistake the user can fix, printed as
+one line by the CLI root, raised by ingest code as much as by the commands themselves.
 """
 
 from __future__ import annotations
 
-from fastapi import FastAPI, Request
+import re
+from http import HTTPStatus
+from typing import Any, ClassVar
+
+from fastapi import Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from sqlalchemy.exc import InterfaceError, OperationalError
+from starlette.exceptions import HTTPException
 
 
-def _db_unavailable(_: Request, exc: Exception) -> JSONResponse:
+class UserError(ValueError):
+    """A mistake the user can fix (bad file, unknown name, bad option), said in one line.
+
+    A ``ValueError`` so callers that already treat bad values as such keep working; the CLI
+    root prints it as ``Error: <message>`` with exit status 1 and no traceback.
+    """
+
+
+class ApiError(Exception):
+    """Base of every HTTP error answer; subclasses only set ``status`` and ``code``."""
+
+    status: ClassVar[int] = 500
+    code: ClassVar[str] = "InternalError"
+    default_headers: ClassVar[dict[str, str]] = {}
+
+    def __init__(self, message: str, *, errors: dict[str, str] | None = None,
+                 headers: dict[str, str] | None = None) -> None:
+        super().__init__(message)
+        self.message = message
+        self.errors = errors
+        self.headers = {**self.default_headers, **(headers or {})} or None
+
+
+class InvalidParameterValueError(ApiError):
+    """A malformed query parameter, path part or body (OGC API's code for it)."""
+
+    status, code = 400, "InvalidParameterValue"
+
+
+class UnauthorizedError(ApiError):
+    """No valid token; says which scheme to use, as RFC 9110 requires for a 401."""
+
+    status, code = 401, "Unauthorized"
+    default_headers: ClassVar[dict[str, str]] = {"WWW-Authenticate": 'Bearer realm="ugvmap"'}
+
+
+class ForbiddenError(ApiError):
+    status, code = 403, "Forbidden"
+
+
+class NotFoundError(ApiError):
+    status, code = 404, "NotFound"
+
+
+class LayerNotFoundError(NotFoundError):
+    """An unknown raster layer: its own code, which clients of the tile API already test for."""
+
+    code = "LayerNotFound"
+
+
+class TileOutOfRangeError(NotFoundError):
+    """A well-formed tile address outside the tile-matrix set (zoom > max, x or y >= 2^z)."""
+
+    code = "TileOutOfRange"
+
+
+class MethodNotAllowedError(ApiError):
+    status, code = 405, "MethodNotAllowed"
+
+
+class PreconditionFailedError(ApiError):
+    """``If-Match`` names a version that is no longer current: someone saved first."""
+
+    status, code = 412, "PreconditionFailed"
+
+
+class PayloadTooLargeError(ApiError):
+    status, code = 413, "PayloadTooLarge"
+
+
+class UnsupportedMediaTypeError(ApiError):
+    status, code = 415, "UnsupportedMediaType"
+
+
+class InvalidValueError(ApiError):
+    """Well-formed input whose values break a rule; ``errors`` says which field and why."""
+
+    status, code = 422, "InvalidValue"
+
+
+class PreconditionRequiredError(ApiError):
+    """A write without ``If-Match``: refused so edits cannot silently overwrite each other."""
+
+    status, code = 428, "PreconditionRequired"
+
+
+class DatabaseUnavailableError(ApiError):
+    """The database cannot be reached: a 503 the client may retry, never a 500 traceback."""
+
+    status, code = 503, "DatabaseUnavailable"
+    default_headers: ClassVar[dict[str, str]] = {"Retry-After": "5"}
+
+
+class SchemaOutOfDateError(ApiError):
+    """The database is reachable but not migrated to the code's head revision."""
+
+    status, code = 503, "SchemaOutOfDate"
+
+
+# -- routing: OSRM's codes, which OSRM clients branch on --------------------------------------
+class InvalidQueryError(ApiError):
+    """Malformed route points or options."""
+
+    status, code = 400, "InvalidQuery"
+
+
+class TooBigError(ApiError):
+    """More points than the configured limit."""
+
+    status, code = 400, "TooBig"
+
+
+class NoSegmentError(ApiError):
+    """A point is farther than the snap radius from every usable segment."""
+
+    status, code = 422, "NoSegment"
+
+
+class NoRouteError(ApiError):
+    """The points are in parts of the network that do not connect (in allowed directions)."""
+
+    status, code = 422, "NoRoute"
+
+
+def _body(code: str, message: str, errors: dict[str, str] | None = None) -> dict[str, Any]:
+    body: dict[str, Any] = {"code": code, "message": message}
+    if errors:
+        body["errors"] = errors
+    return body
+
+
+def api_error(_: Request, exc: Exception) -> JSONResponse:
+    """Render any :class:`ApiError` raised while answering a request."""
+    assert isinstance(exc, ApiError)
+    return JSONResponse(_body(exc.code, exc.message, exc.errors), status_code=exc.status,
+                        headers=exc.headers)
+
+
+_BY_STATUS = {cls.status: cls for cls in (
+    InvalidParameterValueError, UnauthorizedError, ForbiddenError, NotFoundError,
+    MethodNotAllowedError, PayloadTooLargeError, UnsupportedMediaTypeError)}
+
+
+def http_error(request: Request, exc: Exception) -> JSONResponse:
+    """Starlette's own errors (no such path, wrong method, static file missing) get the same
+    body and code as ours, instead of ``{"detail"}``; headers such as ``Allow`` are kept."""
+    assert isinstance(exc, HTTPException)
+    cls = _BY_STATUS.get(exc.status_code)
+    code = cls.code if cls else re.sub(r"\W", "", HTTPStatus(exc.status_code).phrase.title())
+    if exc.status_code == 404 and exc.detail == HTTPStatus.NOT_FOUND.phrase:
+        message = f"no such path: {request.url.path[:200]}"
+    elif exc.status_code == 405:
+        message = f"{request.method} is not allowed on {request.url.path[:200]}"
+    else:
+        message = str(exc.detail)
+    return JSONResponse(_body(code, message), status_code=exc.status_code, headers=exc.headers)
+
+
+def _field(loc: tuple[Any, ...]) -> str:
+    """``("query", "limit")`` -> ``limit``; ``("body", "points", 0)`` -> ``points.0``: the name
+    the client sent, as the editing API's per-field ``errors`` use."""
+    parts = loc[1:] if len(loc) > 1 and loc[0] in ("query", "path", "header", "body") else loc
+    return ".".join(str(p) for p in parts) or "body"
+
+
+def validation_error(_: Request, exc: Exception) -> JSONResponse:
+    """FastAPI's request validation: 422 ``InvalidValue`` with one message per field, like
+    every other value-rule failure."""
+    assert isinstance(exc, RequestValidationError)
+    errors: dict[str, str] = {}
+    for err in exc.errors():
+        errors.setdefault(_field(tuple(err.get("loc", ()))), str(err.get("msg", "invalid")))
+    message = "; ".join(f"{k}: {v}" for k, v in errors.items())
+    return api_error(_, InvalidValueError(message, errors=errors))
+
+
+def database_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    """A connection error from SQLAlchemy anywhere becomes 503 with the driver's reason."""
     detail = str(getattr(exc, "orig", None) or exc).strip().splitlines()[0]
-    return JSONResponse(
-        {"code": "DatabaseUnavailable", "message": f"database unreachable: {detail}"},
-        status_code=503,
-        headers={"Retry-After": "5"},
-    )
-
-
-def install_error_handlers(app: FastAPI) -> None:
-    app.add_exception_handler(OperationalError, _db_unavailable)
-    app.add_exception_handler(InterfaceError, _db_unavailable)
+    return api_error(request, DatabaseUnavailableError(f"database unreachable: {detail}"))

@@ -1,14 +1,20 @@
-"""The HTTP service: composes each capability's router and the shared middleware.
+"""The HTTP service: composes each capability's router, the error handlers and the middleware.
 
 Like titiler's application module, this file only wires things together; every endpoint
-lives in the folder of its capability.
+lives in the folder of its capability, every error class in :mod:`app.errors`.
 """
 
 from __future__ import annotations
 
-from fastapi import FastAPI
+from collections.abc import Callable
+from typing import Any
 
-from app.errors import install_error_handlers
+from fastapi import FastAPI
+from fastapi.exceptions import RequestValidationError
+from sqlalchemy.exc import InterfaceError, OperationalError
+from starlette.exceptions import HTTPException
+
+from app import errors
 from app.health.router import router as health_router
 from app.jobs.router import router as jobs_router
 from app.logs import RequestLogMiddleware
@@ -17,12 +23,24 @@ from app.routing.router import include_routing
 from app.tiles.router import router as tiles_router
 from app.web.router import include_web
 
+# The one table of error handlers: ours, the framework's, and a lost database all answer
+# {"code", "message"[, "errors"]}, so a client parses one shape whatever went wrong.
+EXCEPTION_HANDLERS: dict[Any, Callable[..., Any]] = {
+    errors.ApiError: errors.api_error,
+    HTTPException: errors.http_error,
+    RequestValidationError: errors.validation_error,
+    OperationalError: errors.database_unavailable,
+    InterfaceError: errors.database_unavailable,
+}
+
 
 def create_app() -> FastAPI:
+    """Build the app; a factory so each uvicorn worker and each test gets a fresh one."""
     app = FastAPI(
         title="ugvmap",
         version="0.1.0",
         description="Map tiles, road network and routes for unmanned ground vehicles.",
+        exception_handlers=EXCEPTION_HANDLERS,
     )
     app.include_router(health_router)
     app.include_router(jobs_router)
@@ -30,6 +48,5 @@ def create_app() -> FastAPI:
     app.include_router(tiles_router)
     include_routing(app)
     include_web(app)
-    install_error_handlers(app)
     app.add_middleware(RequestLogMiddleware)
     return app

@@ -68,7 +68,13 @@ def test_readyz_follows_database_outage_without_restart() -> None:
             embedded.stop(cluster)
             down = _wait_status(f"{base}/readyz", 503)
             assert down.status_code == 503
-            assert "database unreachable" in down.json()["reason"]
+            assert down.json()["code"] == "DatabaseUnavailable"
+            assert "database unreachable" in down.json()["message"]
+            # Same fault, same answer on every data endpoint (tests/test_error_model.py).
+            for path in ("/layers", "/jobs", "/networks/any/route?points=0,0;1,1"):
+                resp = httpx.get(f"{base}{path}")
+                assert resp.status_code == 503 and resp.headers["retry-after"], path
+                assert resp.json()["code"] == "DatabaseUnavailable", path
             embedded.start(cluster)
             assert _wait_status(f"{base}/readyz", 200).status_code == 200
     finally:
@@ -82,4 +88,5 @@ def test_readyz_503_when_schema_not_migrated(database_url: str) -> None:
             running_server({"DATABASE_URL": url}) as srv:
         resp = httpx.get(f"{srv}/readyz")
         assert resp.status_code == 503
-        assert "ugvmap db upgrade" in resp.json()["reason"]
+        assert resp.json()["code"] == "SchemaOutOfDate"
+        assert "ugvmap db upgrade" in resp.json()["message"]

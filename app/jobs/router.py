@@ -5,12 +5,12 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query
-from fastapi.responses import JSONResponse
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.db.models import JOB_STATUSES
 from app.db.session import get_session
+from app.errors import InvalidParameterValueError, NotFoundError
 
 router = APIRouter(tags=["jobs"])
 SessionDep = Annotated[Session, Depends(get_session)]
@@ -28,25 +28,23 @@ def _job(row: Any) -> dict[str, Any]:
 @router.get("/jobs")
 def list_jobs(session: SessionDep,
               status: Annotated[str | None, Query(description="queued|running|...")] = None,
-              limit: Annotated[int, Query(ge=1, le=500)] = 50) -> JSONResponse:
+              limit: Annotated[int, Query(ge=1, le=500)] = 50) -> dict[str, Any]:
     """Most recent jobs first."""
     if status is not None and status not in JOB_STATUSES:
-        return JSONResponse({"code": "InvalidParameterValue",
-                             "message": f"status must be one of {', '.join(JOB_STATUSES)}"},
-                            status_code=400)
+        raise InvalidParameterValueError(f"status must be one of {', '.join(JOB_STATUSES)}")
     rows = session.execute(text(
         f"SELECT {COLUMNS} FROM ingest_jobs WHERE (CAST(:s AS text) IS NULL OR status = :s) "
         "ORDER BY id DESC LIMIT :limit"), {"s": status, "limit": limit})
-    return JSONResponse({"jobs": [_job(r) for r in rows]})
+    return {"jobs": [_job(r) for r in rows]}
 
 
 @router.get("/jobs/{job_id}")
-def get_job(job_id: int, session: SessionDep) -> JSONResponse:
-    if not 0 < job_id < 2**63:
-        return JSONResponse({"code": "NotFound", "message": "job not found"}, status_code=404)
-    row = session.execute(text(f"SELECT {COLUMNS} FROM ingest_jobs WHERE id = :id"),
-                          {"id": job_id}).first()
+def get_job(job_id: int, session: SessionDep) -> dict[str, Any]:
+    """One job row; ids outside bigint are simply not found (never a database error)."""
+    row = None
+    if 0 < job_id < 2**63:
+        row = session.execute(text(f"SELECT {COLUMNS} FROM ingest_jobs WHERE id = :id"),
+                              {"id": job_id}).first()
     if row is None:
-        return JSONResponse({"code": "NotFound", "message": f"job {job_id} not found"},
-                            status_code=404)
-    return JSONResponse(_job(row))
+        raise NotFoundError(f"job {job_id} not found")
+    return _job(row)

@@ -15,7 +15,7 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.db.models import SLUG_RE
-from app.network.errors import not_found
+from app.errors import NotFoundError
 
 Kind = Literal["segments", "nodes"]
 KINDS: tuple[Kind, ...] = ("segments", "nodes")
@@ -70,7 +70,7 @@ def resolve(session: Session, collection_id: str) -> Collection:
         row = network_row(session, network)
         if row is not None:
             return Collection(network, row.id, kind, row.title)  # type: ignore[arg-type]
-    raise not_found(f"collection {collection_id[:100]!r}")
+    raise NotFoundError(f"collection {collection_id[:100]!r} not found")
 
 
 def extent(session: Session, collection: Collection) -> list[float] | None:
@@ -127,5 +127,5 @@ def get_item(session: Session, collection: Collection, fid: int, *,
         f"WHERE id = :id AND network_id = :network_id{lock}"),
         {"id": fid, "network_id": collection.network_id}).first()
     if row is None:
-        raise not_found(f"feature {fid} in {collection.id!r}")
+        raise NotFoundError(f"feature {fid} in {collection.id!r} not found")
     return to_feature(row)

@@ -15,8 +15,12 @@ from typing import Any
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
+from app.errors import (
+    InvalidValueError,
+    PreconditionFailedError,
+    PreconditionRequiredError,
+)
 from app.network import collections as colls
-from app.network.errors import ApiError
 from app.network.tokens import Principal
 from app.network.validation import field_errors, lanes_consistent, merge_patch
 
@@ -24,20 +28,20 @@ FEATURE_KEYS = {"type", "id", "properties", "geometry", "links"}
 GRID_DEG = 1e-7
 
 
-def unprocessable(errors: dict[str, str]) -> ApiError:
-    return ApiError(422, "InvalidValue", "; ".join(f"{k}: {v}" for k, v in errors.items()),
-                    errors=errors)
+def unprocessable(errors: dict[str, str]) -> InvalidValueError:
+    """One 422 naming every field that breaks a rule, so a form can mark them all at once."""
+    return InvalidValueError("; ".join(f"{k}: {v}" for k, v in errors.items()),
+                             errors=errors)
 
 
 def parse_if_match(header: str | None) -> int:
     """``"3"`` / ``W/"3"`` / ``3`` -> 3; missing -> 428; anything else matches nothing -> 412."""
     if header is None or not header.strip():
-        raise ApiError(428, "PreconditionRequired",
-                       "If-Match with the feature's ETag (its version) is required")
+        raise PreconditionRequiredError(
+            "If-Match with the feature's ETag (its version) is required")
     value = header.strip().removeprefix("W/").strip('"')
     if not value.isascii() or not value.isdigit() or len(value) > 9:
-        raise ApiError(412, "PreconditionFailed",
-                       "If-Match must be the ETag of the current version")
+        raise PreconditionFailedError("If-Match must be the ETag of the current version")
     return int(value)
 
 
@@ -90,10 +94,9 @@ def lock_segment(session: Session, c: colls.Collection, fid: int,
     feature = colls.get_item(session, c, fid, for_update=True)
     current = feature["properties"]["version"]
     if expected is not None and current != expected:
-        raise ApiError(412, "PreconditionFailed",
-                       f"the segment is at version {current}, not {expected}; "
-                       "reload it and apply your change again",
-                       headers={"ETag": f'"{current}"'})
+        raise PreconditionFailedError(f"the segment is at version {current}, not {expected}; "
+                                      "reload it and apply your change again",
+                                      headers={"ETag": f'"{current}"'})
     return feature
 
 

@@ -16,9 +16,14 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from app.db.session import session_scope
+from app.errors import (
+    InvalidParameterValueError,
+    MethodNotAllowedError,
+    PayloadTooLargeError,
+    UnsupportedMediaTypeError,
+)
 from app.network import collections as colls
 from app.network import editing, topology_edits
-from app.network.errors import ApiError, bad_request
 from app.network.features import GEOJSON, etag, parse_fid
 from app.network.tokens import Principal, SessionDep, read_access, require_role
 
@@ -33,21 +38,20 @@ MAX_BODY = 1_000_000
 async def json_body(request: Request, accepted: tuple[str, ...] = PATCH_TYPES) -> Any:
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if content_type not in accepted:
-        raise ApiError(415, "UnsupportedMediaType",
-                       f"Content-Type must be one of: {', '.join(accepted)}")
+        raise UnsupportedMediaTypeError(f"Content-Type must be one of: {', '.join(accepted)}")
     raw = await request.body()
     if len(raw) > MAX_BODY:
-        raise ApiError(413, "PayloadTooLarge", f"the body must be under {MAX_BODY} bytes")
+        raise PayloadTooLargeError(f"the body must be under {MAX_BODY} bytes")
     try:
         return json.loads(raw)
     except (ValueError, RecursionError):
-        raise bad_request("the body is not valid JSON") from None
+        raise InvalidParameterValueError("the body is not valid JSON") from None
 
 
 def _segments(session: Session, collection_id: str) -> colls.Collection:
     c = colls.resolve(session, collection_id)
     if c.kind != "segments":
-        raise ApiError(405, "MethodNotAllowed", "only segment collections are editable")
+        raise MethodNotAllowedError("only segment collections are editable")
     return c
 
 
@@ -91,7 +95,7 @@ async def revert_item(collection_id: str, fid: str, request: Request,
                       principal: EditorDep) -> JSONResponse:
     to = request.query_params.get("to", "")
     if not to.isascii() or not to.isdigit() or len(to) > 9:
-        raise bad_request("to must be a version number")
+        raise InvalidParameterValueError("to must be a version number")
     if_match = request.headers.get("if-match")
     expected = editing.parse_if_match(if_match) if if_match else None
     return await _in_session(lambda s: editing.revert_segment(

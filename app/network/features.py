@@ -12,8 +12,8 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
+from app.errors import InvalidParameterValueError, NotFoundError
 from app.network import collections as colls
-from app.network.errors import bad_request, not_found
 from app.network.tokens import SessionDep, read_access
 
 router = APIRouter(tags=["OGC API Features"], dependencies=[Depends(read_access)])
@@ -34,7 +34,7 @@ MAX_FID = 2**63 - 1
 def parse_fid(fid: str) -> int:
     """Feature ids are positive bigints; anything else simply does not exist (404)."""
     if not fid.isascii() or not fid.isdigit() or int(fid) > MAX_FID:
-        raise not_found(f"feature {fid[:100]!r}")
+        raise NotFoundError(f"feature {fid[:100]!r} not found")
     return int(fid)
 
 
@@ -44,9 +44,9 @@ def _int_param(name: str, value: str | None, default: int, low: int) -> int:
     try:
         number = int(value)
     except ValueError:
-        raise bad_request(f"{name} must be an integer") from None
+        raise InvalidParameterValueError(f"{name} must be an integer") from None
     if number < low:
-        raise bad_request(f"{name} must be >= {low}")
+        raise InvalidParameterValueError(f"{name} must be >= {low}")
     return number
 
 
@@ -56,11 +56,14 @@ def parse_bbox(value: str | None) -> list[float] | None:
     try:
         box = [float(v) for v in value.split(",")]
     except ValueError:
-        raise bad_request("bbox must be four numbers: minlon,minlat,maxlon,maxlat") from None
+        raise InvalidParameterValueError(
+            "bbox must be four numbers: minlon,minlat,maxlon,maxlat") from None
     if len(box) != 4 or not all(math.isfinite(v) for v in box):
-        raise bad_request("bbox must be four finite numbers: minlon,minlat,maxlon,maxlat")
+        raise InvalidParameterValueError(
+            "bbox must be four finite numbers: minlon,minlat,maxlon,maxlat")
     if box[0] > box[2] or box[1] > box[3]:
-        raise bad_request("bbox min must not exceed max (antimeridian boxes not supported)")
+        raise InvalidParameterValueError(
+            "bbox min must not exceed max (antimeridian boxes not supported)")
     return box
 
 
@@ -119,14 +122,14 @@ def items(collection_id: str, request: Request,
     query = request.query_params
     unknown = sorted(set(query.keys()) - ITEM_PARAMS)
     if unknown:
-        raise bad_request(f"unknown query parameter {unknown[0][:100]!r}")
+        raise InvalidParameterValueError(f"unknown query parameter {unknown[0][:100]!r}")
     if query.get("bbox-crs", CRS84) != CRS84:
-        raise bad_request(f"bbox-crs must be {CRS84}")
+        raise InvalidParameterValueError(f"bbox-crs must be {CRS84}")
     c = colls.resolve(session, collection_id)
     limit = min(_int_param("limit", query.get("limit"), DEFAULT_LIMIT, 1), MAX_LIMIT)
     offset = _int_param("offset", query.get("offset"), 0, 0)
     if offset > MAX_FID:
-        raise bad_request("offset is too large")
+        raise InvalidParameterValueError("offset is too large")
     bbox = parse_bbox(query.get("bbox"))
     matched, features = colls.query_items(session, c, bbox=bbox, limit=limit, offset=offset)
     base = f"{_base(request)}/collections/{c.id}/items"

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from fastapi import FastAPI
 
-from app.network import editing_router, errors, features, tiles
+from app.network import editing_router, features, tiles
 
 
 def include_network(app: FastAPI) -> None:
+    """Mount the OGC API Features, editing and vector-tile routers."""
     app.include_router(features.router)
     app.include_router(editing_router.router)
     app.include_router(tiles.router)
-    errors.install(app)

@@ -11,8 +11,9 @@ from fastapi.responses import Response
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
+from app.errors import NotFoundError
+from app.grid import parse_tile
 from app.network.collections import network_row
-from app.network.errors import bad_request, not_found
 from app.network.tile_cache import Bounds, shared_cache
 from app.network.tokens import SessionDep, read_access
 from app.settings import get_settings
@@ -20,7 +21,6 @@ from app.settings import get_settings
 router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)])
 
 MVT = "application/vnd.mapbox-vector-tile"
-MAX_ZOOM = 24
 EXTENT = 4096
 BUFFER = 64
 NODES_MINZOOM = 12
@@ -51,18 +51,6 @@ SELECT COALESCE((SELECT ST_AsMVT(segments, 'segments', {EXTENT}, 'geom', 'id')
 """
 
 
-def parse_tile(z: str, x: str, y: str) -> tuple[int, int, int]:
-    try:
-        zi, xi, yi = int(z), int(x), int(y)
-    except ValueError:
-        raise bad_request("z, x and y must be integers") from None
-    if not 0 <= zi <= MAX_ZOOM:
-        raise bad_request(f"z must be from 0 to {MAX_ZOOM}")
-    if not (0 <= xi < 2**zi and 0 <= yi < 2**zi):
-        raise bad_request(f"x and y must be from 0 to {2**zi - 1} at zoom {zi}")
-    return zi, xi, yi
-
-
 def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
     """Lon/lat bounds of the tile plus its buffer: what an edit must meet to change it."""
     row = session.execute(text(
@@ -78,7 +66,7 @@ def network_tile(name: str, z: str, x: str, y: str, session: SessionDep) -> Resp
     zi, xi, yi = parse_tile(z, x, y)
     network = network_row(session, name)
     if network is None:
-        raise not_found(f"network {name[:100]!r}")
+        raise NotFoundError(f"network {name[:100]!r} not found")
     cache = shared_cache(get_settings().database_url)
     key = (network.id, zi, xi, yi)
     tile = cache.get(key, network.version)

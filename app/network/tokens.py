@@ -17,7 +17,7 @@ from sqlalchemy.orm import Session
 
 from app.db.models import TOKEN_ROLES
 from app.db.session import get_session
-from app.network.errors import ApiError
+from app.errors import ForbiddenError, UnauthorizedError, UserError
 from app.settings import get_settings
 
 SessionDep = Annotated[Session, Depends(get_session)]
@@ -40,29 +40,24 @@ def hash_token(token: str) -> str:
 def create_token(session: Session, name: str, role: str) -> str:
     """Store a new token and return its plaintext, which is never stored or shown again."""
     if role not in TOKEN_ROLES:
-        raise ValueError(f"role must be one of {', '.join(TOKEN_ROLES)}")
+        raise UserError(f"role must be one of {', '.join(TOKEN_ROLES)}")
     if not name.strip() or len(name) > MAX_NAME:
-        raise ValueError(f"token name must be 1..{MAX_NAME} characters")
+        raise UserError(f"token name must be 1..{MAX_NAME} characters")
     token = PREFIX + secrets.token_urlsafe(32)
     session.execute(text("INSERT INTO api_tokens (name, token_hash, role) "
                          "VALUES (:n, :h, :r)"), {"n": name, "h": hash_token(token), "r": role})
     return token
 
 
-def _unauthorized(message: str) -> ApiError:
-    return ApiError(401, "Unauthorized", message,
-                    headers={"WWW-Authenticate": 'Bearer realm="ugvmap"'})
-
-
 def authenticate(session: Session, authorization: str | None) -> Principal:
     scheme, _, token = (authorization or "").partition(" ")
     if scheme.lower() != "bearer" or not token.strip():
-        raise _unauthorized("an 'Authorization: Bearer <token>' header is required")
+        raise UnauthorizedError("an 'Authorization: Bearer <token>' header is required")
     row = session.execute(text("SELECT name, role FROM api_tokens WHERE token_hash = :h "
                                "AND revoked_at IS NULL"),
                           {"h": hash_token(token.strip())}).first()
     if row is None:
-        raise _unauthorized("the token is unknown or revoked")
+        raise UnauthorizedError("the token is unknown or revoked")
     return Principal(row.name, row.role)
 
 
@@ -81,8 +76,8 @@ def require_role(*roles: str):
     def dependency(request: Request, session: SessionDep) -> Principal:
         principal = authenticate(session, request.headers.get("authorization"))
         if principal.role not in roles:
-            raise ApiError(403, "Forbidden",
-                           f"role {principal.role!r} may not do this; needs {' or '.join(roles)}")
+            raise ForbiddenError(
+                f"role {principal.role!r} may not do this; needs {' or '.join(roles)}")
         return principal
 
     return dependency

@@ -11,8 +11,8 @@ import json
 import click
 
 from app.cli_errors import CliError
+from app.errors import ApiError
 from app.routing.costs import Cost
-from app.routing.errors import RoutingError
 from app.routing.planner import (
     FORMATS,
     GEOMETRIES,
@@ -46,7 +46,7 @@ def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geom
     try:
         with read_connection() as conn:
             body = plan_route(conn, network, parse_points(points), opts)
-    except RoutingError as exc:
+    except ApiError as exc:
         raise CliError(f"{exc.code}: {exc.message}") from exc
     if fmt != "summary":
         click.echo(json.dumps(body))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.routing.errors import NoRouteError
+from app.errors import NoRouteError
 from app.routing.geometry import haversine_m, point_at
 from app.routing.graph import CostGraph, RoadGraph
 from app.routing.snap import Snap

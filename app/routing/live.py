@@ -18,8 +18,8 @@ import psycopg
 
 from app.db.notify import Subscriber, network_changes
 from app.db.session import libpq_dsn
+from app.errors import DatabaseUnavailableError
 from app.routing.costs import Cost
-from app.routing.errors import DatabaseUnavailableError
 from app.routing.graph import SEGMENT_COLUMNS, RoadGraph, Segments
 
 log = logging.getLogger("ugvmap.routing")

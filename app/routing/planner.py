@@ -16,9 +16,9 @@ import numpy as np
 from sqlalchemy import Connection
 
 from app.db.session import get_engine
+from app.errors import InvalidQueryError, TooBigError
 from app.routing import engine
 from app.routing.costs import Cost
-from app.routing.errors import InvalidQueryError, TooBigError
 from app.routing.graph import CostGraph, RoadGraph
 from app.routing.isochrone import isochrone_geojson
 from app.routing.live import registry

@@ -11,13 +11,13 @@ from collections.abc import Callable
 from typing import Annotated, Any
 
 import orjson
-from fastapi import APIRouter, FastAPI, Query, Request
-from fastapi.responses import JSONResponse, Response
+from fastapi import APIRouter, FastAPI, Query
+from fastapi.responses import Response
 from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
+from app.errors import InvalidQueryError
 from app.routing.costs import Cost
-from app.routing.errors import InvalidQueryError, RoutingError
 from app.routing.planner import (
     RouteOptions,
     check_point,
@@ -30,16 +30,9 @@ from app.routing.planner import (
 router = APIRouter(prefix="/networks", tags=["routing"])
 
 
-
-def routing_error(_: Request, exc: Exception) -> JSONResponse:
-    assert isinstance(exc, RoutingError)
-    return JSONResponse({"code": exc.code, "message": exc.message}, status_code=exc.status)
-
-
 def include_routing(app: FastAPI) -> None:
-    """Mount the routing endpoints and their error responses on the app."""
+    """Mount the routing endpoints on the app."""
     app.include_router(router)
-    app.add_exception_handler(RoutingError, routing_error)
 
 
 def _json(body: dict[str, Any]) -> Response:

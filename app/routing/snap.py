@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from sqlalchemy import Connection, text
 
-from app.routing.errors import NetworkNotFoundError, NoSegmentError
+from app.errors import NoSegmentError, NotFoundError
 
 KNN_NEAREST = 16  # unfiltered candidates per point (fast statement)
 KNN_CANDIDATES = 8  # network candidates per point (fallback statement)
@@ -94,13 +94,13 @@ def snap_points(conn: Connection, network: str, points: Sequence[tuple[float, fl
     """Snap every point; 404 for an unknown network, 422 naming the first unsnappable point."""
     net, best = _candidates(conn, NEAREST_SQL, network, points, avoid)
     if net is None:
-        raise NetworkNotFoundError(f"network {network!r} does not exist")
+        raise NotFoundError(f"network {network!r} does not exist")
     missing = [i for i in range(len(points)) if i not in best]
     if missing:
         net, more = _candidates(conn, FILTERED_SQL, network, [points[i] for i in missing],
                                 avoid)
         if net is None:
-            raise NetworkNotFoundError(f"network {network!r} does not exist")
+            raise NotFoundError(f"network {network!r} does not exist")
         best.update({missing[k]: hit for k, hit in more.items()})
     snaps = []
     for i, point in enumerate(points):

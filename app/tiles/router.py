@@ -10,11 +10,11 @@ from __future__ import annotations
 import re
 from typing import Any
 
-import morecantile
 from fastapi import APIRouter, Request, Response
-from fastapi.responses import JSONResponse
 
 from app.db.session import get_engine
+from app.errors import InvalidParameterValueError, LayerNotFoundError
+from app.grid import TMS, parse_tile
 from app.tiles import catalog
 from app.tiles.cache import tile_cache
 from app.tiles.catalog import TileSource
@@ -23,15 +23,22 @@ from app.tiles.mosaic import render
 from app.tiles.readers import overview_zoom
 
 router = APIRouter(tags=["raster layers"])
-TMS = morecantile.tms.get("WebMercatorQuad")
-MAX_ZOOM = 30
-TILE_RE = re.compile(r"^(?P<y>\d+)(?P<scale>@2x)?\.(?P<fmt>[A-Za-z0-9]+)$")
+TILE_RE = re.compile(r"^(?P<y>[^@.]*)(?P<scale>@2x)?\.(?P<fmt>[A-Za-z0-9]+)$")
 FORMATS = {"png": "png", "jpg": "jpg", "jpeg": "jpg", "webp": "webp"}
 CACHE_CONTROL = "public, max-age=60"
 
 
-def problem(status: int, code: str, message: str) -> JSONResponse:
-    return JSONResponse({"code": code, "message": message}, status_code=status)
+def _format(name: str) -> str:
+    """Our short format name for a requested one; the same 400 for a tile and a TileJSON."""
+    fmt = FORMATS.get(name.lower())
+    if fmt is None:
+        raise InvalidParameterValueError(
+            f"format must be one of {sorted(FORMATS)}, not {name[:20]!r}")
+    return fmt
+
+
+def _no_layer(slug: str) -> LayerNotFoundError:
+    return LayerNotFoundError(f"no raster layer {slug[:100]!r}")
 
 
 def _layer_json(layer: dict[str, Any], request: Request) -> dict[str, Any]:
@@ -71,13 +78,13 @@ def layers(request: Request) -> dict[str, Any]:
     return {"layers": [_layer_json(layer, request) for layer in rows]}
 
 
-@router.get("/layers/{slug}", name="layer", response_model=None)
-def layer(slug: str, request: Request) -> dict[str, Any] | JSONResponse:
+@router.get("/layers/{slug}", name="layer")
+def layer(slug: str, request: Request) -> dict[str, Any]:
     """One layer with its sources (paint order: last is on top)."""
     with get_engine().connect() as conn:
         found = catalog.get_layer(conn, slug)
     if found is None:
-        return problem(404, "LayerNotFound", f"no raster layer {slug!r}")
+        raise _no_layer(slug)
     body = _layer_json(found, request)
     # Store paths are server internals: not part of the HTTP contract.
     body["sources"] = [
@@ -86,17 +93,14 @@ def layer(slug: str, request: Request) -> dict[str, Any] | JSONResponse:
     return body
 
 
-@router.get("/layers/{slug}/tilejson.json", name="tilejson", response_model=None)
-def tilejson(slug: str, request: Request,
-             format: str = "png") -> dict[str, Any] | JSONResponse:
+@router.get("/layers/{slug}/tilejson.json", name="tilejson")
+def tilejson(slug: str, request: Request, format: str = "png") -> dict[str, Any]:
     """TileJSON 3.0.0 for the layer's XYZ tiles."""
-    fmt = FORMATS.get(format.lower())
-    if fmt is None:
-        return problem(400, "UnsupportedFormat", f"format must be one of {sorted(FORMATS)}")
+    fmt = _format(format)
     with get_engine().connect() as conn:
         found = catalog.layer_row(conn, slug)
     if found is None:
-        return problem(404, "LayerNotFound", f"no raster layer {slug!r}")
+        raise _no_layer(slug)
     bounds = found["bounds"] or [-180.0, -85.0511, 180.0, 85.0511]
     center_zoom = max(found["minzoom"], min(found["maxzoom"], found["minzoom"] + 2))
     return {
@@ -119,22 +123,17 @@ def tilejson(slug: str, request: Request,
 def tile(slug: str, z: str, x: str, tile: str, request: Request) -> Response:
     """One XYZ tile (256 px, or 512 px with ``@2x``) composed from all sources meeting it."""
     match = TILE_RE.match(tile)
-    if not (z.isdigit() and x.isdigit() and match):
-        return problem(400, "BadTileAddress", "expected /tiles/{slug}/{z}/{x}/{y}[@2x].{format}"
-                       " with non-negative integers")
-    fmt = FORMATS.get(match["fmt"].lower())
-    if fmt is None:
-        return problem(400, "UnsupportedFormat",
-                       f"tile format must be one of {sorted(FORMATS)}, not {match['fmt']!r}")
-    zi, xi, yi = int(z), int(x), int(match["y"])
-    if zi > MAX_ZOOM or xi >= 2**zi or yi >= 2**zi:
-        return problem(404, "TileOutOfRange", f"tile {zi}/{xi}/{yi} is outside the grid")
+    if not match:
+        raise InvalidParameterValueError(
+            "expected /tiles/{slug}/{z}/{x}/{y}[@2x].{format}")
+    fmt = _format(match["fmt"])
+    zi, xi, yi = parse_tile(z, x, match["y"])
     b = TMS.xy_bounds(xi, yi, zi)
     bbox = (b.left, b.bottom, b.right, b.top)
     with get_engine().connect() as conn:
         query = catalog.tile_sources(conn, slug, bbox)
     if query is None:
-        return problem(404, "LayerNotFound", f"no raster layer {slug!r}")
+        raise _no_layer(slug)
     etag = f'"{query.layer_id}.{query.version}"'
     headers = {"ETag": etag, "Cache-Control": CACHE_CONTROL}
     if _matches(request.headers.get("if-none-match"), etag):

@@ -206,7 +206,7 @@ def bench_tiles(args: argparse.Namespace, url: str, store: Path) -> None:
             port = free_port()
             base = f"http://127.0.0.1:{port}"
             if name == "ugvmap":
-                cmd = [sys.executable, "-m", "app.cli", "serve", "--port", str(port),
+                cmd = [sys.executable, "-m", "cli", "serve", "--port", str(port),
                        "--workers", str(args.workers)]
                 env = {"DATABASE_URL": url, "UGVMAP_RASTER_STORE": str(store),
                        "UGVMAP_LOG_LEVEL": "WARNING", "UGVMAP_TILE_CACHE_MB": "0"}

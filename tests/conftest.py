@@ -83,7 +83,7 @@ def running_server(env: dict[str, str], workers: int = 1,
     port = free_port()
     with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "app.cli", "serve", "--port", str(port),
+            [sys.executable, "-m", "cli", "serve", "--port", str(port),
              "--workers", str(workers)],
             cwd=REPO, env={**os.environ, **env}, stdout=log, stderr=subprocess.STDOUT,
         )

@@ -9,8 +9,8 @@ from pyproj import Transformer
 from rasterio.transform import from_origin
 from sqlalchemy import text
 
-from app.cli import main
 from app.db.session import session_scope
+from cli.main import main
 from ingest.demo import SYNTHETIC_ORIGIN
 
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from app.cli import main
 from app.db.session import session_scope
 from app.jobs.recorder import JobRecorder
+from cli.main import main
 
 
 def test_progress_is_visible_while_the_job_transaction_is_open(client) -> None:
@@ -45,7 +45,7 @@ def test_cli_ingests_are_recorded(client, tmp_path: Path) -> None:
     failed = runner.invoke(main, ["ingest", "raster", str(bogus), "--layer", "jobs-layer"])
     assert failed.exit_code == 1
     jobs = client.get("/jobs", params={"limit": 10}).json()["jobs"]
-    by_kind = {j["kind"]: j for j in jobs}
+    by_kind = {j["kind"]: j for j in reversed(jobs)}  # newest of each kind (list is newest first)
     assert by_kind["ingest-network"]["status"] == "succeeded"
     assert by_kind["ingest-network"]["target"] == "jobs-net"
     assert by_kind["ingest-raster"]["status"] == "failed"

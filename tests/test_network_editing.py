@@ -9,8 +9,8 @@ import pytest
 from click.testing import CliRunner
 from sqlalchemy import text
 
-from app.cli import main
 from app.db.session import session_scope
+from cli.main import main
 from tests.network_helpers import bearer, grid_network
 
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from app.cli import main
 from app.db.session import session_scope
+from cli.main import main
 from ingest.network import NodePoint, RoadAttributes, RoadLine, import_network, write_network
 from ingest.network.exporter import load_network
 

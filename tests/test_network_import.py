@@ -130,7 +130,7 @@ def test_reimport_needs_replace_and_bad_input_changes_nothing(database_url: str,
 def test_cli_reports_unreadable_files_in_one_line(database_url: str, tmp_path: Path) -> None:
     from click.testing import CliRunner
 
-    from app.cli import main
+    from cli.main import main
 
     cases = {"garbage.geojson": "{not json", "empty.geojson": '{"type":"FeatureCollection",'
              '"features":[]}', "bad.osm": "<osm><way id='1'></osm", "x.gpkg": "nope"}

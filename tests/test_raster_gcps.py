@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 from pyproj import Transformer
 
-from app.cli import main
+from cli.main import main
 from ingest.raster.gcps import read_gcps, residual_report
 from ingest.raster.job import ingest_raster
 from ingest.raster.sources import SourceError

@@ -18,9 +18,9 @@ from rasterio.crs import CRS
 from rasterio.transform import from_origin
 from sqlalchemy import text
 
-from app.cli import main
 from app.db.session import get_engine
 from app.settings import get_settings
+from cli.main import main
 from tests.conftest import REPO
 from tests.raster_synth import UTM33, pattern_image, synthetic_utm, write_tif
 
@@ -126,7 +126,7 @@ def test_killed_ingest_leaves_no_half_registered_layer(database_url: str, tmp_pa
               tiled=True)
     name = f"killed-{uuid.uuid4().hex[:6]}"
     layer_dir = Path(get_settings().raster_store_uri) / name
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "ingest", "raster", str(big),
+    proc = subprocess.Popen([sys.executable, "-m", "cli", "ingest", "raster", str(big),
                              "--layer", name], cwd=REPO, env=os.environ.copy(),
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 60

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from app.cli import main
+from cli.main import main
 from ingest.roads.synthetic import Scene, render
 from tests.test_roads_pipeline import CROSS_T, ROAD_BOX, scene
 

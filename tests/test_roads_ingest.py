@@ -11,8 +11,8 @@ from pyproj import Transformer
 from rasterio.transform import from_origin
 from sqlalchemy import text
 
-from app.cli import main
 from app.db.session import session_scope
+from cli.main import main
 from ingest.raster.job import ingest_raster
 from ingest.roads.synthetic import Scene, grid_scene, render
 from tests.raster_synth import UTM33, utm_origin, write_tif

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from app.cli import main
+from cli.main import main
 from ingest.roads import RoadsInputError
 from ingest.roads.georef import Image
 from ingest.roads.model.data import file_sha16, normalise, training_pairs

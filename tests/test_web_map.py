@@ -21,7 +21,7 @@ import rasterio
 from click.testing import CliRunner
 from rasterio.transform import from_bounds
 
-from app.cli import main
+from cli.main import main
 
 pytestmark = pytest.mark.slow
 

@@ -14,6 +14,8 @@ import networkx as nx
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
+from app.errors import UserError
+
 SAMPLE = 10
 
 CHECKS: dict[str, str] = {
@@ -84,7 +86,7 @@ def check_network(session: Session, network: str) -> IntegrityReport:
     network_id = session.execute(text("SELECT id FROM networks WHERE name = :n"),
                                  {"n": network}).scalar()
     if network_id is None:
-        raise ValueError(f"network {network[:100]!r} does not exist")
+        raise UserError(f"network {network[:100]!r} does not exist")
     report = IntegrityReport(network)
     for problem, sql in CHECKS.items():
         ids = [r[0] for r in session.execute(text(sql), {"n": network_id})]

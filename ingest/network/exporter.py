@@ -23,6 +23,7 @@ import shapely
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
+from app.errors import UserError
 from ingest.network.model import ATTRIBUTE_NAMES, Coord, RoadAttributes
 from ingest.network.osm_tags import EXTERNAL_ID_TAG, tags_from_attributes
 
@@ -53,7 +54,7 @@ def load_network(session: Session, network: str) -> tuple[list[StoredSegment], l
     network_id = session.execute(text("SELECT id FROM networks WHERE name = :n"),
                                  {"n": network}).scalar()
     if network_id is None:
-        raise ValueError(f"network {network[:100]!r} does not exist")
+        raise UserError(f"network {network[:100]!r} does not exist")
     rows = session.execute(text(
         f"SELECT id, source_node, target_node, length_m, version, {', '.join(ATTRIBUTE_NAMES)}, "
         "ST_AsGeoJSON(geom, 17) AS geometry FROM road_segments WHERE network_id = :n "
@@ -169,7 +170,7 @@ def export_network(session: Session, network: str, out: Path, fmt: str) -> int:
     """Write network ``network`` to ``out``; returns the number of segments written.
     The file appears complete or not at all (written under a temporary name, then renamed)."""
     if fmt not in WRITERS:
-        raise ValueError(f"format must be one of {', '.join(FORMATS)}")
+        raise UserError(f"format must be one of {', '.join(FORMATS)}")
     segments, nodes = load_network(session, network)
     suffix = "".join(out.suffixes) or {"geojson": ".geojson", "gpkg": ".gpkg",
                                         "osm": ".osm"}[fmt]

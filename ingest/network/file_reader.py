@@ -19,11 +19,12 @@ import pyogrio
 import pyproj
 import shapely
 
+from app.errors import UserError
 from ingest.network.model import NodePoint, RoadLine
 from ingest.network.properties import as_bool, as_road_lines
 
 
-class NetworkFileError(ValueError):
+class NetworkFileError(UserError):
     """The file cannot be read as a road network; the message says why."""
 
 

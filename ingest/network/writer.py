@@ -16,12 +16,13 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.db.models import SLUG_RE
+from app.errors import UserError
 from ingest.network.model import FeatureLike, ImportSummary, NodePoint
 from ingest.network.noding import Topology, build_topology
 from ingest.network.properties import as_road_lines
 
 
-class NetworkExistsError(ValueError):
+class NetworkExistsError(UserError):
     """The network already has data and the caller did not ask to replace it."""
 
 
@@ -35,7 +36,7 @@ def _wkt_line(coords: list[tuple[float, float]]) -> str:
 
 def _network_id(session: Session, network: str, replace: bool) -> int:
     if not re.match(SLUG_RE, network):
-        raise ValueError(f"network name {network[:80]!r} is not valid: use 1-64 lowercase "
+        raise UserError(f"network name {network[:80]!r} is not valid: use 1-64 lowercase "
                          "letters, digits, '-' or '_', starting with a letter or digit")
     row = session.execute(text("SELECT id FROM networks WHERE name = :n FOR UPDATE"),
                           {"n": network}).first()

@@ -29,6 +29,7 @@ from rasterio.transform import Affine
 from rasterio.warp import transform_bounds
 from rasterio.windows import Window
 
+from app.errors import UserError
 from ingest.raster.georef import (
     GeorefError,
     ZoneSidecar,
@@ -48,7 +49,7 @@ GDAL_TYPES = {"uint8": "Byte", "uint16": "UInt16", "int16": "Int16", "uint32": "
 STRICT_READ_ENV = {"GDAL_ERROR_ON_LIBJPEG_WARNING": "TRUE", "GDAL_PAM_ENABLED": "NO"}
 
 
-class SourceError(ValueError):
+class SourceError(UserError):
     """An input image that cannot be ingested; the message says why, in one line."""
 
 

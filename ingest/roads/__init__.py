@@ -9,6 +9,8 @@ coordinates). ``evaluate`` and ``connectivity`` score centerlines against ground
 Everything here is a pure function of arrays and geometries: no database.
 """
 
+from app.errors import UserError
 
-class RoadsInputError(ValueError):
+
+class RoadsInputError(UserError):
     """Input the user can fix (bad sample, unreadable image...): shown as one line by the CLI."""

@@ -10,8 +10,6 @@ import json
 
 import click
 
-from app.cli_errors import CliError
-from app.errors import ApiError
 from app.routing.costs import Cost
 from app.routing.planner import (
     FORMATS,
@@ -43,11 +41,8 @@ def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geom
     opts = RouteOptions(Cost(cost), frozenset(a for a in avoid.split(",") if a), optimize,
                         geometries, "waypoints" if fmt == "waypoints" else "osrm", spacing,
                         radius)
-    try:
-        with read_connection() as conn:
-            body = plan_route(conn, network, parse_points(points), opts)
-    except ApiError as exc:
-        raise CliError(f"{exc.code}: {exc.message}") from exc
+    with read_connection() as conn:  # planner errors (ApiError): one line from cli.main
+        body = plan_route(conn, network, parse_points(points), opts)
     if fmt != "summary":
         click.echo(json.dumps(body))
         return

@@ -1,40 +1,24 @@
 """``ugvmap`` commands for road networks: import, export, validate, API tokens.
 
-Registered on the groups of ``app.cli``.
+Registered in :mod:`cli.main`. Bad input (unreadable file, unknown network, bad name) is a
+:class:`~app.errors.UserError` from the code below, shown as one line by the CLI root.
 """
 
 from __future__ import annotations
 
-import functools
 import sys
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import click
 from tqdm import tqdm
 
-from app.cli_errors import CliError
-
-
-def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn the domain's ValueErrors into one-line CLI errors (exit 1, no traceback)."""
-
-    @functools.wraps(func)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return func(*args, **kwargs)
-        except ValueError as exc:
-            raise CliError(str(exc)) from exc
-
-    return wrapper
+from app.errors import UserError
 
 
 @click.command("network")
 @click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--network", "network", required=True, help="Network name (slug).")
 @click.option("--replace", is_flag=True, help="Replace the network's segments if it exists.")
-@_user_errors
 def ingest_network(file: Path, network: str, replace: bool) -> None:
     """Import a GeoJSON / GeoPackage / OSM (.osm, .osm.pbf) road FILE as a network."""
     from app.db.session import session_scope
@@ -65,7 +49,6 @@ def tokens() -> None:
 @tokens.command("create")
 @click.option("--role", type=click.Choice(["viewer", "editor", "admin"]), required=True)
 @click.option("--name", required=True, help="Who or what uses the token (shown in history).")
-@_user_errors
 def tokens_create(role: str, name: str) -> None:
     """Create a token and print it once; only its hash is stored."""
     from app.db.session import session_scope
@@ -86,7 +69,6 @@ def export() -> None:
 @click.option("--format", "fmt", type=click.Choice(["geojson", "gpkg", "osm"]), required=True)
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="Output file (for osm: .osm or .osm.pbf).")
-@_user_errors
 def export_network(name: str, fmt: str, out: Path) -> None:
     """Export network NAME losslessly (import of the file gives the same network)."""
     from app.db.session import session_scope
@@ -104,7 +86,6 @@ def network() -> None:
 
 @network.command("validate")
 @click.argument("name")
-@_user_errors
 def validate(name: str) -> None:
     """Check NAME's topology invariants; exit 1 if any is broken."""
     from app.db.session import session_scope
@@ -115,5 +96,5 @@ def validate(name: str) -> None:
     for line in report.lines()[:-1]:
         click.echo(line)
     if not report.ok:
-        raise CliError(report.lines()[-1])
+        raise UserError(report.lines()[-1])
     click.echo(report.lines()[-1])

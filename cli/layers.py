@@ -1,6 +1,6 @@
 """``ugvmap ingest raster`` and ``ugvmap layers``: raster layers from the command line.
 
-Registered on the groups of ``app.cli``.
+Registered in :mod:`cli.main`.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from app.cli_errors import CliError
+from app.errors import UserError
 
 
 @click.command("raster")
@@ -32,24 +32,20 @@ def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, k
     from app.jobs.recorder import JobRecorder
     from ingest.raster.gcps import ingest_with_gcps
     from ingest.raster.job import ingest_raster
-    from ingest.raster.sources import SourceError
 
     if gcps_file is not None and len(sources) != 1:
-        raise CliError("--gcps georeferences exactly one SRC image")
+        raise UserError("--gcps georeferences exactly one SRC image")
     params = {"sources": [str(s) for s in sources], "kind": kind, "crs": crs,
               "gcps": str(gcps_file) if gcps_file else None}
-    try:
-        with JobRecorder("ingest-raster", slug, params) as job:
-            options = {"title": title, "kind": kind, "priority": priority,
-                       "on_progress": job.progress}
-            if gcps_file is None:
-                report = ingest_raster(list(sources), slug, crs=crs, **options)
-            else:
-                accuracy, report = ingest_with_gcps(sources[0], slug, gcps_file, gcp_method,
-                                                    crs, **options)
-                click.echo(accuracy.table())
-    except SourceError as exc:
-        raise CliError(str(exc)) from exc
+    with JobRecorder("ingest-raster", slug, params) as job:
+        options = {"title": title, "kind": kind, "priority": priority,
+                   "on_progress": job.progress}
+        if gcps_file is None:
+            report = ingest_raster(list(sources), slug, crs=crs, **options)
+        else:
+            accuracy, report = ingest_with_gcps(sources[0], slug, gcps_file, gcp_method,
+                                                crs, **options)
+            click.echo(accuracy.table())
     for src in report.sources:
         click.echo(f"{src.name}: {src.width}x{src.height} px at z{src.zoom} "
                    f"({src.resolution_m:.3f} m/px) -> {src.uri}")
@@ -83,7 +79,7 @@ def layers_show(slug: str) -> None:
     with get_engine().connect() as conn:
         layer = get_layer(conn, slug)
     if layer is None:
-        raise CliError(f"no raster layer {slug!r}")
+        raise UserError(f"no raster layer {slug!r}")
     for key in ("slug", "title", "kind", "minzoom", "maxzoom", "resolution_m", "bounds",
                 "version"):
         click.echo(f"{key}: {layer[key]}")
@@ -103,7 +99,7 @@ def layers_delete(slug: str) -> None:
     with get_engine().begin() as conn:
         uris = delete_layer(conn, slug)
     if uris is None:
-        raise CliError(f"no raster layer {slug!r}")
+        raise UserError(f"no raster layer {slug!r}")
     for uri in uris:
         Path(uri).unlink(missing_ok=True)
     click.echo(f"deleted layer {slug} ({len(uris)} files)")

@@ -1,7 +1,8 @@
 """``ugvmap extract-roads`` / ``evaluate-roads`` (no database) and ``ugvmap ingest roads``.
 
 Heavy imports (OpenCV, scikit-learn) happen inside the commands so ``ugvmap --help`` stays
-instant. User mistakes surface as :class:`app.cli.CliError` (one line, exit 1).
+instant. User mistakes are :class:`~app.errors.UserError` (``RoadsInputError`` among them),
+shown as one line by the CLI root.
 """
 
 from __future__ import annotations
@@ -15,22 +16,19 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from app.cli_errors import CliError
-from ingest.roads import RoadsInputError
+from app.errors import UserError
 
 if TYPE_CHECKING:
     from ingest.roads.pipeline import ExtractParams
 
 
 @contextmanager
-def _user_errors() -> Iterator[None]:
-    """Turn input problems into the CLI's one-line error."""
+def _memory_hint() -> Iterator[None]:
+    """Running out of memory on a big image is a user-fixable setting, not a crash."""
     try:
         yield
-    except RoadsInputError as exc:
-        raise CliError(str(exc)) from exc
     except MemoryError as exc:
-        raise CliError("out of memory: try a coarser --work-resolution") from exc
+        raise UserError("out of memory: try a coarser --work-resolution") from exc
 
 
 def _box(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
@@ -107,7 +105,7 @@ def extract_roads(image: Path, train_boxes: list, not_road_boxes: list, train_ma
     from ingest.roads.georef import read_band, read_image
     from ingest.roads.pipeline import extract_roads
 
-    with _user_errors():
+    with _memory_hint():
         img = read_image(image, resolution)
         mask = read_band(train_mask)[0] if train_mask else None
         labels = (training_labels(img.pixels.shape[:2], train_boxes, not_road_boxes, mask)
@@ -117,7 +115,7 @@ def extract_roads(image: Path, train_boxes: list, not_road_boxes: list, train_ma
         try:
             out_path.write_text(json.dumps(result.geojson()))
         except OSError as exc:
-            raise RoadsInputError(f"cannot write {out_path}: {exc.strerror}") from exc
+            raise UserError(f"cannot write {out_path}: {exc.strerror}") from exc
     if not result.graph.edges:
         click.echo(f"no road found in {image} ({result.classifier} classifier)"
                    + (f"; see the images in {debug_dir}" if debug_dir else " (see --debug-dir)"),
@@ -144,12 +142,12 @@ def evaluate_roads(pred: Path, gt: Path, resolution: float | None, max_radius: i
     """
     from ingest.roads.evaluate import buffer_scores, load_centerlines, scores_json
 
-    with _user_errors():
+    with _memory_hint():
         if max_radius < 1:
-            raise RoadsInputError("--max-radius must be at least 1")
+            raise UserError("--max-radius must be at least 1")
         p, g, res = load_centerlines(pred, gt, resolution)
         if not g.any():
-            raise RoadsInputError(f"{gt}: the ground truth has no road")
+            raise UserError(f"{gt}: the ground truth has no road")
         scores = buffer_scores(p, g, range(1, max_radius + 1), res)
     if as_json:
         click.echo(scores_json(scores))
@@ -199,18 +197,15 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
     from app.jobs.recorder import JobRecorder
     from ingest.roads.layer import GeoSample, ingest_layer_roads, read_sample_lines
 
-    with _user_errors():
+    with _memory_hint():
         lines = read_sample_lines(train_lines) if train_lines else []
         sample = (GeoSample(train_boxes, not_road_boxes, lines, line_width)
                   if train_boxes or not_road_boxes or lines else None)
-        try:
-            with JobRecorder("ingest-roads", network, {"layer": slug, **tuning}), \
-                    session_scope() as session:
-                extraction, summary = ingest_layer_roads(
-                    session, slug, network, sample, extract_params(**tuning), replace=replace,
-                    progress=sys.stderr.isatty())
-        except ValueError as exc:  # network exists / bad network name
-            raise RoadsInputError(str(exc)) from exc
+        with JobRecorder("ingest-roads", network, {"layer": slug, **tuning}), \
+                session_scope() as session:
+            extraction, summary = ingest_layer_roads(
+                session, slug, network, sample, extract_params(**tuning), replace=replace,
+                progress=sys.stderr.isatty())
     click.echo(f"network {summary.network}: {summary.segments} segments, {summary.nodes} nodes, "
                f"{summary.total_length_m / 1000:.3f} km extracted from layer {slug} "
                f"({extraction.classifier} classifier)")
@@ -249,12 +244,12 @@ def roads_train(data: Path, out_dir: Path, exclude_dirs: tuple[Path, ...], epoch
     try:
         from ingest.roads.model.train import TrainConfig, train
     except ImportError as exc:
-        raise CliError(f"training needs torch: pip install -e '.[train]' ({exc})") from exc
+        raise UserError(f"training needs torch: pip install -e '.[train]' ({exc})") from exc
     from ingest.roads.model.data import image_hashes
 
     if crop % 16:
-        raise CliError("--crop must be a multiple of 16 (the network's grid)")
-    with _user_errors():
+        raise UserError("--crop must be a multiple of 16 (the network's grid)")
+    with _memory_hint():
         exclude = sorted(set().union(*(image_hashes(d) for d in exclude_dirs)))
         config = TrainConfig(resolution_m=resolution, crop_px=crop, batch=batch, epochs=epochs,
                              steps_per_epoch=steps_per_epoch, seed=seed, max_scenes=max_scenes,

@@ -1,0 +1,59 @@
+"""The ``ugvmap`` root command: a table of contents of every capability's commands.
+
+Each capability module (``cli.db``, ``cli.network``, ...) defines its commands; this module
+only registers them, on the root or on the ``ingest`` group, and turns the errors a user can
+fix into one line, in one place (:class:`UgvmapGroup`).
+"""
+
+from __future__ import annotations
+
+import click
+from sqlalchemy.exc import OperationalError
+
+from app.errors import ApiError, UserError
+
+
+class UgvmapGroup(click.Group):
+    """The root group: every user-facing error, from any command, is one clear line and exit
+    status 1 instead of a traceback, so no command has to catch them itself."""
+
+    def invoke(self, ctx: click.Context) -> object:
+        """Run the command; translate the user-facing errors it raises."""
+        try:
+            return super().invoke(ctx)
+        except UserError as exc:
+            raise click.ClickException(str(exc)) from exc
+        except ApiError as exc:  # the same planner/services the HTTP API uses
+            raise click.ClickException(f"{exc.code}: {exc.message}") from exc
+        except OperationalError as exc:
+            raise click.ClickException(
+                f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
+
+
+@click.group(cls=UgvmapGroup, context_settings={"help_option_names": ["-h", "--help"]})
+def main() -> None:
+    """ugvmap: imagery to map tiles, road network to routes, for unmanned ground vehicles."""
+
+
+@main.group()
+def ingest() -> None:
+    """Batch jobs that write rasters and road networks into the store."""
+
+
+def _register_capabilities() -> None:
+    """Each capability owns its commands; this is the table of contents (one line each)."""
+    from cli import db, demo, layers, network, roads, routing
+
+    for command in (db.db, demo.demo, demo.serve,
+                    network.tokens, network.export, network.network,
+                    layers.layers, routing.route,
+                    roads.extract_roads, roads.evaluate_roads, roads.roads):
+        main.add_command(command)
+    for command in (network.ingest_network, layers.ingest_raster_cmd, roads.ingest_roads):
+        ingest.add_command(command)
+
+
+_register_capabilities()
+
+if __name__ == "__main__":
+    main()

@@ -9,6 +9,7 @@ FROM python:3.11-slim-bookworm
 WORKDIR /srv/ugvmap
 COPY pyproject.toml README.md alembic.ini ./
 COPY app ./app
+COPY cli ./cli
 COPY ingest ./ingest
 COPY migrations ./migrations
 # The road model (ONNX, run by onnxruntime; torch is only for training and stays out).

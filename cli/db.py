@@ -7,7 +7,6 @@ import sys
 import click
 
 from app.db import embedded
-from app.errors import UserError
 from app.settings import get_settings
 
 
@@ -28,10 +27,7 @@ def _cluster() -> embedded.Cluster:
 def db_start() -> None:
     """Initialise (first time) and start the embedded PostGIS cluster under .data/postgres."""
     cluster = _cluster()
-    try:
-        embedded.start(cluster)
-    except embedded.EmbeddedDbError as exc:
-        raise UserError(str(exc)) from exc
+    embedded.start(cluster)  # EmbeddedDbError is a UserError: one line from cli.main
     click.echo(f"database {embedded.status(cluster)}")
 
 
@@ -39,10 +35,7 @@ def db_start() -> None:
 def db_stop() -> None:
     """Stop the embedded cluster (data is kept)."""
     cluster = _cluster()
-    try:
-        embedded.stop(cluster)
-    except embedded.EmbeddedDbError as exc:
-        raise UserError(str(exc)) from exc
+    embedded.stop(cluster)
     click.echo(f"database {embedded.status(cluster)}")
 
 

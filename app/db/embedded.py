@@ -22,14 +22,15 @@ from pathlib import Path
 import psycopg
 from psycopg.conninfo import make_conninfo
 
+from app.errors import UserError
 from app.settings import Settings
 
 EXTENSIONS = ("postgis", "pgrouting")
 DEBIAN_PACKAGES = ("postgresql-15-postgis-3", "postgresql-15-pgrouting")
 
 
-class EmbeddedDbError(RuntimeError):
-    """A problem the user can fix; the message says how."""
+class EmbeddedDbError(UserError):
+    """A problem the user can fix (port taken, packages missing); the message says how."""
 
 
 @dataclass(frozen=True)

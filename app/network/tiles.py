@@ -12,7 +12,7 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.errors import NotFoundError
-from app.grid import parse_tile
+from app.grid import TILE_SIZE, parse_tile, pixel_size_m
 from app.network.collections import network_row
 from app.network.tile_cache import Bounds, shared_cache
 from app.network.tokens import SessionDep, read_access
@@ -25,7 +25,6 @@ EXTENT = 4096
 BUFFER = 64
 NODES_MINZOOM = 12
 SIMPLIFY_BELOW = 14
-WORLD_M = 2 * 20037508.342789244
 
 TILE_SQL = f"""
 WITH bounds AS (
@@ -73,7 +72,7 @@ def network_tile(name: str, z: str, x: str, y: str, session: SessionDep) -> Resp
     status = "hit"
     if tile is None:
         status = "miss"
-        tolerance = WORLD_M / 2**zi / EXTENT if zi < SIMPLIFY_BELOW else 0.0
+        tolerance = pixel_size_m(zi) * TILE_SIZE / EXTENT if zi < SIMPLIFY_BELOW else 0.0
         tile = bytes(session.execute(text(TILE_SQL), {
             "z": zi, "x": xi, "y": yi, "network_id": network.id,
             "tolerance": tolerance}).scalar_one())

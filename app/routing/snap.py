@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from sqlalchemy import Connection, text
 
 from app.errors import NoSegmentError, NotFoundError
+from app.grid import utm_epsg
 
 KNN_NEAREST = 16  # unfiltered candidates per point (fast statement)
 KNN_CANDIDATES = 8  # network candidates per point (fallback statement)
@@ -29,11 +30,9 @@ KNN_CANDIDATES = 8  # network candidates per point (fallback statement)
 _SNAP = """
 WITH net AS (SELECT id, version FROM networks WHERE name = :name),
 pts AS (
-    SELECT t.ord, ST_SetSRID(ST_MakePoint(t.lon, t.lat), 4326) AS g,
-           (CASE WHEN t.lat >= 0 THEN 32600 ELSE 32700 END
-            + LEAST(60, FLOOR((t.lon + 180) / 6)::int + 1)) AS utm
-      FROM unnest(CAST(:lons AS float8[]), CAST(:lats AS float8[]))
-           WITH ORDINALITY AS t(lon, lat, ord))
+    SELECT t.ord, ST_SetSRID(ST_MakePoint(t.lon, t.lat), 4326) AS g, t.utm
+      FROM unnest(CAST(:lons AS float8[]), CAST(:lats AS float8[]), CAST(:utms AS int[]))
+           WITH ORDINALITY AS t(lon, lat, utm, ord))
 SELECT net.id, net.version, p.ord, c.id,
        ST_LineLocatePoint(ST_Transform(c.geom, p.utm), ST_Transform(p.g, p.utm)),
        ST_Distance(c.geom::geography, p.g::geography)
@@ -73,6 +72,7 @@ def _candidates(conn: Connection, sql, network: str, points: Sequence[tuple[floa
     """((network id, version) or None if unknown, {point index: best candidate})."""
     rows = conn.execute(sql, {
         "name": network, "lons": [p[0] for p in points], "lats": [p[1] for p in points],
+        "utms": [utm_epsg(*p) for p in points],
         "avoid": sorted(avoid),
     }).all()
     if not rows:

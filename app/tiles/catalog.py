@@ -1,8 +1,8 @@
 """Catalogue queries for raster layers, shared by the HTTP routes and ``ugvmap layers``.
 
 The tile query does two things in one round trip: it reads the layer's version (for the ETag)
-and asks PostGIS which source footprints meet the tile, in paint order (lowest priority and
-oldest first, so the newest source is painted last, on top).
+and asks PostGIS which source footprints meet the tile, in :data:`PAINT_ORDER`. The layer
+overview written at ingest is rendered from the same query, so it paints like the tiles.
 """
 
 from __future__ import annotations
@@ -19,6 +19,10 @@ LAYER_COLUMNS = (
     "ST_XMax(l.bounds), ST_YMax(l.bounds)] END AS bounds, "
     "(SELECT count(*) FROM raster_sources s WHERE s.layer_id = l.id) AS source_count"
 )
+#: The paint order of a layer's sources (alias ``s``), bottom first: lower ``--priority``
+#: under higher, then older under newer, so a re-survey covers what it replaces. The one
+#: definition, used by tiles, the layer overview, ``GET /layers/{slug}`` and ``layers show``.
+PAINT_ORDER = "s.priority, s.ingested_at, s.id"
 
 
 @dataclass(frozen=True)
@@ -42,7 +46,7 @@ def tile_sources(conn: Connection, slug: str,
         "SELECT l.id, l.version, l.overview_uri, s.uri, s.meta->'display_range' FROM layers l "
         "LEFT JOIN raster_sources s ON s.layer_id = l.id "
         " AND ST_Intersects(s.footprint, ST_MakeEnvelope(:x0, :y0, :x1, :y1, 3857)) "
-        "WHERE l.slug = :slug ORDER BY s.priority, s.ingested_at, s.id"),
+        f"WHERE l.slug = :slug ORDER BY {PAINT_ORDER}"),
         {"slug": slug, "x0": bbox[0], "y0": bbox[1], "x1": bbox[2], "y1": bbox[3]},
     ).all()
     if not rows:
@@ -70,9 +74,9 @@ def get_layer(conn: Connection, slug: str) -> dict[str, Any] | None:
     if layer is None:
         return None
     sources = conn.execute(text(
-        "SELECT id, name, uri, priority, ingested_at, width, height, band_count, dtype, "
-        " resolution_m, meta->>'georef' AS georef, (meta->>'zoom')::int AS zoom "
-        "FROM raster_sources WHERE layer_id = :id ORDER BY priority, ingested_at, id"),
+        "SELECT s.id, s.name, s.uri, s.priority, s.ingested_at, s.width, s.height, s.band_count,"
+        " s.dtype, s.resolution_m, s.meta->>'georef' AS georef, (s.meta->>'zoom')::int AS zoom "
+        f"FROM raster_sources s WHERE s.layer_id = :id ORDER BY {PAINT_ORDER}"),
         {"id": layer["id"]})
     layer["sources"] = [dict(s._mapping) for s in sources]
     return layer

@@ -14,7 +14,7 @@ from fastapi import APIRouter, Request, Response
 
 from app.db.session import get_engine
 from app.errors import InvalidParameterValueError, LayerNotFoundError
-from app.grid import TMS, parse_tile
+from app.grid import parse_tile, tile_bounds
 from app.tiles import catalog
 from app.tiles.cache import tile_cache
 from app.tiles.catalog import TileSource
@@ -128,8 +128,7 @@ def tile(slug: str, z: str, x: str, tile: str, request: Request) -> Response:
             "expected /tiles/{slug}/{z}/{x}/{y}[@2x].{format}")
     fmt = _format(match["fmt"])
     zi, xi, yi = parse_tile(z, x, match["y"])
-    b = TMS.xy_bounds(xi, yi, zi)
-    bbox = (b.left, b.bottom, b.right, b.top)
+    bbox = tile_bounds(zi, xi, yi)
     with get_engine().connect() as conn:
         query = catalog.tile_sources(conn, slug, bbox)
     if query is None:

@@ -14,16 +14,26 @@ well under 2 GiB.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import rasterio
 import rasterio.shutil
+from rasterio.io import DatasetReader, DatasetWriter
+from shapely.geometry import MultiPolygon
+
+from app.grid import TILE_SIZE, TileBlock
+from ingest.raster.footprint import footprint_3857
 
 #: GDAL block cache for ingest, in MB: the measured peak RSS follows it, speed does not.
 GDAL_CACHEMAX_MB = 256
-TILE_SIZE = 256
+#: Longest side of the overview level display ranges are estimated on.
+STATS_PX = 1024
 
 
 def cog_options(dtype: str, band_count: int) -> dict[str, Any]:
@@ -63,3 +73,68 @@ def write_cog(src: str | Path | rasterio.io.DatasetReaderBase, dst: Path,
         for leftover in dst.parent.glob(f"{tmp.name}*"):
             with contextlib.suppress(FileNotFoundError):
                 leftover.unlink()
+
+
+def write_staged_cog(dst: Path, block: TileBlock, bands: int, dtype: str,
+                     fill: Callable[[DatasetWriter], None]) -> None:
+    """Write a COG whose pixels we compute ourselves (a GCP warp, a layer overview).
+
+    ``fill`` writes ``bands`` data bands plus an alpha band into a temporary tiled GeoTIFF
+    laid out on ``block`` (so it is already on the XYZ grid and the COG driver copies it
+    without resampling again); the COG is then written from it atomically (:func:`write_cog`)
+    and the staging file removed, whatever happens.
+    """
+    profile = {"driver": "GTiff", "width": block.width, "height": block.height,
+               "count": bands + 1, "dtype": dtype, "crs": "EPSG:3857",
+               "transform": block.transform, "photometric": "RGB" if bands == 3 else "MINISBLACK",
+               "alpha": "YES", "tiled": True, "blockxsize": TILE_SIZE, "blockysize": TILE_SIZE,
+               "compress": "zstd", "sparse_ok": True}
+    staged = dst.with_name(f".{dst.name}.staged.tmp")
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHEMAX_MB), \
+                rasterio.open(staged, "w", **profile) as out:
+            fill(out)
+        write_cog(staged, dst, dtype, bands)
+    finally:
+        staged.unlink(missing_ok=True)
+
+
+@dataclass(frozen=True)
+class CogMeasure:
+    """What the catalogue records about a written COG, read from one open of the file."""
+
+    zoom: int  # the XYZ zoom of its full resolution
+    minzoom: int  # the zoom of its smallest overview
+    width: int
+    height: int
+    band_count: int
+    dtype: str
+    footprint: MultiPolygon | None  # valid-data outline (EPSG:3857); None: no valid pixel
+    display_range: list[list[float]] | None  # per band 2nd-98th percentile; None for 8-bit
+
+
+def _display_range(ds: DatasetReader) -> list[list[float]] | None:
+    """Per-band display range (2nd-98th percentile) for non-8-bit data, from an overview:
+    tiles are 8-bit, and a 16-bit or float image needs a stretch chosen once per source."""
+    if ds.dtypes[0] == "uint8":
+        return None
+    scale = max(1, math.ceil(max(ds.width, ds.height) / STATS_PX))
+    shape = (ds.count, math.ceil(ds.height / scale), math.ceil(ds.width / scale))
+    data = ds.read(out_shape=shape, masked=True)
+    ranges = []
+    for band in data[: 3 if data.shape[0] >= 3 else 1]:
+        valid = band.compressed()
+        lo, hi = (float(v) for v in np.percentile(valid, [2, 98])) if valid.size else (0, 1)
+        ranges.append([lo, hi if hi > lo else lo + 1])
+    return ranges
+
+
+def measure_cog(path: Path) -> CogMeasure:
+    """Zoom range, size, footprint and display range of a COG written by :func:`write_cog`."""
+    with rasterio.open(path) as ds:
+        zoom = int(ds.tags(ns="TILING_SCHEME").get("ZOOM_LEVEL", 0))
+        return CogMeasure(zoom=zoom, minzoom=max(0, zoom - len(ds.overviews(1))),
+                          width=ds.width, height=ds.height, band_count=ds.count,
+                          dtype=ds.dtypes[0], footprint=footprint_3857(ds),
+                          display_range=_display_range(ds))

@@ -11,8 +11,8 @@ import math
 
 import cv2
 import numpy as np
-import rasterio
 from rasterio.features import shapes
+from rasterio.io import DatasetReader
 from rasterio.transform import Affine
 from shapely.geometry import MultiPolygon, Polygon, shape
 from shapely.ops import unary_union
@@ -21,13 +21,12 @@ from shapely.ops import unary_union
 TRACE_PX = 1024
 
 
-def footprint_3857(path: str) -> MultiPolygon | None:
-    """The valid-data outline of a EPSG:3857 raster, or None if it has no valid pixel."""
-    with rasterio.open(path) as ds:
-        scale = max(1, math.ceil(max(ds.width, ds.height) / TRACE_PX))
-        out_w, out_h = math.ceil(ds.width / scale), math.ceil(ds.height / scale)
-        mask = ds.dataset_mask(out_shape=(out_h, out_w))
-        transform = ds.transform @ Affine.scale(ds.width / out_w, ds.height / out_h)
+def footprint_3857(ds: DatasetReader) -> MultiPolygon | None:
+    """The valid-data outline of an open EPSG:3857 raster, or None if it has no valid pixel."""
+    scale = max(1, math.ceil(max(ds.width, ds.height) / TRACE_PX))
+    out_w, out_h = math.ceil(ds.width / scale), math.ceil(ds.height / scale)
+    mask = ds.dataset_mask(out_shape=(out_h, out_w))
+    transform = ds.transform @ Affine.scale(ds.width / out_w, ds.height / out_h)
     valid = cv2.dilate((mask > 0).astype(np.uint8), np.ones((3, 3), np.uint8))
     if not valid.any():
         return None

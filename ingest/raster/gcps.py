@@ -25,7 +25,6 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-import morecantile
 import numpy as np
 import rasterio
 from pyproj import Transformer
@@ -33,12 +32,13 @@ from rasterio.control import GroundControlPoint
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
 from rasterio.errors import CRSError
-from rasterio.transform import from_origin
+from rasterio.io import DatasetWriter
 from rasterio.vrt import WarpedVRT
 from rasterio.warp import reproject
 from scipy.interpolate import RBFInterpolator
 
-from ingest.raster.cog import GDAL_CACHEMAX_MB, TILE_SIZE, write_cog
+from app.grid import covering_block, utm_epsg, zoom_for_pixel_size
+from ingest.raster.cog import write_staged_cog
 from ingest.raster.job import IngestReport, ingest_raster
 from ingest.raster.sources import Source, SourceError, inspect
 
@@ -46,7 +46,6 @@ METHODS = {"poly1": {"SRC_METHOD": "GCP_POLYNOMIAL", "MAX_GCP_ORDER": 1},
            "poly2": {"SRC_METHOD": "GCP_POLYNOMIAL", "MAX_GCP_ORDER": 2},
            "tps": {"SRC_METHOD": "GCP_TPS"}}
 MIN_GCPS = {"poly1": 3, "poly2": 6, "tps": 4}
-TMS = morecantile.tms.get("WebMercatorQuad")
 
 
 @dataclass(frozen=True)
@@ -125,8 +124,7 @@ def read_gcps(path: Path, crs: str | None) -> GcpSet:
     metric = source_crs
     if source_crs.is_geographic:
         lon, lat = xy.mean(axis=0)
-        zone = int((lon + 180) // 6) % 60 + 1
-        metric = CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
+        metric = CRS.from_epsg(utm_epsg(lon, lat))
         east, north = Transformer.from_crs(source_crs.to_wkt(), metric.to_wkt(),
                                            always_xy=True).transform(xy[:, 0], xy[:, 1])
         xy = np.column_stack([east, north])
@@ -181,21 +179,6 @@ def residual_report(gcps: GcpSet, method: str, width: int, height: int) -> GcpRe
                      rmse_loo_m=float(np.sqrt((loo**2).mean())))
 
 
-def _grid_aligned(vrt: WarpedVRT) -> tuple[rasterio.Affine, int, int]:
-    """The warped output's extent snapped outwards to the XYZ grid of the closest zoom."""
-    zoom = TMS.zoom_for_res(vrt.res[0], zoom_level_strategy="auto")
-    res = TMS.matrix(zoom).cellSize
-    span = res * TILE_SIZE
-    origin_x, origin_y = TMS.xy_bounds(0, 0, 0).left, TMS.xy_bounds(0, 0, 0).top
-    left, bottom, right, top = vrt.bounds
-    col0 = math.floor((left - origin_x) / span)
-    col1 = math.ceil((right - origin_x) / span)
-    row0 = math.floor((origin_y - top) / span)
-    row1 = math.ceil((origin_y - bottom) / span)
-    transform = from_origin(origin_x + col0 * span, origin_y - row0 * span, res, res)
-    return transform, (col1 - col0) * TILE_SIZE, (row1 - row0) * TILE_SIZE
-
-
 def gcp_writer(method: str):
     """A ``to_cog`` hook for :func:`ingest.raster.job.ingest_raster`: GDAL's GCP warp.
 
@@ -207,28 +190,20 @@ def gcp_writer(method: str):
     def write(source: Source, dst: Path) -> None:
         options = METHODS[method]
         gcps = source.gcps
+        count = len(source.bands)
         with rasterio.open(source.vrt_xml()) as src:
             with WarpedVRT(src, crs="EPSG:3857", **options) as probe:
-                transform, width, height = _grid_aligned(probe)
-            count = len(source.bands)
-            tmp = dst.with_name(f".{dst.name}.warp.tmp")
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            profile = {"driver": "GTiff", "width": width, "height": height,
-                       "count": count + 1, "dtype": source.dtype, "crs": "EPSG:3857",
-                       "transform": transform, "tiled": True, "blockxsize": TILE_SIZE,
-                       "blockysize": TILE_SIZE, "compress": "zstd", "photometric":
-                       "RGB" if count == 3 else "MINISBLACK", "alpha": "YES"}
-            try:
-                with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHEMAX_MB), \
-                        rasterio.open(tmp, "w", **profile) as out:
-                    reproject(rasterio.band(src, list(range(1, count + 1))),
-                              rasterio.band(out, list(range(1, count + 1))),
-                              gcps=gcps, src_crs=source.crs, dst_transform=transform,
-                              dst_crs="EPSG:3857", dst_alpha=count + 1,
-                              resampling=Resampling.bilinear, **options)
-                write_cog(tmp, dst, source.dtype, count)
-            finally:
-                tmp.unlink(missing_ok=True)
+                # The warped extent, snapped outwards to the XYZ grid of the closest zoom.
+                block = covering_block(probe.bounds, zoom_for_pixel_size(probe.res[0]))
+
+            def warp(out: DatasetWriter) -> None:
+                reproject(rasterio.band(src, list(range(1, count + 1))),
+                          rasterio.band(out, list(range(1, count + 1))),
+                          gcps=gcps, src_crs=source.crs, dst_transform=block.transform,
+                          dst_crs="EPSG:3857", dst_alpha=count + 1,
+                          resampling=Resampling.bilinear, **options)
+
+            write_staged_cog(dst, block, count, source.dtype, warp)
 
     return write
 

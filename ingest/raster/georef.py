@@ -22,6 +22,8 @@ from pyproj import Transformer
 from rasterio.crs import CRS
 from rasterio.transform import Affine
 
+from app.grid import utm_epsg
+
 WORLD_FILE_SUFFIXES = {
     ".png": (".pgw", ".pngw"),
     ".jpg": (".jgw", ".jpgw"),
@@ -144,8 +146,7 @@ class ZoneSidecar:
         if self.frame == "enu":
             return CRS.from_string(f"+proj=ortho +lat_0={self.origin_lat} "
                                    f"+lon_0={self.origin_lon} +ellps=WGS84 +units=m +no_defs")
-        zone = int((self.origin_lon + 180) // 6) % 60 + 1
-        return CRS.from_epsg((32600 if self.origin_lat >= 0 else 32700) + zone)
+        return CRS.from_epsg(utm_epsg(self.origin_lon, self.origin_lat))
 
     def transform(self) -> Affine:
         """Affine transform of this zone's image in :meth:`crs`."""

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import re
 import sys
 import uuid
@@ -25,22 +24,17 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-import rasterio
-import shapely.wkb
-from sqlalchemy import text
+from sqlalchemy import Connection, text
 from tqdm import tqdm
 
 from app.db.models import LAYER_KINDS, SLUG_RE
 from app.db.session import get_engine, session_scope
+from app.grid import ground_resolution_m, tile_bounds
 from app.settings import get_settings
-from app.tiles.catalog import TileSource
-from ingest.raster.cog import write_cog
-from ingest.raster.footprint import footprint_3857
+from app.tiles.catalog import tile_sources
+from ingest.raster.cog import measure_cog, write_cog
 from ingest.raster.overview import build_overview
 from ingest.raster.sources import Source, SourceError, inspect
-
-EARTH_CIRCUMFERENCE_M = 2 * math.pi * 6378137.0
 
 
 @dataclass(frozen=True)
@@ -67,27 +61,6 @@ class IngestReport:
     sources: list[WrittenSource]
 
 
-def ground_resolution_m(zoom: int, lat: float) -> float:
-    """Metres per pixel of a 256 px XYZ tile at ``zoom`` and latitude ``lat``."""
-    return EARTH_CIRCUMFERENCE_M / (256 * 2**zoom) * math.cos(math.radians(lat))
-
-
-def band_ranges(path: str, dtype: str) -> list[list[float]] | None:
-    """Per-band display range (2nd-98th percentile) for non-8-bit data, from an overview."""
-    if dtype == "uint8":
-        return None
-    with rasterio.open(path) as ds:
-        scale = max(1, math.ceil(max(ds.width, ds.height) / 1024))
-        shape = (ds.count, math.ceil(ds.height / scale), math.ceil(ds.width / scale))
-        data = ds.read(out_shape=shape, masked=True)
-    ranges = []
-    for band in data[: 3 if data.shape[0] >= 3 else 1]:
-        valid = band.compressed()
-        lo, hi = (float(v) for v in np.percentile(valid, [2, 98])) if valid.size else (0, 1)
-        ranges.append([lo, hi if hi > lo else lo + 1])
-    return ranges
-
-
 def write_source(source: Source, store: Path, layer: str,
                  to_cog: Callable[[Source, Path], None] | None = None) -> WrittenSource:
     """Write one validated source into the store and measure what the catalogue needs."""
@@ -97,34 +70,30 @@ def write_source(source: Source, store: Path, layer: str,
     else:
         to_cog(source, dst)
     try:
-        outline = footprint_3857(str(dst))
-        if outline is None:
+        cog = measure_cog(dst)
+        if cog.footprint is None:
             raise SourceError(f"{source.name}: no valid pixels (everything is nodata/transparent)")
-        with rasterio.open(dst) as ds:
-            zoom = int(ds.tags(ns="TILING_SCHEME").get("ZOOM_LEVEL", 0))
-            width, height, count, dtype = ds.width, ds.height, ds.count, ds.dtypes[0]
-            minzoom = max(0, zoom - len(ds.overviews(1)))
         lat = (source.bounds_4326[1] + source.bounds_4326[3]) / 2
         meta = {"source_path": str(source.path.resolve()), "georef": source.georef_from,
-                "source_crs": source.crs.to_string(), "zoom": zoom, "minzoom": minzoom,
+                "source_crs": source.crs.to_string(), "zoom": cog.zoom, "minzoom": cog.minzoom,
                 "bounds_4326": list(source.bounds_4326)}
-        ranges = band_ranges(str(dst), dtype)
-        if ranges:
-            meta["display_range"] = ranges
-        return WrittenSource(name=source.name, uri=str(dst), footprint_wkb=outline.wkb,
-                             width=width, height=height, band_count=count, dtype=dtype,
-                             zoom=zoom, minzoom=minzoom,
-                             resolution_m=ground_resolution_m(zoom, lat), meta=meta)
+        if cog.display_range:
+            meta["display_range"] = cog.display_range
+        return WrittenSource(name=source.name, uri=str(dst), footprint_wkb=cog.footprint.wkb,
+                             width=cog.width, height=cog.height, band_count=cog.band_count,
+                             dtype=cog.dtype, zoom=cog.zoom, minzoom=cog.minzoom,
+                             resolution_m=ground_resolution_m(cog.zoom, lat), meta=meta)
     except BaseException:
         dst.unlink(missing_ok=True)
         raise
 
 
 def register(written: Sequence[WrittenSource], layer: str, title: str | None, kind: str,
-             priority: int, overview_uri: str,
+             priority: int, overview: Path,
              database_url: str | None = None) -> tuple[int, str | None]:
-    """Upsert the layer, insert its new sources and point it at its new overview, in one
-    transaction; return the new version and the replaced overview file (to delete)."""
+    """Upsert the layer, insert its new sources, render its new overview into ``overview``
+    and point the layer at it, in one transaction; return the new version and the replaced
+    overview file (to delete)."""
     with session_scope(database_url) as session:
         old_overview = session.execute(
             text("SELECT overview_uri FROM layers WHERE slug = :slug FOR UPDATE"),
@@ -136,7 +105,7 @@ def register(written: Sequence[WrittenSource], layer: str, title: str | None, ki
             "  version = layers.version + 1, updated_at = now(), overview_uri = :overview "
             "RETURNING id, version"),
             {"slug": layer, "title": title or layer, "given_title": title, "kind": kind,
-             "overview": overview_uri},
+             "overview": str(overview)},
         ).one()
         for src in written:
             session.execute(text(
@@ -159,31 +128,23 @@ def register(written: Sequence[WrittenSource], layer: str, title: str | None, ki
             " minzoom = (SELECT min((meta->>'minzoom')::int) FROM raster_sources s"
             "   WHERE s.layer_id = l.id) "
             "WHERE l.id = :id"), {"id": layer_id})
+        render_overview(session.connection(), layer_id, layer, overview)
         return int(version), old_overview
 
 
-def layer_overview(written: Sequence[WrittenSource], layer: str, priority: int, store: Path,
-                   database_url: str | None = None) -> str:
-    """Render the layer as it will be once ``written`` is registered into a new overview COG."""
-    with session_scope(database_url) as session:
-        rows = session.execute(text(
-            "SELECT s.uri, s.meta->'display_range', s.priority, (meta->>'zoom')::int, "
-            " ST_XMin(s.footprint), ST_YMin(s.footprint), ST_XMax(s.footprint), "
-            " ST_YMax(s.footprint) FROM raster_sources s JOIN layers l ON l.id = s.layer_id "
-            "WHERE l.slug = :slug ORDER BY s.priority, s.ingested_at, s.id"),
-            {"slug": layer}).all()
-    # Paint order as the tile query will have it: priority, then new sources after old ones.
-    ordered = [(r[2], 0, i, TileSource(r[0], r[1])) for i, r in enumerate(rows)]
-    ordered += [(priority, 1, i, TileSource(w.uri, w.meta.get("display_range")))
-                for i, w in enumerate(written)]
-    boxes = [r[4:8] for r in rows] + [shapely.wkb.loads(w.footprint_wkb).bounds
-                                      for w in written]
-    bounds = (min(b[0] for b in boxes), min(b[1] for b in boxes),
-              max(b[2] for b in boxes), max(b[3] for b in boxes))
-    maxzoom = max([r[3] for r in rows] + [w.zoom for w in written])
-    dst = store / layer / f"overview-{uuid.uuid4().hex}.tif"
-    build_overview([t[3] for t in sorted(ordered, key=lambda t: t[:3])], bounds, maxzoom, dst)
-    return str(dst)
+def render_overview(conn: Connection, layer_id: int, layer: str, dst: Path) -> None:
+    """Render the layer, as this transaction sees it (new sources included), into ``dst``.
+
+    The sources come from the tile query itself (every source meets the world tile), so the
+    overview is painted in exactly the order tiles are.
+    """
+    sources = tile_sources(conn, layer, tile_bounds(0, 0, 0))
+    row = conn.execute(text(
+        "SELECT ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e), "
+        " (SELECT maxzoom FROM layers WHERE id = :id) FROM (SELECT ST_Extent(footprint) AS e "
+        " FROM raster_sources WHERE layer_id = :id) q"), {"id": layer_id}).one()
+    assert sources is not None  # the layer row was upserted in this transaction
+    build_overview(sources.sources, (row[0], row[1], row[2], row[3]), row[4], dst)
 
 
 @contextlib.contextmanager
@@ -255,8 +216,9 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
                 if source is not None:
                     written.append(write_source(source, store, layer, to_cog))
                     created.append(written[-1].uri)
-            created.append(layer_overview(written, layer, priority, store, database_url))
-            version, replaced = register(written, layer, title, kind, priority, created[-1],
+            overview = store / layer / f"overview-{uuid.uuid4().hex}.tif"
+            created.append(str(overview))
+            version, replaced = register(written, layer, title, kind, priority, overview,
                                          database_url)
         except BaseException:
             for uri in created:

@@ -21,3 +21,4 @@ test: lint
 
 lint: setup
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy

@@ -39,7 +39,7 @@ def parse_tile(z: str, x: str, y: str) -> tuple[int, int, int]:
 
 def tile_bounds(z: int, x: int, y: int) -> Bounds:
     """The tile's extent in EPSG:3857."""
-    b = TMS.xy_bounds(x, y, z)
+    b = TMS.xy_bounds(morecantile.Tile(x, y, z))
     return (b.left, b.bottom, b.right, b.top)
 
 

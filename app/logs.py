@@ -17,7 +17,7 @@ request_log = logging.getLogger("ugvmap.request")
 
 
 class JsonFormatter(logging.Formatter):
-    converter = time.gmtime
+    converter = staticmethod(time.gmtime)  # timestamps in UTC, as the "Z" suffix says
 
     def format(self, record: logging.LogRecord) -> str:
         payload: dict[str, Any] = {

@@ -6,6 +6,7 @@ Registered in :mod:`cli.main`.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -38,7 +39,7 @@ def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, k
     params = {"sources": [str(s) for s in sources], "kind": kind, "crs": crs,
               "gcps": str(gcps_file) if gcps_file else None}
     with JobRecorder("ingest-raster", slug, params) as job:
-        options = {"title": title, "kind": kind, "priority": priority,
+        options: dict[str, Any] = {"title": title, "kind": kind, "priority": priority,
                    "on_progress": job.progress}
         if gcps_file is None:
             report = ingest_raster(list(sources), slug, crs=crs, **options)

@@ -12,7 +12,7 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import click
 
@@ -71,9 +71,9 @@ def extract_params(classifier: str, k: float, work_resolution: float, spur_max: 
                    simplify: float) -> ExtractParams:
     from dataclasses import replace
 
-    from ingest.roads.pipeline import ExtractParams
+    from ingest.roads.pipeline import Classifier, ExtractParams
 
-    params = ExtractParams(classifier=classifier, k=k,
+    params = ExtractParams(classifier=cast(Classifier, classifier), k=k,
                            work_resolution_m=work_resolution or None, spur_max_m=spur_max)
     return replace(params, graph=replace(params.graph, simplify_m=simplify))
 
@@ -94,7 +94,7 @@ def extract_params(classifier: str, k: float, work_resolution: float, spur_max: 
               help="Write binary / cleaned / houses-removed / skeleton PNGs here.")
 def extract_roads(image: Path, train_boxes: list, not_road_boxes: list, train_mask: Path | None,
                   resolution: float | None, out_path: Path, debug_dir: Path | None,
-                  **tuning: float | str) -> None:
+                  **tuning: Any) -> None:
     """Extract the road network of IMAGE into GeoJSON.
 
     With no sample the shipped road model runs zero-shot; a sample (--train-box,
@@ -188,7 +188,7 @@ def _lonlat_box(ctx: click.Context, param: click.Parameter, values: tuple[str, .
 @click.option("--replace", is_flag=True, help="Replace the network if it exists.")
 def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: list,
                  train_lines: Path | None, line_width: float, replace: bool,
-                 **tuning: float | str) -> None:
+                 **tuning: Any) -> None:
     """Extract the roads of raster layer SLUG into road network NETWORK (PostGIS).
 
     The road model runs zero-shot without a sample and adapts to one when given.

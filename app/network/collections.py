@@ -69,7 +69,7 @@ def resolve(session: Session, collection_id: str) -> Collection:
     if kind in KINDS and network:
         row = network_row(session, network)
         if row is not None:
-            return Collection(network, row.id, kind, row.title)  # type: ignore[arg-type]
+            return Collection(network, row.id, kind, row.title)
     raise NotFoundError(f"collection {collection_id[:100]!r} not found")
 
 
@@ -106,7 +106,7 @@ def query_items(session: Session, collection: Collection, *, bbox: list[float] |
     """(numberMatched, features) for one page, ordered by id so paging is stable."""
     params = {"network_id": collection.network_id, **_bbox_params(bbox)}
     where = _where(bbox)
-    matched = session.execute(text(f"SELECT count(*) FROM {collection.table} WHERE {where}"),
+    matched: int = session.execute(text(f"SELECT count(*) FROM {collection.table} WHERE {where}"),
                               params).scalar_one()
     select = SEGMENT_SELECT if collection.kind == "segments" else NODE_SELECT
     alias = "" if collection.kind == "segments" else " n"

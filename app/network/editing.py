@@ -83,7 +83,7 @@ def _check_line(geometry: Any, start: list[float], end: list[float]) -> str | No
 
 
 def _node_coords(session: Session, node_id: int) -> list[float]:
-    geometry = session.execute(text("SELECT ST_AsGeoJSON(geom, 15) FROM road_nodes "
+    geometry: str = session.execute(text("SELECT ST_AsGeoJSON(geom, 15) FROM road_nodes "
                                     "WHERE id = :id"), {"id": node_id}).scalar_one()
     return json.loads(geometry)["coordinates"]
 
@@ -119,7 +119,7 @@ def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
         assignments.append("length_m = ST_Length(ST_SetSRID(ST_GeomFromGeoJSON(:geometry), "
                            "4326)::geography)")
         params["geometry"] = json.dumps(changed["geometry"])
-    version = session.execute(text(
+    version: int | None = session.execute(text(
         f"UPDATE road_segments SET {', '.join(assignments)}, version = version + 1, "
         "updated_at = now(), updated_by = :who WHERE id = :id AND version = :version "
         "RETURNING version"),

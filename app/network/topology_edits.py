@@ -50,17 +50,17 @@ def split_segment(session: Session, c: colls.Collection, fid: int, expected: int
     keeps its id (first part, new version); the second part is a new segment, same attributes."""
     feature = lock_segment(session, c, fid, expected)
     fraction = _fraction(session, feature, body)
-    first, second = session.execute(text(
+    halves = session.execute(text(
         "SELECT ST_AsGeoJSON(ST_LineSubstring(geom, 0, :f), 15), "
         "ST_AsGeoJSON(ST_LineSubstring(geom, :f, 1), 15) FROM road_segments WHERE id = :id"),
         {"f": fraction, "id": fid}).one()
-    first, second = json.loads(first), json.loads(second)
+    first, second = json.loads(halves[0]), json.loads(halves[1])
     cut = first["coordinates"][-1]
     second["coordinates"][0] = cut
     if len(first["coordinates"]) < 2 or cut in (first["coordinates"][0],
                                                   second["coordinates"][-1]):
         raise unprocessable({"fraction": "the split point is too close to an end"})
-    node = session.execute(text(
+    node: int = session.execute(text(
         "INSERT INTO road_nodes (network_id, geom, kind) VALUES "
         "(:n, ST_SetSRID(ST_MakePoint(:x, :y), 4326), 'node') RETURNING id"),
         {"n": c.network_id, "x": cut[0], "y": cut[1]}).scalar_one()
@@ -68,7 +68,7 @@ def split_segment(session: Session, c: colls.Collection, fid: int, expected: int
     kept = write_change(session, c, feature, {"geometry": first, "target_node": node},
                         principal, "split")
     columns = ", ".join(colls.SEGMENT_ATTRIBUTES)
-    new_id = session.execute(text(
+    new_id: int = session.execute(text(
         f"INSERT INTO road_segments (network_id, source_node, target_node, geom, length_m, "
         f"updated_by, {columns}) SELECT network_id, :node, :target, "
         "ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326), "
@@ -106,7 +106,7 @@ def merge_segments(session: Session, c: colls.Collection, body: Any,
             or pb["source_node"] == pb["target_node"]:
         raise unprocessable({"segments": "must meet at exactly one node and not be loops"})
     (node,) = shared
-    degree = session.execute(text(
+    degree: int = session.execute(text(
         "SELECT count(*) FROM road_segments WHERE source_node = :n OR target_node = :n"),
         {"n": node}).scalar_one()
     if degree != 2:

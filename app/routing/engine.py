@@ -70,7 +70,7 @@ def departures(graph: RoadGraph, cg: CostGraph, p: Place) -> list[tuple[int, flo
     if p.at_node is not None:
         return [(p.at_node, 0.0, None)]
     c, way = float(cg.seg_cost[p.row]), int(graph.segs.oneway[p.row])
-    out = []
+    out: list[tuple[int, float, Piece | None]] = []
     if way >= 0:
         out.append((p.v, (1 - p.fraction) * c, Piece(p.row, p.fraction, 1.0)))
     if way <= 0:
@@ -83,7 +83,7 @@ def arrivals(graph: RoadGraph, cg: CostGraph, p: Place) -> list[tuple[int, float
     if p.at_node is not None:
         return [(p.at_node, 0.0, None)]
     c, way = float(cg.seg_cost[p.row]), int(graph.segs.oneway[p.row])
-    out = []
+    out: list[tuple[int, float, Piece | None]] = []
     if way >= 0:
         out.append((p.u, p.fraction * c, Piece(p.row, 0.0, p.fraction)))
     if way <= 0:

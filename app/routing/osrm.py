@@ -54,7 +54,9 @@ class Shaper:
 
     def location(self, snap: Snap) -> list[float]:
         """Where a snapped point lies on its segment (lon, lat)."""
-        coords, fracs = self.graph.line(self.graph.row_of(snap.segment_id))
+        row = self.graph.row_of(snap.segment_id)
+        assert row is not None  # the route was planned on this graph, so it holds the snaps
+        coords, fracs = self.graph.line(row)
         return list(point_at(coords, fracs, snap.fraction))
 
     def _bearings(self, p: Piece, pc: list[list[float]]) -> tuple[float, float]:
@@ -137,7 +139,9 @@ class Shaper:
 
     def response(self, legs: Sequence[Leg], cost: Cost, snaps: Sequence[Snap],
                  order: Sequence[int] | None = None) -> dict[str, Any]:
-        heading, legs_out, coords = None, [], []
+        heading: float | None = None
+        legs_out: list[dict[str, Any]] = []
+        coords: list[list[float]] = []
         for leg in legs:
             out, leg_coords, heading = self.leg(leg, heading)
             legs_out.append(out)

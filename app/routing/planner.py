@@ -124,12 +124,13 @@ def plan_isochrone(conn: Connection, network: str, point: tuple[float, float],
                    seconds: float | None, meters: float | None, avoid: frozenset[str],
                    radius_m: float | None) -> dict[str, Any]:
     """GeoJSON of what is reachable from ``point`` within ``seconds`` or ``meters``."""
-    if (seconds is None) == (meters is None):
-        raise InvalidQueryError("give exactly one of seconds= or meters=")
     limits = routing_settings()
-    budget, most, cost, unit = ((seconds, limits.max_isochrone_seconds, Cost.TIME, "s")
-                                if seconds is not None else
-                                (meters, limits.max_isochrone_meters, Cost.DISTANCE, "m"))
+    if seconds is not None and meters is None:
+        budget, most, cost, unit = seconds, limits.max_isochrone_seconds, Cost.TIME, "s"
+    elif meters is not None and seconds is None:
+        budget, most, cost, unit = meters, limits.max_isochrone_meters, Cost.DISTANCE, "m"
+    else:
+        raise InvalidQueryError("give exactly one of seconds= or meters=")
     if not 0 < budget <= most:
         raise InvalidQueryError(f"the budget must be in (0, {most:g}]")
     snapped, graph = current_graph(conn, network, [point], avoid, radius_m)

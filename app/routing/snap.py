@@ -80,12 +80,13 @@ def _candidates(conn: Connection, sql, network: str, points: Sequence[tuple[floa
     # Nearest by ground distance; on a tie (a point exactly at a junction, which may also lie
     # under a bridge) prefer a segment that ends there, then the lowest id for determinism.
     best: dict[int, tuple[float, int, int, float]] = {}
-    for _, _, ord_, seg_id, frac, dist in rows:
+    for row in rows:
+        index, seg_id, frac, dist = row[2] - 1, row[3], row[4], row[5]
         if seg_id is None:
             continue
         key = (dist, 0 if frac in (0.0, 1.0) else 1, seg_id, frac)
-        if ord_ - 1 not in best or key < best[ord_ - 1]:
-            best[ord_ - 1] = key
+        if index not in best or key < best[index]:
+            best[index] = key
     return (int(rows[0][0]), int(rows[0][1])), best
 
 

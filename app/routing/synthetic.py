@@ -14,9 +14,16 @@ import psycopg
 METRES_PER_DEG_LAT = 111_320.0
 
 
+def _one(cursor: psycopg.Cursor) -> int:
+    """The single value a ``RETURNING id`` statement gives back."""
+    row = cursor.fetchone()
+    assert row is not None
+    return int(row[0])
+
+
 def create_network(conn: psycopg.Connection, name: str) -> int:
-    return conn.execute("INSERT INTO networks (name) VALUES (%s) RETURNING id",
-                        (name,)).fetchone()[0]
+    """A new, empty network row; returns its id."""
+    return _one(conn.execute("INSERT INTO networks (name) VALUES (%s) RETURNING id", (name,)))
 
 
 def node_at(conn: psycopg.Connection, network_id: int, lon: float, lat: float) -> int:
@@ -26,10 +33,10 @@ def node_at(conn: psycopg.Connection, network_id: int, lon: float, lat: float) -
         "geom = ST_SetSRID(ST_MakePoint(%s, %s), 4326)", (network_id, lon, lat)).fetchone()
     if row:
         return row[0]
-    return conn.execute(
+    return _one(conn.execute(
         "INSERT INTO road_nodes (network_id, geom) VALUES "
         "(%s, ST_SetSRID(ST_MakePoint(%s, %s), 4326)) RETURNING id",
-        (network_id, lon, lat)).fetchone()[0]
+        (network_id, lon, lat)))
 
 
 def add_line(conn: psycopg.Connection, network_id: int, coords: Sequence[Sequence[float]],
@@ -44,10 +51,10 @@ def add_line(conn: psycopg.Connection, network_id: int, coords: Sequence[Sequenc
     wkt = "LINESTRING(" + ", ".join(f"{float(x)!r} {float(y)!r}" for x, y in coords) + ")"
     cols = ", ".join(["network_id", "source_node", "target_node", "geom", "length_m", *attrs])
     marks = ", ".join(["%s"] * len(attrs))
-    return conn.execute(
+    return _one(conn.execute(
         f"INSERT INTO road_segments ({cols}) SELECT %s, %s, %s, g, ST_Length(g::geography)"
         f"{', ' if attrs else ''}{marks} FROM ST_GeomFromText(%s, 4326) AS g RETURNING id",
-        (network_id, src, dst, *attrs.values(), wkt)).fetchone()[0]
+        (network_id, src, dst, *attrs.values(), wkt)))
 
 
 def grid(conn: psycopg.Connection, name: str, rows: int, cols: int, *,

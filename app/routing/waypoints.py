@@ -30,7 +30,8 @@ def dense_waypoints(shaper: Shaper, legs: list[Leg], spacing_m: float) -> dict[s
                 frame = local_frame(*pc[0])
             x, y = frame.transform(pc[:, 0], pc[:, 1])
             rows.extend([(p.row, p.f_to >= p.f_from)] * (len(pc) - 1))
-            xs.append(np.asarray(x)), ys.append(np.asarray(y))
+            xs.append(np.asarray(x))
+            ys.append(np.asarray(y))
     if frame is None:  # start and end coincide
         start = shaper.location(legs[0].start)
         return {"frame": _frame_doc(start), "spacing_m": spacing_m, "points": []}

@@ -51,7 +51,7 @@ def tile_sources(conn: Connection, slug: str,
     ).all()
     if not rows:
         return None
-    sources = [TileSource(uri, rng) for *_, uri, rng in rows if uri is not None]
+    sources = [TileSource(r[3], r[4]) for r in rows if r[3] is not None]
     return TileQuery(layer_id=rows[0][0], version=rows[0][1], sources=sources,
                      overview_uri=rows[0][2])
 
@@ -88,7 +88,7 @@ def delete_layer(conn: Connection, slug: str) -> list[str] | None:
                        {"slug": slug}).first()
     if row is None:
         return None
-    uris = [u for (u,) in conn.execute(
-        text("SELECT uri FROM raster_sources WHERE layer_id = :id"), {"id": row.id})]
+    uris: list[str] = list(conn.execute(
+        text("SELECT uri FROM raster_sources WHERE layer_id = :id"), {"id": row.id}).scalars())
     conn.execute(text("DELETE FROM layers WHERE id = :id"), {"id": row.id})
     return uris + ([row.overview_uri] if row.overview_uri else [])

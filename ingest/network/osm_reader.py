@@ -28,13 +28,14 @@ def read_osm(path: Path) -> tuple[list[RoadLine], list[NodePoint]]:
     processor = osmium.FileProcessor(str(path), osmium.osm.NODE | osmium.osm.WAY) \
         .with_locations().with_filter(osmium.filter.KeyFilter("highway", EXTERNAL_ID_TAG))
     for obj in processor:
-        if obj.is_node():
+        if isinstance(obj, osmium.osm.Node):
             light = obj.tags.get("highway") == TRAFFIC_SIGNALS
             named = obj.tags.get(EXTERNAL_ID_TAG)
             if (light or named) and obj.location.valid():
                 points.append(NodePoint((obj.location.lon, obj.location.lat), traffic_light=light,
                                         external_id=named or f"n{obj.id}"))
             continue
+        assert isinstance(obj, osmium.osm.Way)  # the processor yields only nodes and ways
         tags = dict(obj.tags)
         if not is_road(tags):
             continue

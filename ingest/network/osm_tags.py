@@ -94,10 +94,11 @@ def _lanes(tags: Mapping[str, str], oneway: str) -> tuple[int, int]:
             return 1, 1
         forward = max(total - total // 2, 1) if total else 0
         backward = total // 2 if total > 1 else forward
-    elif forward is None:
+    elif forward is None and backward is not None:
         forward = max((total or 0) - backward, 1)
-    elif backward is None:
+    elif backward is None and forward is not None:
         backward = max((total or 0) - forward, 1)
+    assert forward is not None and backward is not None  # each branch above sets both
     return min(forward, MAX_LANES), min(backward, MAX_LANES)
 
 

@@ -89,7 +89,7 @@ def attributes_from_properties(props: Mapping[str, Any]) -> RoadAttributes:
 
 def _line_parts(geometry: Mapping[str, Any]) -> list[list[Coord]]:
     kind = geometry.get("type")
-    coords = geometry.get("coordinates")
+    coords = geometry.get("coordinates") or []
     if kind == "LineString":
         return [[(float(c[0]), float(c[1])) for c in coords]]
     if kind == "MultiLineString":

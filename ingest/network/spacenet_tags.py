@@ -37,7 +37,7 @@ def attributes_from_spacenet(props: Mapping[str, Any]) -> RoadAttributes:
     lanes = min(MAX_LANES, max(1, int(float(props.get("lane_number") or 1))))
     oneway = _code(props.get("one_way_ty")) == "1"
     speed = props.get("speed_mph")
-    speed_kph = round(float(speed) * MPH_TO_KPH, 1) if speed not in (None, "") else None
+    speed_kph = round(float(speed) * MPH_TO_KPH, 1) if speed is not None and speed != "" else None
     if speed_kph is not None and not 5 <= speed_kph <= 150:
         speed_kph = None
     surface = {"1": "paved", "2": "unpaved"}.get(_code(props.get("paved")))

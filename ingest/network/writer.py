@@ -43,7 +43,7 @@ def _network_id(session: Session, network: str, replace: bool) -> int:
     if row is None:
         return session.execute(text("INSERT INTO networks (name) VALUES (:n) RETURNING id"),
                                {"n": network}).scalar_one()
-    has_data = session.execute(text("SELECT EXISTS (SELECT 1 FROM road_segments "
+    has_data: bool = session.execute(text("SELECT EXISTS (SELECT 1 FROM road_segments "
                                     "WHERE network_id = :id)"), {"id": row.id}).scalar_one()
     if has_data and not replace:
         raise NetworkExistsError(f"network {network!r} already has segments; "
@@ -55,6 +55,7 @@ def _network_id(session: Session, network: str, replace: bool) -> int:
 
 def _copy_topology(session: Session, network_id: int, topo: Topology) -> None:
     conn = session.connection().connection.driver_connection
+    assert conn is not None  # a live psycopg connection: COPY needs the driver's own API
     with conn.cursor() as cur:
         cur.execute("SELECT nextval(pg_get_serial_sequence('road_nodes', 'id')) "
                     "FROM generate_series(1, %s)", (len(topo.nodes),))
@@ -101,7 +102,7 @@ def write_network(session: Session, network: str, lines: Iterable[FeatureLike], 
         _copy_topology(session, network_id, topo)
     if progress:
         progress("store")
-    total = session.execute(text("SELECT COALESCE(sum(length_m), 0) FROM road_segments "
+    total: float = session.execute(text("SELECT COALESCE(sum(length_m), 0) FROM road_segments "
                                  "WHERE network_id = :id"), {"id": network_id}).scalar_one()
     return ImportSummary(network=network, network_id=network_id, segments=len(topo.segments),
                          nodes=len(topo.nodes), total_length_m=float(total),

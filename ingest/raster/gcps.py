@@ -24,6 +24,7 @@ import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rasterio
@@ -42,7 +43,7 @@ from ingest.raster.cog import write_staged_cog
 from ingest.raster.job import IngestReport, ingest_raster
 from ingest.raster.sources import Source, SourceError, inspect
 
-METHODS = {"poly1": {"SRC_METHOD": "GCP_POLYNOMIAL", "MAX_GCP_ORDER": 1},
+METHODS: dict[str, dict[str, Any]] = {"poly1": {"SRC_METHOD": "GCP_POLYNOMIAL", "MAX_GCP_ORDER": 1},
            "poly2": {"SRC_METHOD": "GCP_POLYNOMIAL", "MAX_GCP_ORDER": 2},
            "tps": {"SRC_METHOD": "GCP_TPS"}}
 MIN_GCPS = {"poly1": 3, "poly2": 6, "tps": 4}
@@ -97,7 +98,9 @@ def read_gcps(path: Path, crs: str | None) -> GcpSet:
         source_crs = CRS.from_user_input(crs) if crs else CRS.from_epsg(4326)
     except CRSError as exc:
         raise SourceError(f"--crs {crs!r} is not a CRS ({exc})") from exc
-    ids, pixels, coords = [], [], []
+    ids: list[str] = []
+    pixels: list[tuple[float, float]] = []
+    coords: list[tuple[float, float]] = []
     try:
         with path.open(newline="") as fh:
             for n, row in enumerate(csv.reader(fh), start=1):

@@ -98,7 +98,7 @@ def register(written: Sequence[WrittenSource], layer: str, title: str | None, ki
         old_overview = session.execute(
             text("SELECT overview_uri FROM layers WHERE slug = :slug FOR UPDATE"),
             {"slug": layer}).scalar()
-        layer_id, version = session.execute(text(
+        row = session.execute(text(
             "INSERT INTO layers (slug, title, kind, overview_uri) "
             "VALUES (:slug, :title, :kind, :overview) "
             "ON CONFLICT (slug) DO UPDATE SET title = COALESCE(:given_title, layers.title), "
@@ -107,6 +107,7 @@ def register(written: Sequence[WrittenSource], layer: str, title: str | None, ki
             {"slug": layer, "title": title or layer, "given_title": title, "kind": kind,
              "overview": str(overview)},
         ).one()
+        layer_id, version = int(row[0]), int(row[1])
         for src in written:
             session.execute(text(
                 "INSERT INTO raster_sources (layer_id, name, uri, footprint, priority, width, "
@@ -129,7 +130,7 @@ def register(written: Sequence[WrittenSource], layer: str, title: str | None, ki
             "   WHERE s.layer_id = l.id) "
             "WHERE l.id = :id"), {"id": layer_id})
         render_overview(session.connection(), layer_id, layer, overview)
-        return int(version), old_overview
+        return version, old_overview
 
 
 def render_overview(conn: Connection, layer_id: int, layer: str, dst: Path) -> None:
@@ -174,7 +175,7 @@ def sweep_leftovers(layer_dir: Path, database_url: str | None = None) -> list[Pa
     if not layer_dir.is_dir():
         return []
     with get_engine(database_url).connect() as conn:
-        known = set(conn.execute(text(
+        known: set[str] = set(conn.execute(text(
             "SELECT uri FROM raster_sources UNION SELECT overview_uri FROM layers "
             "WHERE overview_uri IS NOT NULL")).scalars())
     stale = [p for p in layer_dir.iterdir() if p.is_file() and str(p) not in known]

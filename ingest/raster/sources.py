@@ -162,7 +162,7 @@ def _check_plausible(path: Path, src: Source) -> None:
         if not MIN_RES_M <= res_m <= MAX_RES_M:
             raise SourceError(f"{path.name}: pixel size {res_m:.4g} m is not plausible")
         corners = [src.transform @ (c, r) for c in (0, src.width) for r in (0, src.height)]
-        xs, ys = zip(*corners, strict=True)
+        xs, ys = [c[0] for c in corners], [c[1] for c in corners]
         left, bottom, right, top = min(xs), min(ys), max(xs), max(ys)
     else:
         xs = [g.x for g in src.gcps]

@@ -19,6 +19,7 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, box
 
+from ingest.roads import RoadsInputError
 from ingest.roads.classify import NOT_ROAD, ROAD
 from ingest.roads.connectivity import apls
 from ingest.roads.evaluate import (
@@ -30,7 +31,7 @@ from ingest.roads.evaluate import (
 )
 from ingest.roads.georef import Image, read_band, read_image
 from ingest.roads.graph import build_graph
-from ingest.roads.pipeline import ExtractParams, extract_roads
+from ingest.roads.pipeline import Classifier, ExtractParams, extract_roads
 from ingest.roads.skeleton import thin
 
 APLS_SNAP_M = 5.0
@@ -74,6 +75,8 @@ def truth_rasters(sample: Sample, root: Path, image: Image
         centerline = thin(road)
         graph = build_graph(centerline, road, image.resolution_m)
         return road, centerline, None, [e.coords for e in graph.edges]
+    if image.transform is None:
+        raise RoadsInputError(f"{sample.image}: a GeoJSON truth needs a georeferenced image")
     lines = line_pixels(path, ~image.transform)
     centerline, metres = distance_to_lines_m(lines, image.pixels.shape[:2], image.resolution_m)
     road = metres <= CENTERLINE_ROAD_M
@@ -120,7 +123,7 @@ def _clip_lines(lines: list[np.ndarray], region_box: tuple[float, float, float, 
     return out
 
 
-def evaluate_sample(sample: Sample, root: Path, classifier: str,
+def evaluate_sample(sample: Sample, root: Path, classifier: Classifier,
                     radii_m: tuple[float, ...] = (1.0, 2.0),
                     params: ExtractParams | None = None) -> Evaluation:
     """Extract roads from ``sample`` with ``classifier`` and score them (see module doc)."""

@@ -134,7 +134,7 @@ def pixel_features(pixels: np.ndarray, resolution_m: float,
     """
     pixels = pixels.astype(np.float32, copy=False)
     bands = [pixels[..., i] for i in range(pixels.shape[-1])]
-    gray = np.mean(pixels, axis=-1, dtype=np.float32)
+    gray: np.ndarray = pixels.mean(axis=-1, dtype=np.float32)
     feats: list[np.ndarray] = [*bands]
     if len(bands) > 1:
         feats += [b - gray for b in bands]
@@ -209,7 +209,7 @@ def line_features(channel: np.ndarray, resolution_m: float) -> list[np.ndarray]:
 def classifier_features(pixels: np.ndarray, resolution_m: float) -> np.ndarray:
     """All classifier features: per-pixel multi-scale stack plus oriented line responses of
     the (1 m smoothed) brightness."""
-    gray = np.mean(pixels, axis=-1, dtype=np.float32)
+    gray: np.ndarray = pixels.mean(axis=-1, dtype=np.float32)
     lines = line_features(_blur(gray, max(0.5, 1.0 / resolution_m)), resolution_m)
     return np.concatenate([pixel_features(pixels, resolution_m), np.stack(lines, axis=-1)],
                           axis=-1)

@@ -44,7 +44,7 @@ def clean_mask(mask: np.ndarray, resolution_m: float, open_m: float = 1.0,
                close_m: float = 2.0, min_area_m2: float = 150.0,
                max_hole_m2: float = 40.0) -> np.ndarray:
     """Open, close, drop small components, fill small holes; all sizes in metres."""
-    out = mask.astype(np.uint8)
+    out: np.ndarray = mask.astype(np.uint8)
     k_open = metres_to_px(open_m, resolution_m)
     if k_open > 1:
         out = cv2.morphologyEx(out, cv2.MORPH_OPEN, disk(k_open))

@@ -180,7 +180,7 @@ def _snap(g: nx.Graph, points: np.ndarray, radius: float) -> tuple[nx.Graph, lis
         return g, match
     xy = np.array([g.nodes[n]["xy"] for n in control])
     dist, nearest = cKDTree(xy).query(points, distance_upper_bound=radius)
-    for i in np.flatnonzero(np.isfinite(dist)):
+    for i in np.flatnonzero(np.isfinite(dist)).tolist():
         match[i] = control[nearest[i]]
     rest = np.flatnonzero(~np.isfinite(dist))
     edges = list(g.edges(data=True))
@@ -239,11 +239,11 @@ def _one_way(a: nx.Graph, b: nx.Graph, snap_radius: float, n_pairs: int,
     points = np.array([a.nodes[n]["xy"] for n in used], float)
     snapped, match = _snap(b, points, snap_radius)
     to_b = dict(zip(used, match, strict=True))
-    found = [i for i, (s, t) in enumerate(pairs) if to_b[s] is not None and to_b[t] is not None]
+    matched = [(i, to_b[s], to_b[t]) for i, (s, t) in enumerate(pairs)]
+    found = [(i, s, t) for i, s, t in matched if s is not None and t is not None]
     len_b = np.full(len(pairs), np.inf)
     if found:
-        len_b[found] = _path_lengths(snapped, [(to_b[pairs[i][0]], to_b[pairs[i][1]])
-                                               for i in found])
+        len_b[[i for i, _, _ in found]] = _path_lengths(snapped, [(s, t) for _, s, t in found])
     with np.errstate(invalid="ignore"):
         return np.where(np.isfinite(len_b), np.abs(len_a - len_b) / len_a, np.inf)
 

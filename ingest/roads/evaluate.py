@@ -194,17 +194,17 @@ def load_centerlines(pred_path: Path, gt_path: Path, resolution_m: float | None 
     shape, transform, crs = first[0].shape, first[1], first[2]
     if any(m[0].shape != shape for m in masks.values()):
         raise RoadsInputError("the two mask images differ in size")
-    res = resolution_m or (pixel_size_m(transform, crs, shape) if transform else None)
+    res = resolution_m or (pixel_size_m(transform, crs, shape) if transform and crs else None)
     to_pixel = ~transform if transform else Affine.identity()
     out = []
     for p in paths:
         if p in masks:
             out.append(thin(masks[p][0] >= 128))
         else:
-            lines, src_crs, declared = vectors[p]
+            centerlines, src_crs, declared = vectors[p]
             res = res or declared
             out.append(rasterize_lines([_apply(to_pixel, ln)
-                                        for ln in _project(lines, src_crs, crs)], shape))
+                                        for ln in _project(centerlines, src_crs, crs)], shape))
     return out[0], out[1], res
 
 

@@ -129,7 +129,7 @@ def read_image(path: str | Path, resolution_m: float | None = None) -> Image:
             valid = src.read_masks(1) > 0
         transform, crs = georeference(src)
     if resolution_m is None:
-        if transform is None:
+        if transform is None or crs is None:
             raise RoadsInputError(
                 f"{path} has no georeference: give its resolution with --resolution M "
                 "(metres per pixel)")

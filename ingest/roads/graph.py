@@ -74,7 +74,7 @@ def _centre(walker: PixelWalker, idx: list[int] | np.ndarray) -> np.ndarray:
 
 def _junction_clusters(junction: np.ndarray, merge_px: int) -> tuple[np.ndarray, int]:
     """Cluster id per pixel (-1 elsewhere) for junction pixels within ``merge_px``."""
-    grown = junction.astype(np.uint8)
+    grown: np.ndarray = junction.astype(np.uint8)
     if merge_px > 1:
         grown = cv2.dilate(grown, disk(merge_px))
     n, lab = cv2.connectedComponents(grown, connectivity=8)
@@ -196,7 +196,7 @@ def build_graph(skel: np.ndarray, road_mask: np.ndarray, resolution_m: float,
     dist = cv2.distanceTransform(road_mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     ids = {n: i for i, n in enumerate(sorted(g.nodes))}
     nodes = [Node(ids[n], g.nodes[n]["xy"], g.degree(n)) for n in sorted(g.nodes)]
-    edges = []
+    edges: list[Edge] = []
     for u, v, k in g.edges(keys=True):
         coords = _geometry(g, u, v, k, walker)
         if len(coords) < 2:

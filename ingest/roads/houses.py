@@ -8,6 +8,7 @@ all are parameters.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -58,7 +59,7 @@ def is_house_like(contour: np.ndarray, rule: HouseRule = HouseRule()) -> bool:
     return bool(sides.max() <= rule.max_side_ratio * max(sides.min(), 1e-9))
 
 
-def _hole_area(contours: list[np.ndarray], hierarchy: np.ndarray, outer: int) -> float:
+def _hole_area(contours: Sequence[np.ndarray], hierarchy: np.ndarray, outer: int) -> float:
     """Total area of the holes of blob ``outer`` (its children in a RETR_CCOMP hierarchy)."""
     area, child = 0.0, hierarchy[outer][2]
     while child != -1:

@@ -26,6 +26,7 @@ from rasterio.features import rasterize
 from rasterio.merge import merge
 from rasterio.transform import Affine
 from shapely.geometry import box, shape
+from shapely.geometry.base import BaseGeometry
 from sqlalchemy.orm import Session
 
 from app.tiles.catalog import get_layer
@@ -89,7 +90,7 @@ def sample_labels(shape: tuple[int, int], to_map: Affine, crs: CRS,
     """Burn a lon/lat training sample into a 255 road / 128 not road / 0 label image."""
     transformer = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
 
-    def reproject_geometry(geom: object) -> object:
+    def reproject_geometry(geom: BaseGeometry) -> BaseGeometry:
         return shapely.transform(geom, lambda xy: np.column_stack(
             transformer.transform(xy[:, 0], xy[:, 1])))
 

@@ -43,7 +43,7 @@ class PixelWalker:
         """Flat padded indices of (row, col) pixels."""
         return (np.asarray(rows) + 1) * self.cols + np.asarray(cols) + 1
 
-    def unflat(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def unflat(self, idx: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
         """(rows, cols) of flat padded indices."""
         idx = np.asarray(idx)
         return idx // self.cols - 1, idx % self.cols - 1

@@ -38,7 +38,8 @@ def render(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """(rgb uint8 image, boolean road-surface mask) of a scene."""
     rng = np.random.default_rng(scene.seed)
     rows, cols = scene.shape
-    texture = cv2.GaussianBlur(rng.normal(0, 1, (rows, cols)).astype(np.float32), (0, 0), 3)
+    noise = rng.normal(0, 1, (rows, cols)).astype(np.float32)
+    texture: np.ndarray = cv2.GaussianBlur(noise, (0, 0), 3)
     texture /= texture.std() + 1e-6
     img = np.empty((rows, cols, 3), np.float32)
     img[:] = GRASS_RGB
@@ -62,7 +63,7 @@ def render(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
 
 def grid_scene(size: int, spacing: int, road_width_px: int, seed: int = 0) -> Scene:
     """A town-like square grid of roads with a roof in every block (for benchmarks)."""
-    lines = [[(x, 0), (x, size - 1)] for x in range(spacing // 2, size, spacing)]
+    lines: list[Polyline] = [[(x, 0), (x, size - 1)] for x in range(spacing // 2, size, spacing)]
     lines += [[(0, y), (size - 1, y)] for y in range(spacing // 2, size, spacing)]
     roof = spacing // 5
     houses = [(x + roof, y + roof, x + 2 * roof, y + 2 * roof)

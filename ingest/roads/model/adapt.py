@@ -56,6 +56,7 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
                         ) -> tuple[np.ndarray, np.ndarray]:
     """(adapted road probability, the network's own probability) on the model grid."""
     prob, feats = predict(model, rgb, features=True, progress=progress)
+    assert feats is not None  # asked for
     extra = model_features(prob, feats)
     del feats
     labels = with_pseudo_labels(labels, prob, rgb)

@@ -216,9 +216,9 @@ class CropSampler:
             road = resize(road, shape, cv2.INTER_LINEAR)
             weight = (resize(weight, shape, cv2.INTER_LINEAR) >= 0.99).astype(np.float32)
         k = int(rng.integers(4))
-        rgb, road, weight = (np.rot90(a, k) for a in (rgb, road, weight))
+        rgb, road, weight = np.rot90(rgb, k), np.rot90(road, k), np.rot90(weight, k)
         if rng.random() < 0.5:
-            rgb, road, weight = (a[:, ::-1] for a in (rgb, road, weight))
+            rgb, road, weight = rgb[:, ::-1], road[:, ::-1], weight[:, ::-1]
         rgb = self._colour(np.ascontiguousarray(rgb))
         return (np.ascontiguousarray(rgb.transpose(2, 0, 1)),
                 np.ascontiguousarray(road)[None], np.ascontiguousarray(weight)[None])

@@ -15,11 +15,15 @@ import os
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
 
 from ingest.roads import RoadsInputError
+
+if TYPE_CHECKING:
+    import onnxruntime as ort
 
 MODEL_DIR = Path(__file__).resolve().parents[3] / "models" / "roads-v1"
 GRID_PX = 16
@@ -36,8 +40,8 @@ class RoadModel:
     """Ground resolution the model was trained at."""
     threshold: float
     """Probability threshold chosen on the training hold-out."""
-    session: object
-    """onnxruntime.InferenceSession (typed loosely: the import is deferred)."""
+    session: ort.InferenceSession
+    """The loaded network (onnxruntime is imported only when a model is opened)."""
 
 
 def default_model_path() -> Path:

@@ -157,6 +157,7 @@ def train(data: Path, out: Path, config: TrainConfig, progress: bool = True) -> 
         if best is None or scores["f1"] > best["f1"]:
             best = row
             best_state = {k: v.clone() for k, v in model.state_dict().items()}
+    assert best is not None and best_state is not None  # epochs >= 1
     model.load_state_dict(best_state)
     model.eval()
     out.mkdir(parents=True, exist_ok=True)

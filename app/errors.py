@@ -61,10 +61,12 @@ class UnauthorizedError(ApiError):
 
 
 class ForbiddenError(ApiError):
+    """A valid token whose role may not do this."""
     status, code = 403, "Forbidden"
 
 
 class NotFoundError(ApiError):
+    """An unknown path, network, collection, feature or job."""
     status, code = 404, "NotFound"
 
 
@@ -81,6 +83,7 @@ class TileOutOfRangeError(NotFoundError):
 
 
 class MethodNotAllowedError(ApiError):
+    """The method does not apply to this resource; the framework's 405 adds ``Allow``."""
     status, code = 405, "MethodNotAllowed"
 
 
@@ -91,10 +94,12 @@ class PreconditionFailedError(ApiError):
 
 
 class PayloadTooLargeError(ApiError):
+    """A body over the limit, refused before it is parsed."""
     status, code = 413, "PayloadTooLarge"
 
 
 class UnsupportedMediaTypeError(ApiError):
+    """A body in a media type the endpoint does not read."""
     status, code = 415, "UnsupportedMediaType"
 
 

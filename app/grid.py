@@ -71,16 +71,19 @@ class TileBlock:
 
     @property
     def transform(self) -> Affine:
+        """Affine transform of the block's top-left pixel at the zoom's resolution."""
         res = pixel_size_m(self.zoom)
         left, _, _, top = tile_bounds(self.zoom, self.col0, self.row0)
         return from_origin(left, top, res, res)
 
     @property
     def width(self) -> int:
+        """Width in pixels: whole tiles only."""
         return self.cols * TILE_SIZE
 
     @property
     def height(self) -> int:
+        """Height in pixels: whole tiles only."""
         return self.rows * TILE_SIZE
 
     def tiles(self) -> list[tuple[int, int]]:

@@ -17,9 +17,11 @@ request_log = logging.getLogger("ugvmap.request")
 
 
 class JsonFormatter(logging.Formatter):
+    """One JSON object per log line, so request logs can be filtered and aggregated by field."""
     converter = staticmethod(time.gmtime)  # timestamps in UTC, as the "Z" suffix says
 
     def format(self, record: logging.LogRecord) -> str:
+        """The record as JSON, with any ``fields`` a caller attached merged in."""
         payload: dict[str, Any] = {
             "ts": self.formatTime(record, "%Y-%m-%dT%H:%M:%S") + f".{int(record.msecs):03d}Z",
             "level": record.levelname.lower(),
@@ -55,10 +57,14 @@ def logging_config(level: str = "INFO") -> dict[str, Any]:
 
 
 class RequestLogMiddleware:
+    """Logs one line per HTTP request (method, path, query, status, bytes, duration, client),
+    measured in ASGI so streaming and error responses are counted too."""
+
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        """Pass the request on, noting the status and body size it answers with, then log it."""
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return

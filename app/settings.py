@@ -16,6 +16,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
 class Settings(BaseSettings):
+    """Service settings from ``UGVMAP_*`` variables and ``DATABASE_URL``."""
     model_config = SettingsConfigDict(env_prefix="UGVMAP_", extra="ignore")
 
     database_url_override: str | None = Field(default=None, validation_alias="DATABASE_URL")
@@ -36,12 +37,14 @@ class Settings(BaseSettings):
 
     @property
     def database_url(self) -> str:
+        """``DATABASE_URL`` normalised to the psycopg 3 driver, or the embedded cluster's URL."""
         if self.database_url_override:
             return normalize_url(self.database_url_override)
         return f"postgresql+psycopg://postgres@127.0.0.1:{self.pg_port}/{self.pg_database}"
 
     @property
     def pg_data_dir(self) -> Path:
+        """The embedded cluster's data directory (absolute: pg_ctl runs elsewhere)."""
         return (self.data_dir / "postgres").resolve()
 
     @property
@@ -60,4 +63,6 @@ def normalize_url(url: str) -> str:
 
 @lru_cache(maxsize=1)
 def get_settings() -> Settings:
+    """The settings, read once per process (tests clear the cache when they change the environment).
+    """
     return Settings()

@@ -34,6 +34,7 @@ REPEATS = 3
 
 
 def best(fn, repeats: int = REPEATS) -> float:
+    """Best of ``repeats`` runs of ``fn``, in seconds: the least disturbed by other load."""
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
@@ -43,6 +44,7 @@ def best(fn, repeats: int = REPEATS) -> float:
 
 
 def bench_import(url: str) -> None:
+    """Time our import of each OSM extract against ogr2ogr's OSM->PostGIS load of the same file."""
     from app.db.session import session_scope
     from ingest.network import import_network
 
@@ -69,6 +71,7 @@ def bench_import(url: str) -> None:
 
 
 def bench_tiles(url: str) -> None:
+    """Time z16 vector tiles over HTTP (cold and cached) against the bare ST_AsMVT query."""
     from fastapi.testclient import TestClient
 
     from app.main import create_app
@@ -111,6 +114,7 @@ def bench_tiles(url: str) -> None:
 
 
 def main() -> None:
+    """Run both benchmarks on a scratch database."""
     with scratch_database("ugvmap_bench") as url:
         os.environ["DATABASE_URL"] = url
         get_settings.cache_clear()

@@ -87,6 +87,8 @@ def run_one(path: Path, config: str) -> dict:
 
 
 def main() -> None:
+    """Run each classifier on the synthetic town in a child process (for its own peak RSS) and print
+    speed and memory ratios."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=6000)
     parser.add_argument("--resolution", type=float, default=0.16)

@@ -67,6 +67,8 @@ def run_ablation(samples: list, data: Path) -> None:
 
 
 def main() -> None:
+    """Score every classifier on the validation imagery and print (or write into the model card) the
+    table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="*", help="sample names to run")
     parser.add_argument("--classifiers", nargs="*", default=list(CLASSIFIERS),

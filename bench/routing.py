@@ -40,6 +40,7 @@ OSM = REPO.parent / "shared" / "data" / "osm" / "andorra.osm.pbf"
 
 
 def percentile(xs: list[float], q: float) -> float:
+    """The ``q`` quantile of ``xs`` (nearest rank)."""
     s = sorted(xs)
     return s[min(len(s) - 1, round(q * (len(s) - 1)))]
 
@@ -57,6 +58,7 @@ def node_pairs(conn: psycopg.Connection, net: int, n: int, edges: str) -> list:
 
 def time_pass(http: httpx.Client, conn: psycopg.Connection, name: str, edges: str,
               pairs: list) -> tuple[list[float], list[float]]:
+    """Time each pair through our HTTP route and through pgr_dijkstra on the same edges."""
     ours, pgr = [], []
     for (a, ax, ay), (b, bx, by) in pairs:
         t = time.perf_counter()
@@ -83,6 +85,7 @@ def http_floor(http: httpx.Client, n: int = 200) -> float:
 
 def compare(http: httpx.Client, conn: psycopg.Connection, name: str, net: int,
             n_pairs: int, passes: int) -> None:
+    """Time both over several passes and print p50/p95 and their ratio."""
     edges = pgrouting_edges_sql(net, Cost.TIME)
     pairs = node_pairs(conn, net, n_pairs, edges)
     time_pass(http, conn, name, edges, pairs[:10])  # warm both sides
@@ -143,6 +146,7 @@ def build_figures(url: str, net: int) -> None:
 
 
 def main() -> None:
+    """Benchmark routing on Andorra and on a large synthetic grid."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pairs", type=int, default=200)
     ap.add_argument("--passes", type=int, default=3)

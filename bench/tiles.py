@@ -74,6 +74,7 @@ def texture(width: int, height: int) -> np.ndarray:
 
 
 def write_test_image(path: Path, width: int, height: int) -> Path:
+    """A textured RGB GeoTIFF (kept between runs), so tiles compress like real imagery."""
     if path.exists():
         return path
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -106,6 +107,7 @@ def database() -> str:
 
 
 def drop_database(url: str) -> None:
+    """Drop the benchmark database, even with connections still open."""
     u = make_url(url)
     admin = u.set(database="postgres", drivername="postgresql")
     with psycopg.connect(admin.render_as_string(hide_password=False), autocommit=True) as c:
@@ -113,6 +115,7 @@ def drop_database(url: str) -> None:
 
 
 def ensure_titiler() -> Path:
+    """TiTiler in its own venv (created on first run), so its dependencies never touch ours."""
     python = TITILER_VENV / "bin" / "python"
     if not python.exists():
         print("creating bench/.venv-titiler (titiler.application, uvicorn) ...", flush=True)
@@ -123,6 +126,7 @@ def ensure_titiler() -> Path:
 
 
 def free_port() -> int:
+    """A free local TCP port."""
     import socket
 
     with socket.socket() as s:
@@ -131,6 +135,7 @@ def free_port() -> int:
 
 
 def start(cmd: list[str], env: dict[str, str], probe: str) -> subprocess.Popen:
+    """Start a server and wait until ``probe`` answers 200 (or fail with its stderr)."""
     proc = subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **env},
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
@@ -148,6 +153,7 @@ def start(cmd: list[str], env: dict[str, str], probe: str) -> subprocess.Popen:
 
 
 def stop(proc: subprocess.Popen) -> None:
+    """Stop a server, killing it if it does not exit in 10 s."""
     proc.terminate()
     try:
         proc.wait(timeout=10)
@@ -156,6 +162,7 @@ def stop(proc: subprocess.Popen) -> None:
 
 
 def wrk(base: str, paths: list[str], duration: int, workers: int) -> dict[str, float]:
+    """Tiles per second and latency from wrk cycling through ``paths``, after a warm-up run."""
     OUT.mkdir(parents=True, exist_ok=True)
     tile_list, script = OUT / "tiles.txt", OUT / "cycle.lua"
     tile_list.write_text("\n".join(paths) + "\n")
@@ -175,6 +182,7 @@ def wrk(base: str, paths: list[str], duration: int, workers: int) -> dict[str, f
 
 
 def tile_paths(cog: Path, zoom: int) -> list[tuple[int, int]]:
+    """The tiles of the COG at ``zoom``; interior ones only when there are many."""
     import morecantile
 
     tms = morecantile.tms.get("WebMercatorQuad")
@@ -191,6 +199,7 @@ def tile_paths(cog: Path, zoom: int) -> list[tuple[int, int]]:
 
 
 def bench_tiles(args: argparse.Namespace, url: str, store: Path) -> None:
+    """Tiles per second, ugvmap vs TiTiler on the same COG, at native and native-3 zooms."""
     from ingest.raster.job import ingest_raster
 
     image = write_test_image(OUT / f"texture_{args.size}.tif", args.size, args.size)
@@ -248,6 +257,7 @@ def timed_child(code: str, env: dict[str, str]) -> tuple[float, float]:
 
 
 def bench_ingest(args: argparse.Namespace, url: str, store: Path) -> None:
+    """Time and peak RSS of our ingest against a bare GDAL COG-driver call on the same mosaic."""
     width, height = args.mosaic
     image = write_test_image(OUT / f"mosaic_{width}x{height}.tif", width, height)
     gdal_out = OUT / "gdal_cog.tif"
@@ -270,6 +280,7 @@ def bench_ingest(args: argparse.Namespace, url: str, store: Path) -> None:
 
 
 def main() -> None:
+    """Run the selected benchmarks on a scratch database."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--duration", type=int, default=15, help="seconds per wrk run")

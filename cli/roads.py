@@ -69,6 +69,7 @@ def extraction_options(command: Callable[..., Any]) -> Callable[..., Any]:
 
 def extract_params(classifier: str, k: float, work_resolution: float, spur_max: float,
                    simplify: float) -> ExtractParams:
+    """The pipeline parameters from the shared tuning options."""
     from dataclasses import replace
 
     from ingest.roads.pipeline import Classifier, ExtractParams

@@ -78,6 +78,7 @@ def _extracted(name: str, layer: str, say: Say, sample: GeoSample | None = None,
 
 
 def load_shared(data: Path, say: Say) -> None:
+    """Load the demo from the shared samples (each step skipped when already there)."""
     if not _layer_exists("vegas", say):
         _layer("vegas", [data / VEGAS_IMAGE], "SpaceNet Las Vegas (WorldView-3)", say)
     _network("vegas", data / VEGAS_LABELS, say)
@@ -138,6 +139,8 @@ def demo_token(path: Path) -> str:
 
 
 def load_demo(shared_data: Path, token_file: Path, say: Say) -> str:
+    """Load the demo (shared samples, or the synthetic town without them) and return an editor token
+    for the web map."""
     if (shared_data / VEGAS_IMAGE).is_file():
         load_shared(shared_data, say)
     else:

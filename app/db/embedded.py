@@ -35,20 +35,26 @@ class EmbeddedDbError(UserError):
 
 @dataclass(frozen=True)
 class Cluster:
+    """Where one private PostgreSQL cluster lives and listens; nothing else is needed to manage it.
+    """
     data_dir: Path
     port: int
     database: str
 
     @property
     def log_file(self) -> Path:
+        """PostgreSQL's own log, next to (not inside) the data directory so initdb finds it empty.
+        """
         return self.data_dir.parent / "postgres.log"
 
     @property
     def initialized(self) -> bool:
+        """Whether initdb has run: PG_VERSION is the first file it writes and the last it needs."""
         return (self.data_dir / "PG_VERSION").exists()
 
 
 def cluster_from(settings: Settings) -> Cluster:
+    """The cluster the settings describe (data dir, port, database name)."""
     return Cluster(settings.pg_data_dir, settings.pg_port, settings.pg_database)
 
 
@@ -113,6 +119,9 @@ def _check_traversable(path: Path) -> None:
 
 
 def init(cluster: Cluster) -> None:
+    """Create the cluster once (initdb, as the postgres user when run as root), checking first that
+    PostGIS and pgRouting are installed, since a cluster without them fails later and less
+    clearly."""
     bindir = pg_bindir()
     check_extensions_installed(bindir)
     if cluster.initialized:
@@ -150,6 +159,7 @@ def is_running(cluster: Cluster) -> bool:
 
 
 def accepts_connections(cluster: Cluster) -> bool:
+    """Whether the server answers a real connection (a PID file alone can be stale)."""
     try:
         with psycopg.connect(_dsn(cluster, "postgres"), connect_timeout=2):
             return True
@@ -204,6 +214,8 @@ def ensure_database(admin_dsn: str, database: str) -> None:
 
 
 def stop(cluster: Cluster) -> None:
+    """Stop the server with a fast shutdown (open sessions are cut, data is kept); a no-op when it
+    is not running."""
     if not cluster.initialized or not is_running(cluster):
         return
     pg_ctl = str(pg_bindir() / "pg_ctl")
@@ -213,6 +225,7 @@ def stop(cluster: Cluster) -> None:
 
 
 def status(cluster: Cluster) -> str:
+    """One line for ``ugvmap db status``: initialised or not, running or stopped, and where."""
     if not cluster.initialized:
         return f"not initialised ({cluster.data_dir})"
     state = "running" if is_running(cluster) else "stopped"

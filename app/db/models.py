@@ -36,6 +36,8 @@ TOKEN_ROLES = ("viewer", "editor", "admin")
 
 
 class Base(DeclarativeBase):
+    """Declarative base: the models describe the schema the migrations create (tests compare the
+    two)."""
     pass
 
 
@@ -44,6 +46,8 @@ def _now() -> Any:
 
 
 class Layer(Base):
+    """A raster layer: what tiles and TileJSON are served under; ``version`` changes on every ingest
+    so ETags and caches follow it."""
     __tablename__ = "layers"
     __table_args__ = (
         CheckConstraint(f"slug ~ '{SLUG_RE}'", name="layers_slug_format"),
@@ -72,6 +76,7 @@ class Layer(Base):
 
 
 class RasterSource(Base):
+    """One COG of a layer, with the footprint tiles are matched against and its paint priority."""
     __tablename__ = "raster_sources"
     __table_args__ = (
         CheckConstraint("width > 0 AND height > 0", name="raster_sources_size_pos"),
@@ -100,6 +105,8 @@ class RasterSource(Base):
 
 
 class Network(Base):
+    """A road network; ``version`` grows with every committed change, which routing and tile caches
+    compare against."""
     __tablename__ = "networks"
     __table_args__ = (CheckConstraint(f"name ~ '{SLUG_RE}'", name="networks_name_format"),)
 
@@ -113,6 +120,7 @@ class Network(Base):
 
 
 class RoadNode(Base):
+    """A topology node where segments meet; its kind follows its degree."""
     __tablename__ = "road_nodes"
     __table_args__ = (CheckConstraint(f"kind IN {NODE_KINDS}", name="road_nodes_kind_known"),)
 
@@ -129,6 +137,8 @@ class RoadNode(Base):
 
 
 class RoadSegment(Base):
+    """A road segment (one-way or two-way) between two nodes, with the attributes the planner needs;
+    ``version`` is its ETag for optimistic edits."""
     __tablename__ = "road_segments"
     __table_args__ = (
         CheckConstraint("lanes_forward BETWEEN 0 AND 16", name="road_segments_lanes_fwd_range"),
@@ -172,6 +182,7 @@ class RoadSegment(Base):
 
 
 class SegmentEdit(Base):
+    """One edit of a segment (old and new values), so history and revert need no other source."""
     __tablename__ = "segment_edits"
 
     id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
@@ -189,6 +200,7 @@ class SegmentEdit(Base):
 
 
 class IngestJob(Base):
+    """A batch job's row, written on its own connection so progress shows before the job commits."""
     __tablename__ = "ingest_jobs"
     __table_args__ = (
         CheckConstraint(f"status IN {JOB_STATUSES}", name="ingest_jobs_status_known"),
@@ -209,6 +221,7 @@ class IngestJob(Base):
 
 
 class ApiToken(Base):
+    """An API token; only its hash is stored, so a database leak does not leak tokens."""
     __tablename__ = "api_tokens"
     __table_args__ = (CheckConstraint(f"role IN {TOKEN_ROLES}", name="api_tokens_role_known"),)
 

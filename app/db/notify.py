@@ -32,6 +32,8 @@ IDLE_CHECK_S = 10.0
 
 @dataclass(frozen=True)
 class Subscriber:
+    """What a listener tells its subscribers: each change note, and when the connection comes back
+    or drops (caches must assume they missed notes while it was down)."""
     on_note: Callable[[dict], None]
     on_connect: Callable[[], None]
     on_disconnect: Callable[[], None]
@@ -50,6 +52,8 @@ class NetworkChangeListener(threading.Thread):
         self._connected = False
 
     def subscribe(self, subscriber: Subscriber) -> None:
+        """Add a subscriber; one that joins while connected is told at once, as if it had seen the
+        connect."""
         with self._lock:
             self._subscribers.append(subscriber)
             connected = self._connected
@@ -70,6 +74,8 @@ class NetworkChangeListener(threading.Thread):
             log.exception("%s subscriber failed", CHANNEL)
 
     def run(self) -> None:
+        """LISTEN until the process ends, reconnecting with backoff; subscribers hear every note and
+        every connection change."""
         backoff = 0.5
         while True:
             try:

@@ -20,6 +20,8 @@ from app.settings import get_settings
 
 @lru_cache(maxsize=8)
 def get_engine(url: str | None = None) -> Engine:
+    """One pooled engine per URL and process (cached): pre-ping drops connections a database restart
+    killed, so the service recovers without a restart."""
     settings = get_settings()
     return create_engine(
         url or settings.database_url,

@@ -42,6 +42,8 @@ class JobRecorder:
         return self
 
     def progress(self, fraction: float, message: str | None = None) -> None:
+        """Record progress (clamped to 0..1) and what the job is doing, visible at once on
+        ``/jobs``."""
         self._write("UPDATE ingest_jobs SET progress = :p, message = :m WHERE id = :id",
                     p=min(1.0, max(0.0, fraction)), m=message)
 

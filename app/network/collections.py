@@ -35,6 +35,7 @@ NODE_SELECT = ("id, kind, traffic_light, external_id, ST_AsGeoJSON(geom, 15) AS 
 
 @dataclass(frozen=True)
 class Collection:
+    """An OGC API collection: one network's segments or nodes."""
     network: str
     network_id: int
     kind: Kind
@@ -42,14 +43,17 @@ class Collection:
 
     @property
     def id(self) -> str:
+        """The collection id clients use: ``{network}-{kind}``."""
         return f"{self.network}-{self.kind}"
 
     @property
     def table(self) -> str:
+        """The table the collection's features live in."""
         return "road_segments" if self.kind == "segments" else "road_nodes"
 
 
 def list_collections(session: Session) -> list[Collection]:
+    """Both collections of every network, in name order so listings are stable."""
     rows = session.execute(text("SELECT id, name, title FROM networks ORDER BY name")).all()
     return [Collection(r.name, r.id, kind, r.title) for r in rows for kind in KINDS]
 
@@ -74,6 +78,7 @@ def resolve(session: Session, collection_id: str) -> Collection:
 
 
 def extent(session: Session, collection: Collection) -> list[float] | None:
+    """Bounding box of the collection's features (lon/lat), or None when it is empty."""
     row = session.execute(text(
         f"SELECT ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e) FROM "
         f"(SELECT ST_Extent(geom) AS e FROM {collection.table} WHERE network_id = :n) q"),
@@ -119,6 +124,8 @@ def query_items(session: Session, collection: Collection, *, bbox: list[float] |
 
 def get_item(session: Session, collection: Collection, fid: int, *,
              for_update: bool = False) -> dict[str, Any]:
+    """One feature as GeoJSON (404 if it is not in this collection); ``for_update`` locks its row
+    for an edit in the same transaction."""
     select = SEGMENT_SELECT if collection.kind == "segments" else NODE_SELECT
     alias = "" if collection.kind == "segments" else " n"
     lock = " FOR UPDATE" if for_update else ""

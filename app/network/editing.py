@@ -133,6 +133,8 @@ def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
 def log_edit(session: Session, c: colls.Collection, segment_id: int, action: str,
              version_from: int | None, version_to: int | None, principal: Principal,
              old: dict[str, Any] | None, new: dict[str, Any] | None) -> None:
+    """Append the edit to ``segment_edits`` in the edit's own transaction, so history never misses a
+    committed change."""
     session.execute(text(
         "INSERT INTO segment_edits (network_id, segment_id, action, version_from, version_to, "
         "edited_by, old, new) VALUES (:n, :s, :a, :vf, :vt, :who, "
@@ -145,6 +147,8 @@ def log_edit(session: Session, c: colls.Collection, segment_id: int, action: str
 
 def patch_segment(session: Session, c: colls.Collection, fid: int, expected: int,
                   body: Any, principal: Principal) -> dict[str, Any]:
+    """Apply a JSON merge patch to a segment: validate every field first (422 naming each), then
+    check the version (412) and write one new version."""
     properties, geometry = split_body(body)
     errors = field_errors(properties)
     if errors:
@@ -170,6 +174,7 @@ def patch_segment(session: Session, c: colls.Collection, fid: int, expected: int
 
 
 def history(session: Session, c: colls.Collection, fid: int) -> list[dict[str, Any]]:
+    """The segment's edits, oldest first (404 if the segment is not in the collection)."""
     colls.get_item(session, c, fid)
     rows = session.execute(text(
         "SELECT action, version_from, version_to, edited_by, edited_at, old, new "

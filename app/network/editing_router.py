@@ -36,6 +36,8 @@ MAX_BODY = 1_000_000
 
 
 async def json_body(request: Request, accepted: tuple[str, ...] = PATCH_TYPES) -> Any:
+    """The parsed JSON body, refused early when it has the wrong type (415), is too big (413) or is
+    not JSON (400), so edit logic only sees a parsed value."""
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if content_type not in accepted:
         raise UnsupportedMediaTypeError(f"Content-Type must be one of: {', '.join(accepted)}")
@@ -56,6 +58,7 @@ def _segments(session: Session, collection_id: str) -> colls.Collection:
 
 
 def feature_response(feature: dict[str, Any]) -> JSONResponse:
+    """The edited feature with its new ETag, so the client can edit again without re-reading it."""
     return JSONResponse(feature, media_type=GEOJSON,
                         headers={"ETag": etag(feature["properties"]["version"])})
 
@@ -76,6 +79,7 @@ async def _in_session(work: Callable[[Session], dict[str, Any]]) -> JSONResponse
 @router.patch("/collections/{collection_id}/items/{fid}")
 async def patch_item(collection_id: str, fid: str, request: Request,
                      principal: EditorDep) -> JSONResponse:
+    """Edit a segment's attributes or geometry (editor; ``If-Match`` required)."""
     expected = editing.parse_if_match(request.headers.get("if-match"))
     body = await json_body(request)
     return await _in_session(lambda s: editing.patch_segment(
@@ -86,6 +90,7 @@ async def patch_item(collection_id: str, fid: str, request: Request,
             dependencies=[Depends(read_access)])
 def item_history(collection_id: str, fid: str,
                  session: SessionDep) -> dict[str, Any]:
+    """A segment's edit history."""
     c = _segments(session, collection_id)
     return {"id": parse_fid(fid), "edits": editing.history(session, c, parse_fid(fid))}
 
@@ -93,6 +98,8 @@ def item_history(collection_id: str, fid: str,
 @router.post("/collections/{collection_id}/items/{fid}/revert")
 async def revert_item(collection_id: str, fid: str, request: Request,
                       principal: EditorDep) -> JSONResponse:
+    """Restore a segment to an earlier version, as a new version (editor; ``If-Match`` optional
+    because the target is already named)."""
     to = request.query_params.get("to", "")
     if not to.isascii() or not to.isdigit() or len(to) > 9:
         raise InvalidParameterValueError("to must be a version number")
@@ -105,6 +112,7 @@ async def revert_item(collection_id: str, fid: str, request: Request,
 @router.post("/collections/{collection_id}/items/{fid}/split")
 async def split_item(collection_id: str, fid: str, request: Request,
                      principal: AdminDep) -> JSONResponse:
+    """Split a segment at a fraction or point into two, adding a node (admin; ``If-Match``)."""
     expected = editing.parse_if_match(request.headers.get("if-match"))
     body = await json_body(request, ("application/json",))
     return await _in_session(lambda s: topology_edits.split_segment(
@@ -114,6 +122,7 @@ async def split_item(collection_id: str, fid: str, request: Request,
 @router.post("/collections/{collection_id}/merge")
 async def merge_items(collection_id: str, request: Request,
                       principal: AdminDep) -> JSONResponse:
+    """Merge two segments that meet at a node only they share (admin)."""
     body = await json_body(request, ("application/json",))
     return await _in_session(lambda s: topology_edits.merge_segments(
         s, _segments(s, collection_id), body, principal))

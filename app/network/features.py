@@ -51,6 +51,8 @@ def _int_param(name: str, value: str | None, default: int, low: int) -> int:
 
 
 def parse_bbox(value: str | None) -> list[float] | None:
+    """``minlon,minlat,maxlon,maxlat`` as four finite numbers, or None; anything else is a 400
+    rather than a query that silently matches nothing."""
     if value is None:
         return None
     try:
@@ -97,11 +99,13 @@ def _describe(request: Request, session: Session, c: colls.Collection) -> dict[s
 
 @router.get("/conformance")
 def conformance() -> dict[str, list[str]]:
+    """The OGC API conformance classes we implement."""
     return {"conformsTo": CONFORMANCE}
 
 
 @router.get("/collections")
 def collections(request: Request, session: SessionDep) -> dict[str, Any]:
+    """Every network's segment and node collections."""
     base = _base(request)
     return {
         "links": [_link(f"{base}/collections", "self", "application/json")],
@@ -113,12 +117,15 @@ def collections(request: Request, session: SessionDep) -> dict[str, Any]:
 @router.get("/collections/{collection_id}")
 def collection(collection_id: str, request: Request,
                session: SessionDep) -> dict[str, Any]:
+    """One collection's description, with its extent and links."""
     return _describe(request, session, colls.resolve(session, collection_id))
 
 
 @router.get("/collections/{collection_id}/items")
 def items(collection_id: str, request: Request,
           session: SessionDep) -> JSONResponse:
+    """A page of features, filtered by bbox; unknown parameters are a 400 so a typo does not
+    silently return everything."""
     query = request.query_params
     unknown = sorted(set(query.keys()) - ITEM_PARAMS)
     if unknown:
@@ -150,12 +157,14 @@ def items(collection_id: str, request: Request,
 
 
 def etag(version: int) -> str:
+    """The strong ETag of a feature: its version, which every edit increments."""
     return f'"{version}"'
 
 
 @router.get("/collections/{collection_id}/items/{fid}")
 def item(collection_id: str, fid: str, request: Request,
          session: SessionDep) -> JSONResponse:
+    """One feature; segments carry their version as ETag for ``If-Match`` edits."""
     c = colls.resolve(session, collection_id)
     feature = colls.get_item(session, c, parse_fid(fid))
     base = f"{_base(request)}/collections/{c.id}"

@@ -58,6 +58,7 @@ CHECKS: dict[str, str] = {
 
 @dataclass
 class IntegrityReport:
+    """What ``ugvmap network validate`` found: counts, and the ids breaking each invariant."""
     network: str
     segments: int = 0
     nodes: int = 0
@@ -68,9 +69,12 @@ class IntegrityReport:
 
     @property
     def ok(self) -> bool:
+        """True when no invariant is broken (dead ends and components are facts, not errors)."""
         return not self.errors
 
     def lines(self) -> list[str]:
+        """The report as printed lines, at most a few ids per problem so a broken import stays
+        readable."""
         out = [f"network {self.network}: {self.segments} segments, {self.nodes} nodes, "
                f"{self.dead_ends} dead ends, {self.components} connected components "
                f"(largest holds {self.largest_component_share:.1%} of segments)"]
@@ -83,6 +87,7 @@ class IntegrityReport:
 
 
 def check_network(session: Session, network: str) -> IntegrityReport:
+    """Run every topology check on the network in SQL (the data may be too big for Python)."""
     network_id = session.execute(text("SELECT id FROM networks WHERE name = :n"),
                                  {"n": network}).scalar()
     if network_id is None:

@@ -28,6 +28,8 @@ def _intersects(a: Bounds, b: Bounds) -> bool:
 
 
 class TileCache:
+    """Per-worker LRU of vector tiles, keyed by network and tile and valid for one network version;
+    bounds let a change drop only the tiles it meets."""
     def __init__(self, max_tiles: int = 4096) -> None:
         self._lock = threading.Lock()
         self._tiles: OrderedDict[TileKey, tuple[Bounds, bytes]] = OrderedDict()
@@ -36,6 +38,8 @@ class TileCache:
         self.healthy = False
 
     def get(self, key: TileKey, version: int) -> bytes | None:
+        """The cached tile, if it was made at ``version`` and the change feed is up (otherwise a
+        tile could be stale)."""
         with self._lock:
             if not self.healthy or self._known.setdefault(key[0], version) != version:
                 return None
@@ -46,6 +50,7 @@ class TileCache:
             return entry[1]
 
     def put(self, key: TileKey, version: int, bounds: Bounds, tile: bytes) -> None:
+        """Keep a tile made at ``version`` unless the network has moved on meanwhile."""
         with self._lock:
             if not self.healthy or self._known.get(key[0]) != version:
                 return
@@ -64,6 +69,7 @@ class TileCache:
             return len(stale)
 
     def reset(self, healthy: bool) -> None:
+        """Forget everything (the change feed dropped or came back: notes may have been missed)."""
         with self._lock:
             self._tiles.clear()
             self._known.clear()

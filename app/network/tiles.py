@@ -62,6 +62,7 @@ def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
 @router.get("/networks/{name}/tiles/{z}/{x}/{y}.mvt", response_class=Response,
             responses={200: {"content": {MVT: {}}}})
 def network_tile(name: str, z: str, x: str, y: str, session: SessionDep) -> Response:
+    """One Mapbox vector tile of the network (cached per worker until the network changes)."""
     zi, xi, yi = parse_tile(z, x, y)
     network = network_row(session, name)
     if network is None:

@@ -34,6 +34,8 @@ class Principal:
 
 
 def hash_token(token: str) -> str:
+    """SHA-256 of a token: tokens are random and long, so a fast hash is enough and lookups stay
+    indexed."""
     return hashlib.sha256(token.encode("utf-8", "surrogatepass")).hexdigest()
 
 
@@ -50,6 +52,8 @@ def create_token(session: Session, name: str, role: str) -> str:
 
 
 def authenticate(session: Session, authorization: str | None) -> Principal:
+    """The principal a bearer token belongs to; 401 with a challenge when it is missing, unknown or
+    revoked."""
     scheme, _, token = (authorization or "").partition(" ")
     if scheme.lower() != "bearer" or not token.strip():
         raise UnauthorizedError("an 'Authorization: Bearer <token>' header is required")

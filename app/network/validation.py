@@ -31,6 +31,7 @@ NULLABLE = {"speed_limit_kph", "name", "surface", "width_m", "external_id", "att
 
 
 def text_problem(value: str, limit: int) -> str | None:
+    """Why a text value cannot be stored (too long, NUL, unencodable), or None."""
     if len(value) > limit:
         return f"must be at most {limit} characters"
     if "\x00" in value:

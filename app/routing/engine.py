@@ -35,6 +35,7 @@ class Piece:
 
 @dataclass(frozen=True)
 class Leg:
+    """One leg of a route: its snapped ends, total weight and the segment pieces driven."""
     start: Snap
     end: Snap
     weight: float
@@ -55,6 +56,8 @@ class Place:
 
 
 def place(graph: RoadGraph, snap: Snap) -> Place:
+    """Where a snapped point lies on the graph, treating points within a centimetre of a node as
+    at the node, so no zero-length piece is produced."""
     row = graph.row_of(snap.segment_id)
     if row is None:  # deleted between snapping and routing
         raise NoRouteError(f"segment {snap.segment_id} under point {snap.index} no longer exists")

@@ -71,6 +71,8 @@ def bearings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def haversine_m(a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Great-circle distance in metres: accurate enough for snap and waypoint spacing, and needs no
+    projection."""
     lon1, lat1, lon2, lat2 = map(math.radians, (a[0], a[1], b[0], b[1]))
     h = (math.sin((lat2 - lat1) / 2) ** 2
          + math.cos(lat1) * math.cos(lat2) * math.sin((lon2 - lon1) / 2) ** 2)

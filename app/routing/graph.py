@@ -85,6 +85,7 @@ class Segments:
         return len(self.ids)
 
     def take(self, idx: np.ndarray) -> Segments:
+        """The rows ``idx`` (with their coordinates), for patching part of a graph."""
         offsets, gather = _ragged_take(self.offsets, idx)
         per_row = {name: getattr(self, name)[idx] for name in _ROW_FIELDS}
         return Segments(**per_row, offsets=offsets, coords=self.coords[gather])
@@ -168,6 +169,8 @@ class Shape:
 
     @classmethod
     def of(cls, s: Segments) -> Shape:
+        """Node ids, end bearings and vertex fractions of the segments, computed once per graph so
+        responses need no per-request geometry work."""
         node_ids, inverse = np.unique(np.concatenate([s.source, s.target]), return_inverse=True)
         if len(s):
             first, last = s.offsets[:-1], s.offsets[1:] - 1
@@ -200,9 +203,12 @@ class RoadGraph:
 
     @property
     def n_nodes(self) -> int:
+        """Number of distinct nodes (the CSR matrices' size)."""
         return len(self.node_ids)
 
     def row_of(self, segment_id: int) -> int | None:
+        """The row holding ``segment_id`` (rows are sorted by id), or None if it is not in this
+        graph."""
         k = int(np.searchsorted(self.segs.ids, segment_id))
         return k if k < len(self.segs) and self.segs.ids[k] == segment_id else None
 

@@ -60,6 +60,8 @@ def reachable(graph: RoadGraph, cg: CostGraph, snap: Snap, avoid: frozenset[str]
 
 def isochrone_geojson(graph: RoadGraph, cg: CostGraph, snap: Snap, avoid: frozenset[str],
                       budget: float, unit: str) -> dict[str, Any]:
+    """The reachable segments and segment parts as a GeoJSON FeatureCollection: each names its
+    segment and the fraction range reached, so a client can tell whole segments from parts."""
     features = []
     for row, intervals in sorted(reachable(graph, cg, snap, avoid, budget).items()):
         coords, fracs = graph.line(row)

@@ -16,6 +16,7 @@ EXACT_MAX = 10
 
 
 def path_cost(cost: np.ndarray, order: list[int]) -> float:
+    """Total cost of visiting the points in ``order``."""
     return float(sum(cost[a, b] for a, b in itertools.pairwise(order)))
 
 

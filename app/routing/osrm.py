@@ -37,6 +37,7 @@ def modifier(before: float, after: float) -> str:
 
 
 def encode(coords: list[list[float]], geometries: str) -> Any:
+    """The geometry as OSRM sends it: an encoded polyline (precision 5) or GeoJSON."""
     if geometries == "polyline":
         return polyline.encode([(lat, lon) for lon, lat in coords], 5)
     return {"type": "LineString", "coordinates": coords}
@@ -49,6 +50,7 @@ class Shaper:
         self.graph, self.geometries = graph, geometries
 
     def piece_coords(self, p: Piece) -> list[list[float]]:
+        """Coordinates of the driven part of a segment, in driving direction."""
         coords, fracs = self.graph.line(p.row)
         return cut(coords, fracs, p.f_from, p.f_to)
 
@@ -132,6 +134,7 @@ class Shaper:
         return out, coords, heading_in
 
     def waypoint(self, snap: Snap, waypoint_index: int) -> dict[str, Any]:
+        """An OSRM waypoint, plus the segment id and fraction the point snapped to."""
         row = self.graph.row_of(snap.segment_id)
         return {"name": self.graph.segs.name[row] or "", "location": self.location(snap),
                 "distance": snap.distance_m, "segment_id": snap.segment_id,
@@ -139,6 +142,7 @@ class Shaper:
 
     def response(self, legs: Sequence[Leg], cost: Cost, snaps: Sequence[Snap],
                  order: Sequence[int] | None = None) -> dict[str, Any]:
+        """The whole OSRM route-service response for the legs."""
         heading: float | None = None
         legs_out: list[dict[str, Any]] = []
         coords: list[list[float]] = []

@@ -46,6 +46,7 @@ def parse_points(raw: str) -> list[tuple[float, float]]:
 
 
 def check_point(i: int, lon: float, lat: float) -> tuple[float, float]:
+    """The point, or 400 naming it when it is not a finite lon/lat."""
     if not (math.isfinite(lon) and math.isfinite(lat) and -180 <= lon <= 180
             and -90 <= lat <= 90):
         raise InvalidQueryError(f"point {i} ({lon},{lat}) is outside lon -180..180, lat -90..90")
@@ -54,6 +55,7 @@ def check_point(i: int, lon: float, lat: float) -> tuple[float, float]:
 
 @dataclass
 class RouteOptions:
+    """A route request's options, shared by the query string, the POST body and the CLI."""
     cost: Cost = Cost.TIME
     avoid: frozenset[str] = field(default_factory=frozenset)
     optimize: bool = False
@@ -63,6 +65,7 @@ class RouteOptions:
     radius_m: float | None = None
 
     def check(self, n_points: int) -> None:
+        """Refuse requests outside the limits before any search starts."""
         limits = routing_settings()
         if n_points < 2:
             raise InvalidQueryError("a route needs at least two points")
@@ -100,12 +103,15 @@ def current_graph(conn: Connection, network: str, points: list[tuple[float, floa
 
 
 def visit_order(router: engine.Router, n: int) -> list[int]:
+    """The best visiting order of the points (first and last fixed) from their cost matrix."""
     matrix = np.array([router.costs_from(i, range(n)) for i in range(n)])
     return best_order(matrix)
 
 
 def plan_route(conn: Connection, network: str, points: list[tuple[float, float]],
                opts: RouteOptions) -> dict[str, Any]:
+    """Snap the points, search the graph that contains every edit the snap saw, and shape the OSRM
+    (or waypoints) response."""
     opts.check(len(points))
     snapped, graph = current_graph(conn, network, points, opts.avoid, opts.radius_m)
     cg: CostGraph = graph.costs(opts.cost, opts.avoid)

@@ -120,6 +120,7 @@ def _body_point(i: int, raw: Any) -> tuple[float, float]:
 
 @router.post("/{name}/route")
 async def route_post(name: str, body: RouteBody) -> Response:
+    """Route through a long list of points sent as a JSON body (same options as GET)."""
     points = [_body_point(i, p) for i, p in enumerate(body.points)]
     opts = RouteOptions(_cost(body.cost), _avoid(body.avoid), body.optimize, body.geometries,
                         body.format, body.spacing, body.radius)

@@ -8,6 +8,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
 class RoutingSettings(BaseSettings):
+    """Routing limits, from ``UGVMAP_ROUTING_*`` environment variables."""
     model_config = SettingsConfigDict(env_prefix="UGVMAP_ROUTING_", extra="ignore")
 
     snap_radius_m: float = 50.0  # farther than this from every road: 422 NoSegmentError
@@ -20,4 +21,5 @@ class RoutingSettings(BaseSettings):
 
 @lru_cache(maxsize=1)
 def routing_settings() -> RoutingSettings:
+    """Read once per process (cached); tests clear the cache to try other limits."""
     return RoutingSettings()

@@ -62,6 +62,7 @@ class Snap:
 
 @dataclass(frozen=True)
 class Snapped:
+    """Every request point snapped, with the network version the snap read."""
     network_id: int
     version: int
     snaps: list[Snap]

@@ -17,6 +17,8 @@ from app.settings import get_settings
 
 
 class TileCache:
+    """Per-worker LRU of encoded raster tiles, bounded in bytes; keys carry the layer version, so a
+    re-ingest never serves an old tile."""
     def __init__(self, max_bytes: int) -> None:
         self.max_bytes = max_bytes
         self._items: OrderedDict[Hashable, bytes] = OrderedDict()
@@ -24,6 +26,7 @@ class TileCache:
         self._lock = threading.Lock()
 
     def get(self, key: Hashable) -> bytes | None:
+        """The cached tile body, marked as recently used."""
         with self._lock:
             body = self._items.get(key)
             if body is not None:
@@ -31,6 +34,7 @@ class TileCache:
             return body
 
     def put(self, key: Hashable, body: bytes) -> None:
+        """Keep a tile body, evicting the least recently used beyond the budget."""
         if len(body) > self.max_bytes:
             return
         with self._lock:
@@ -45,4 +49,5 @@ class TileCache:
 
 @lru_cache(maxsize=1)
 def tile_cache() -> TileCache:
+    """The worker's one tile cache, sized by ``UGVMAP_TILE_CACHE_MB``."""
     return TileCache(get_settings().tile_cache_mb * 1024 * 1024)

@@ -27,12 +27,15 @@ PAINT_ORDER = "s.priority, s.ingested_at, s.id"
 
 @dataclass(frozen=True)
 class TileSource:
+    """A source COG to paint, with the stretch non-8-bit data needs."""
     uri: str
     display_range: list[list[float]] | None
 
 
 @dataclass(frozen=True)
 class TileQuery:
+    """What a tile needs from the catalogue: the layer's identity and version (ETag) and its sources
+    meeting the tile, in paint order."""
     layer_id: int
     version: int
     sources: list[TileSource]
@@ -57,6 +60,7 @@ def tile_sources(conn: Connection, slug: str,
 
 
 def list_layers(conn: Connection) -> list[dict[str, Any]]:
+    """Every layer's row, by slug."""
     rows = conn.execute(text(f"SELECT {LAYER_COLUMNS} FROM layers l ORDER BY l.slug"))
     return [dict(r._mapping) for r in rows]
 

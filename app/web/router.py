@@ -23,6 +23,7 @@ router = APIRouter(include_in_schema=False)
 
 @router.get("/")
 def index() -> FileResponse:
+    """The map page."""
     # no-cache: the page names its modules by path, so a stale copy would mix versions.
     return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
 

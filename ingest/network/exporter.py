@@ -32,6 +32,7 @@ FORMATS = ("geojson", "gpkg", "osm")
 
 @dataclass
 class StoredSegment:
+    """A stored segment with everything an export must write for the re-import to be identical."""
     id: int
     source_node: int
     target_node: int
@@ -43,6 +44,7 @@ class StoredSegment:
 
 @dataclass
 class StoredNode:
+    """A stored node with the attributes an export keeps."""
     id: int
     coord: Coord
     kind: str
@@ -51,6 +53,7 @@ class StoredNode:
 
 
 def load_network(session: Session, network: str) -> tuple[list[StoredSegment], list[StoredNode]]:
+    """The network's segments and nodes, ordered by id so exports are deterministic."""
     network_id = session.execute(text("SELECT id FROM networks WHERE name = :n"),
                                  {"n": network}).scalar()
     if network_id is None:
@@ -82,6 +85,8 @@ def _node_properties(n: StoredNode) -> dict[str, Any]:
 
 
 def write_geojson(path: Path, segments: list[StoredSegment], nodes: list[StoredNode]) -> None:
+    """Write segments and nodes as one GeoJSON FeatureCollection whose properties name the topology,
+    so import keeps it as is."""
     features = [{"type": "Feature", "id": s.id, "properties": _segment_properties(s),
                  "geometry": {"type": "LineString", "coordinates": s.coords}}
                 for s in segments]

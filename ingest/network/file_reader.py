@@ -58,6 +58,8 @@ def split_features(features: Iterable[Mapping[str, Any]]
 
 
 def read_geojson(path: Path) -> tuple[list[RoadLine], list[NodePoint], bool]:
+    """Lines, node attributes and whether the file is already a topology (names
+    ``source_node``/``target_node``: our exports, not to be noded again)."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:

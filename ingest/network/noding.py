@@ -33,6 +33,7 @@ Key = tuple[int, int]
 
 @dataclass
 class TopoNode:
+    """A node being built: where it is and what meets there."""
     coord: Coord
     degree: int = 0
     traffic_light: bool = False
@@ -48,6 +49,7 @@ class TopoNode:
 
 @dataclass
 class TopoSegment:
+    """A segment between two node indexes."""
     coords: list[Coord]
     source: int
     target: int
@@ -56,6 +58,7 @@ class TopoSegment:
 
 @dataclass
 class Topology:
+    """The noded network, and what noding did (for the import summary)."""
     nodes: list[TopoNode] = field(default_factory=list)
     segments: list[TopoSegment] = field(default_factory=list)
     duplicates_dropped: int = 0
@@ -63,6 +66,8 @@ class Topology:
 
 
 def grid_key(coord: Coord) -> Key:
+    """Coordinates snapped to a 1e-7 degree (~1 cm) grid, so vertices that differ only by float
+    noise meet."""
     return round(coord[0] / GRID_DEG), round(coord[1] / GRID_DEG)
 
 

@@ -69,6 +69,8 @@ def _parse_count(value: str | None) -> int | None:
 
 
 def parse_oneway(tags: Mapping[str, str]) -> str:
+    """OSM ``oneway`` as ``forward``/``backward``/``none`` (reversible roads count as two-way for a
+    planner)."""
     value = (tags.get("oneway") or "").strip().lower()
     if value in ("yes", "true", "1"):
         return "forward"

@@ -36,6 +36,7 @@ def _as_text(value: Any) -> str | None:
 
 
 def as_bool(value: Any) -> bool:
+    """A flag from a file: GeoPackage and GeoJSON write booleans as bools, ints or strings."""
     if isinstance(value, str):
         return value.strip().lower() in ("1", "true", "yes", "t")
     return bool(value)

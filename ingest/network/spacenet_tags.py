@@ -25,6 +25,8 @@ MAX_LANES = 8
 
 
 def is_spacenet(props: Mapping[str, Any]) -> bool:
+    """Whether a feature carries SpaceNet's road-label attributes (then they are mapped, not kept
+    raw)."""
     return props.keys() >= SPACENET_KEYS
 
 

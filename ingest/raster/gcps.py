@@ -59,12 +59,15 @@ class GcpSet:
     crs: CRS
 
     def control_points(self) -> list[GroundControlPoint]:
+        """The GCPs as rasterio/GDAL control points for the warp."""
         return [GroundControlPoint(row=float(r), col=float(c), x=float(x), y=float(y), id=i)
                 for i, (c, r), (x, y) in zip(self.ids, self.pixels, self.coords, strict=True)]
 
 
 @dataclass(frozen=True)
 class ResidualRow:
+    """One GCP's residuals: in-sample (None for TPS, zero by construction) and leave-one-out, in
+    metres."""
     id: str
     pixel_x: float
     pixel_y: float
@@ -74,6 +77,7 @@ class ResidualRow:
 
 @dataclass(frozen=True)
 class GcpReport:
+    """The fit's accuracy report printed by ``ugvmap ingest raster --gcps``."""
     method: str
     rows: list[ResidualRow]
     rmse_fit_m: float | None

@@ -108,6 +108,7 @@ class ZoneSidecar:
 
     @classmethod
     def load(cls, path: Path) -> ZoneSidecar:
+        """Read and check a zone sidecar; any problem is one GeorefError line naming the file."""
         try:
             doc = json.loads(path.read_text())
             zone, origin = doc["zone"], doc["origin"]
@@ -127,6 +128,8 @@ class ZoneSidecar:
         return sidecar
 
     def check(self, path: Path) -> None:
+        """Refuse implausible values (origin, resolution, sizes, frame) before anything is written.
+        """
         problems = []
         if not (-84 <= self.origin_lat <= 84 and -180 <= self.origin_lon <= 180):
             problems.append("origin outside the UTM latitude band / longitude range")
@@ -143,6 +146,8 @@ class ZoneSidecar:
             raise GeorefError(f"{path}: " + "; ".join(problems))
 
     def crs(self) -> CRS:
+        """The metric frame the zone image is north-up in: the origin's UTM zone, or a local tangent
+        plane."""
         if self.frame == "enu":
             return CRS.from_string(f"+proj=ortho +lat_0={self.origin_lat} "
                                    f"+lon_0={self.origin_lon} +ellps=WGS84 +units=m +no_defs")
@@ -160,6 +165,7 @@ class ZoneSidecar:
 
 
 def find_zone_sidecar(image: Path) -> Path | None:
+    """The zone sidecar of an image (``img.tif.zone.json`` or ``img.zone.json``), if any."""
     for candidate in (image.with_name(image.name + ".zone.json"),
                       image.with_suffix(".zone.json")):
         if candidate.is_file():

@@ -56,6 +56,7 @@ class WrittenSource:
 
 @dataclass(frozen=True)
 class IngestReport:
+    """What an ingest did: the layer's new version and each COG written."""
     layer: str
     version: int
     sources: list[WrittenSource]

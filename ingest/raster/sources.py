@@ -73,6 +73,7 @@ class Source:
 
     @property
     def name(self) -> str:
+        """The file name, used in messages and as the source's catalogue name."""
         return self.path.name
 
     def cog_input(self) -> str:

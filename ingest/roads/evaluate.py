@@ -30,6 +30,7 @@ from ingest.roads.skeleton import thin
 
 @dataclass(frozen=True)
 class BufferScore:
+    """Precision, recall and quality at one buffer radius."""
     radius_px: float
     radius_m: float | None
     precision: float
@@ -214,4 +215,5 @@ def _apply(t: Affine, line: np.ndarray) -> np.ndarray:
 
 
 def scores_json(scores: Sequence[BufferScore]) -> str:
+    """The scores as JSON, for scripts (``evaluate-roads --json``)."""
     return json.dumps([asdict(s) for s in scores], indent=2)

@@ -39,6 +39,7 @@ class GraphParams:
 
 @dataclass(frozen=True)
 class Node:
+    """A graph node on the working grid."""
     id: int
     xy: tuple[float, float]
     """Working-grid pixel coordinates (pixel corners at integers)."""
@@ -46,11 +47,13 @@ class Node:
 
     @property
     def is_junction(self) -> bool:
+        """Three or more roads meet here."""
         return self.degree >= 3
 
 
 @dataclass(frozen=True)
 class Edge:
+    """A road centreline between two nodes, with the width and lanes read from the image."""
     id: int
     source: int
     target: int
@@ -63,6 +66,7 @@ class Edge:
 
 @dataclass(frozen=True)
 class RoadGraph:
+    """The extracted road graph, in working-grid pixels until georeferenced."""
     nodes: list[Node]
     edges: list[Edge]
 

@@ -73,6 +73,8 @@ class Extraction:
     source_resolution_m: float
 
     def geojson(self) -> dict:
+        """The result as a GeoJSON FeatureCollection (map coordinates with a ``crs`` member when the
+        image is georeferenced)."""
         return feature_collection(self.graph, self.frame,
                                   crs_member(self.frame.crs, self.source_resolution_m))
 

@@ -12,7 +12,8 @@ length used everywhere).
 Change notifications: the row triggers of migration ``0002`` would announce each bulk statement
 with the extent of a million rows; the import sets ``ugvmap.bulk_load`` (migration
 ``0003_netscale`` makes the trigger skip while it is on) and bumps the network version once,
-with no bounding box: listeners reload that network once instead of patching it repeatedly.
+with no bounding box: listeners reload that network once instead of patching it repeatedly,
+and rebuilds the network's low-zoom ``road_overview`` once.
 """
 
 from __future__ import annotations
@@ -191,7 +192,8 @@ def store_lines(session: Session, network: str, read: Read, *, replace: bool = F
     report(f"storing {segments:,} segments", READ_SHARE + SPLIT_SHARE)
     stager.publish()
     session.execute(text("SELECT set_config('ugvmap.bulk_load', 'off', true)"))
-    session.execute(text("SELECT ugvmap_network_bump(:id, NULL)"), {"id": network_id})
+    session.execute(text("SELECT ugvmap_overview_refresh(:id, NULL), "
+                         "ugvmap_network_bump(:id, NULL)"), {"id": network_id})
     total = session.execute(text("SELECT COALESCE(sum(length_m), 0) FROM road_segments "
                                  "WHERE network_id = :id"), {"id": network_id}).scalar_one()
     report(f"stored {segments:,} segments", 1.0)

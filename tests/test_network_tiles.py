@@ -180,7 +180,7 @@ def test_low_zoom_overview_follows_edits(client, country) -> None:
 
     before = merged(7)
     with psycopg.connect(dsn(get_settings().database_url), autocommit=True) as conn:
-        conn.execute("UPDATE road_segments SET road_class = 'primary' WHERE id = (SELECT min(id) "
+        conn.execute("UPDATE road_segments SET road_class = 'primary' WHERE id = (SELECT min(s.id) "
                      "FROM road_segments s JOIN networks n ON n.id = s.network_id "
                      "WHERE n.name = %s AND s.road_class = 'residential')", (country,))
     after = merged(7)

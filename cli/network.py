@@ -22,19 +22,21 @@ from app.errors import UserError
 def ingest_network(file: Path, network: str, replace: bool) -> None:
     """Import a GeoJSON / GeoPackage / OSM (.osm, .osm.pbf) road FILE as a network."""
     from app.db.session import session_scope
-    from app.jobs.recorder import JobRecorder
+    from app.jobs.recorder import JobRecorder, Throttle
     from ingest.network import import_network
 
     with JobRecorder("ingest-network", network, {"file": str(file), "replace": replace}) as job, \
-            tqdm(total=3, desc=f"import {file.name}", unit="stage",
+            tqdm(total=100, desc=f"import {file.name}", unit="%",
+                 bar_format="{l_bar}{bar}| {n:.0f}% [{elapsed}<{remaining}{postfix}]",
                  disable=not sys.stderr.isatty()) as bar, session_scope() as session:
+        throttle = Throttle(job)
 
-        def stage_done(stage: str) -> None:
-            bar.set_postfix_str(f"{stage} done")
-            bar.update(1)
-            job.progress(bar.n / bar.total, f"{stage} done")
+        def progress(message: str, fraction: float) -> None:
+            bar.n = round(100 * fraction, 1)
+            bar.set_postfix_str(message)
+            throttle(fraction, message)
 
-        summary = import_network(session, file, network, replace=replace, progress=stage_done)
+        summary = import_network(session, file, network, replace=replace, progress=progress)
     click.echo(f"network {summary.network}: {summary.segments} segments, {summary.nodes} nodes, "
                f"{summary.total_length_m / 1000:.3f} km from {summary.lines_read} lines "
                f"({summary.crossings_noded} crossings noded, "

@@ -49,11 +49,10 @@ def test_tile_layers_and_attributes(client, grid) -> None:
     assert {f["properties"]["road_class"] for f in segments} == {"residential"}
     nodes = layers["nodes"]["features"]
     assert len(nodes) == 9 and {f["properties"]["kind"] for f in nodes} >= {"junction"}
-    # At zoom 5 the whole grid is a few pixels: no nodes, sub-pixel segments dropped.
-    low = client.get(_tile_url(grid.network, 10.001, 50.001, 5))
-    layers = mapbox_vector_tile.decode(low.content)
-    assert "nodes" not in layers and 0 < len(layers["segments"]["features"]) < 12
-    assert len(low.content) < len(r.content)
+    # Below zoom 12 residential streets are not drawn (per-zoom class filter): empty tiles.
+    for z in (5, 11):
+        low = client.get(_tile_url(grid.network, 10.001, 50.001, z))
+        assert low.status_code == 200 and low.content == b""
 
 
 def test_empty_and_bad_tiles(client, grid) -> None:
@@ -129,3 +128,61 @@ def test_cache_rules_without_a_server() -> None:
     assert cache.get((1, 14, 1, 0), 6) is None and cache.get((1, 14, 3, 0), 6) == b"d"
     cache.reset(healthy=False)
     assert cache.get((1, 14, 3, 0), 6) is None
+
+
+def _classes(body: bytes) -> list[str]:
+    layers = mapbox_vector_tile.decode(body)
+    return [f["properties"]["road_class"] for f in layers.get("segments", {}).get("features", [])]
+
+
+@pytest.fixture(scope="module")
+def country(database_url: str, tmp_path_factory) -> str:
+    """The synthetic country network (every class from motorway to service), imported."""
+    from app.db.session import session_scope
+    from app.routing.synthetic_osm import write_country
+    from ingest.network import import_network
+
+    pbf = tmp_path_factory.mktemp("tiles") / "country.osm.pbf"
+    write_country(pbf, 130, seed=1)  # 15 km square, ~26k segments
+    with session_scope() as session:
+        return import_network(session, pbf, "tiles-country").network
+
+
+def test_low_zoom_tiles_filter_classes_and_merge_lines(client, country) -> None:
+    centre = (10.11, 50.07)  # the middle of the 130 x 130 x 120 m grid
+    full = client.get(_tile_url(country, *centre, 12))
+    assert "residential" in _classes(full.content)
+    per_segment = _classes(client.get(_tile_url(country, *centre, 10)).content)
+    assert len(per_segment) > 100 and "residential" not in per_segment
+    assert {"secondary", "tertiary"} <= set(per_segment)
+    for z, shown in ((9, {"motorway", "trunk", "primary", "secondary", "tertiary"}),
+                     (7, {"motorway", "trunk", "primary"}), (6, {"motorway", "trunk", "primary"})):
+        body = client.get(_tile_url(country, *centre, z)).content
+        merged = _classes(body)
+        # Generalised: one merged line feature per class, and only the classes of the zoom.
+        assert sorted(merged) == sorted(shown), z
+        props = mapbox_vector_tile.decode(body)["segments"]["features"][0]["properties"]
+        assert set(props) == {"road_class", "segments"} and props["segments"] > 1
+        assert len(body) < len(full.content)
+
+
+def test_low_zoom_overview_follows_edits(client, country) -> None:
+    """The overview is updated in the edit's transaction: the next z7 tile counts the road."""
+    import psycopg
+
+    from app.settings import get_settings
+    from tests.routing_support import dsn
+
+    def merged(z: int) -> dict[str, int]:
+        body = client.get(_tile_url(country, 10.11, 50.07, z)).content
+        return {f["properties"]["road_class"]: f["properties"]["segments"]
+                for f in mapbox_vector_tile.decode(body)["segments"]["features"]}
+
+    before = merged(7)
+    with psycopg.connect(dsn(get_settings().database_url), autocommit=True) as conn:
+        conn.execute("UPDATE road_segments SET road_class = 'primary' WHERE id = (SELECT min(s.id) "
+                     "FROM road_segments s JOIN networks n ON n.id = s.network_id "
+                     "WHERE n.name = %s AND s.road_class = 'residential')", (country,))
+    after = merged(7)
+    assert after["primary"] == before["primary"] + 1
+    assert after["motorway"] == before["motorway"]

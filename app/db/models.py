@@ -19,6 +19,7 @@ from sqlalchemy import (
     DateTime,
     Float,
     ForeignKey,
+    Index,
     Integer,
     SmallInteger,
     Text,
@@ -149,6 +150,7 @@ class RoadSegment(Base):
         CheckConstraint("length_m >= 0", name="road_segments_length_nonneg"),
         CheckConstraint("width_m IS NULL OR width_m > 0", name="road_segments_width_pos"),
         CheckConstraint("version >= 1", name="road_segments_version_pos"),
+        Index("ix_road_segments_network_class", "network_id", "road_class"),
     )
 
     id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
@@ -179,6 +181,23 @@ class RoadSegment(Base):
     version: Mapped[int] = mapped_column(Integer, nullable=False, server_default="1")
     updated_at: Mapped[datetime] = _now()
     updated_by: Mapped[str | None] = mapped_column(Text)
+
+
+class RoadOverview(Base):
+    """Main roads merged per class and 20 km cell, for low-zoom tiles (migration 0003)."""
+
+    __tablename__ = "road_overview"
+
+    network_id: Mapped[int] = mapped_column(
+        ForeignKey("networks.id", ondelete="CASCADE"), primary_key=True
+    )
+    road_class: Mapped[str] = mapped_column(Text, primary_key=True)
+    cx: Mapped[int] = mapped_column(Integer, primary_key=True)
+    cy: Mapped[int] = mapped_column(Integer, primary_key=True)
+    segments: Mapped[int] = mapped_column(Integer, nullable=False)
+    geom: Mapped[Any] = mapped_column(
+        Geometry("GEOMETRY", srid=3857, spatial_index=True), nullable=False
+    )
 
 
 class SegmentEdit(Base):

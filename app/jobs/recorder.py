@@ -9,6 +9,7 @@ registered), yet the API and other users must see "running, 40 %" while it works
 from __future__ import annotations
 
 import json
+import time
 import traceback
 from types import TracebackType
 from typing import Any
@@ -58,3 +59,18 @@ class JobRecorder:
             reason = "interrupted"
         self._write("UPDATE ingest_jobs SET status = 'failed', error = :e, finished_at = now() "
                     "WHERE id = :id", e=reason[:MAX_ERROR])
+
+
+class Throttle:
+    """Forward progress to a job row at most every ``every_s`` seconds (and always at the end):
+    a streamed import reports per chunk, and one UPDATE per chunk would be noise."""
+
+    def __init__(self, job: JobRecorder, every_s: float = 1.0) -> None:
+        self.job, self.every_s, self._last = job, every_s, -float("inf")
+
+    def __call__(self, fraction: float, message: str | None = None) -> None:
+        """Record ``fraction`` now if a second has passed (or the job is done), else drop it."""
+        now = time.monotonic()
+        if fraction >= 1.0 or now - self._last >= self.every_s:
+            self._last = now
+            self.job.progress(fraction, message)

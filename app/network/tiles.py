@@ -1,7 +1,17 @@
 """Mapbox vector tiles of a road network, rendered by PostGIS (``ST_AsMVT``).
 
-Layers: ``segments`` (planner attributes) at every zoom, simplified to about a pixel below
-zoom 14 so low-zoom tiles stay small; ``nodes`` (kind, traffic light) from zoom 12.
+Layers: ``segments`` and ``nodes`` (kind, traffic light; from zoom 12). What ``segments``
+holds depends on the zoom, so that a low-zoom tile of a country-sized network stays small:
+
+- z >= 12: every segment with its planner attributes (simplified to about a pixel below 14);
+- z 10-11: the same per-segment features, main roads only (:data:`CLASSES_BELOW`, no
+  residential/service/track streets);
+- z < 10: *generalised*: the roads of each shown class merged into one line feature per class,
+  simplified to a pixel, with only ``road_class`` and ``segments`` (how many were merged) as
+  properties: motorway/trunk/primary below z8, plus secondary, tertiary and the main links at
+  z8-9. Read from ``road_overview`` (migration ``0003_netscale``: main roads pre-merged per
+  class and 20 km cell, kept current by a trigger in each edit's transaction), so a z6 tile of
+  a country reads a few dozen rows, not every main-road segment.
 """
 
 from __future__ import annotations
@@ -25,18 +35,32 @@ EXTENT = 4096
 BUFFER = 64
 NODES_MINZOOM = 12
 SIMPLIFY_BELOW = 14
+MERGE_BELOW = 10
+_MAJOR = ("motorway", "trunk", "primary")
+# road_overview (migration 0003_netscale, MAIN_CLASSES) holds exactly these, for z < 10.
+_MAIN = (*_MAJOR, "secondary", "tertiary", "motorway_link", "trunk_link", "primary_link")
+CLASSES_BELOW: tuple[tuple[int, tuple[str, ...]], ...] = (
+    (8, _MAJOR),
+    (10, _MAIN),
+    (12, (*_MAIN, "secondary_link", "tertiary_link", "unclassified")),
+)
+"""(zoom, classes): below that zoom only those road classes are drawn (first match wins)."""
 
-TILE_SQL = f"""
+_BOUNDS = f"""
 WITH bounds AS (
     SELECT ST_TileEnvelope(:z, :x, :y) AS tile,
            ST_Transform(ST_TileEnvelope(:z, :x, :y, margin => {BUFFER / EXTENT}), 4326) AS q
-), segments AS (
+)"""
+_CLASS_FILTER = ("(CAST(:classes AS text[]) IS NULL "
+                 "OR s.road_class = ANY(CAST(:classes AS text[])))")
+
+TILE_SQL = f"""{_BOUNDS}, segments AS (
     SELECT ST_AsMVTGeom(ST_Simplify(ST_Transform(s.geom, 3857), :tolerance), b.tile,
                         {EXTENT}, {BUFFER}, true) AS geom,
            s.id, s.name, s.road_class, s.oneway, s.lanes_forward, s.lanes_backward,
            s.speed_limit_kph, s.is_junction, s.surface, s.width_m, s.length_m, s.version
       FROM road_segments s, bounds b
-     WHERE s.network_id = :network_id AND s.geom && b.q
+     WHERE s.network_id = :network_id AND s.geom && b.q AND {_CLASS_FILTER}
 ), nodes AS (
     SELECT ST_AsMVTGeom(ST_Transform(n.geom, 3857), b.tile, {EXTENT}, {BUFFER}, true) AS geom,
            n.id, n.kind, n.traffic_light
@@ -48,6 +72,35 @@ SELECT COALESCE((SELECT ST_AsMVT(segments, 'segments', {EXTENT}, 'geom', 'id')
     || COALESCE((SELECT ST_AsMVT(nodes, 'nodes', {EXTENT}, 'geom', 'id')
                    FROM nodes WHERE geom IS NOT NULL), '')
 """
+
+OVERVIEW_SQL = f"""{_BOUNDS}, merged AS (
+    SELECT o.road_class, sum(o.segments)::int AS segments,
+           ST_Simplify(ST_LineMerge(ST_CollectionExtract(ST_Collect(o.geom), 2)), :tolerance) AS g
+      FROM road_overview o, bounds b
+     WHERE o.network_id = :network_id AND o.geom && ST_Expand(b.tile, :margin)
+       AND o.road_class = ANY(CAST(:classes AS text[]))
+     GROUP BY o.road_class
+), overview AS (
+    SELECT ST_AsMVTGeom(m.g, b.tile, {EXTENT}, {BUFFER}, true) AS geom,
+           row_number() OVER (ORDER BY m.road_class) AS id, m.road_class, m.segments
+      FROM merged m, bounds b
+)
+SELECT COALESCE((SELECT ST_AsMVT(overview, 'segments', {EXTENT}, 'geom', 'id')
+                   FROM overview WHERE geom IS NOT NULL), '')
+"""
+
+
+def zoom_params(z: int) -> dict[str, object]:
+    """The tile queries' per-zoom parameters: simplification tolerance (about one tile pixel
+    below z14), the buffer margin in metres and the road classes drawn."""
+    tile_m = pixel_size_m(z) * TILE_SIZE
+    return {"z": z, "tolerance": tile_m / EXTENT if z < SIMPLIFY_BELOW else 0.0,
+            "margin": tile_m * BUFFER / EXTENT, "classes": shown_classes(z)}
+
+
+def shown_classes(z: int) -> list[str] | None:
+    """Road classes drawn at zoom ``z`` (None: all)."""
+    return next((list(classes) for below, classes in CLASSES_BELOW if z < below), None)
 
 
 def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
@@ -73,10 +126,9 @@ def network_tile(name: str, z: str, x: str, y: str, session: SessionDep) -> Resp
     status = "hit"
     if tile is None:
         status = "miss"
-        tolerance = pixel_size_m(zi) * TILE_SIZE / EXTENT if zi < SIMPLIFY_BELOW else 0.0
-        tile = bytes(session.execute(text(TILE_SQL), {
-            "z": zi, "x": xi, "y": yi, "network_id": network.id,
-            "tolerance": tolerance}).scalar_one())
+        tile = bytes(session.execute(text(OVERVIEW_SQL if zi < MERGE_BELOW else TILE_SQL),
+                                     {**zoom_params(zi), "x": xi, "y": yi,
+                                      "network_id": network.id}).scalar_one())
         cache.put(key, network.version, tile_bounds(session, zi, xi, yi), tile)
     return Response(tile, media_type=MVT, headers={"X-Tile-Cache": status,
                                                    "Cache-Control": "no-cache"})

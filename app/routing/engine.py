@@ -133,15 +133,39 @@ class Router:
         return FIRST_LIMIT_FACTOR * crow + c_a + c_b + 1.0
 
     def leg(self, i: int, j: int) -> Leg:
-        """Cheapest way from place i to place j.
+        """Cheapest way from place i to place j: through the network's contraction hierarchy
+        when it can answer for this graph version, else by bounded Dijkstra."""
+        a, b = self.places[i], self.places[j]
+        outs, ins = departures(self.graph, self.cg, a), arrivals(self.graph, self.cg, b)
+        found = self.cg.fast_path([(n, c) for n, c, _ in outs], [(n, c) for n, c, _ in ins])
+        if found is not None:
+            k, m, rows, ways = found
+            first, last = outs[k][2], ins[m][2]
+            weight = outs[k][1] + float(self.cg.seg_cost[rows].sum()) + ins[m][1]
+        else:
+            weight, first, rows, ways, last = self._dijkstra(a, b, outs, ins)
+        straight = direct(self.graph, self.cg, a, b)
+        if straight and straight[0] <= weight:
+            return Leg(a.snap, b.snap, straight[0], [straight[1]])
+        if not np.isfinite(weight):
+            raise NoRouteError(f"no route from point {a.snap.index} to point {b.snap.index} "
+                               "in the allowed directions")
+        pieces = [first] if first is not None else []
+        pieces.extend(Piece(row, 0.0, 1.0) if way > 0 else Piece(row, 1.0, 0.0)
+                      for row, way in zip(rows.tolist(), ways.tolist(), strict=True))
+        if last is not None:
+            pieces.append(last)
+        return Leg(a.snap, b.snap, weight, pieces)
+
+    def _dijkstra(self, a: Place, b: Place, outs: list, ins: list
+                  ) -> tuple[float, Piece | None, np.ndarray, np.ndarray, Piece | None]:
+        """(weight, first piece, segment rows, directions, last piece) by Dijkstra.
 
         The search is bounded (scipy's ``limit``) and the bound grows until the best arrival
         lies within it: every node cheaper than the bound has its exact cost, so a route found
         within the bound is optimal. Short legs on a large network then touch only the
         neighbourhood of their end points instead of the whole graph.
         """
-        a, b = self.places[i], self.places[j]
-        outs, ins = departures(self.graph, self.cg, a), arrivals(self.graph, self.cg, b)
         limit = self._first_limit(a, b)
         while True:
             if limit > self.cg.total_cost:
@@ -154,22 +178,13 @@ class Router:
             if weight <= limit or limit == np.inf:
                 break
             limit *= LIMIT_GROWTH
-        straight = direct(self.graph, self.cg, a, b)
-        if straight and straight[0] <= weight:
-            return Leg(a.snap, b.snap, straight[0], [straight[1]])
         if not np.isfinite(weight):
-            raise NoRouteError(f"no route from point {a.snap.index} to point {b.snap.index} "
-                               "in the allowed directions")
+            return weight, None, np.zeros(0, np.int64), np.zeros(0, np.int8), None
         nodes = [end_node]
         while pred[nodes[-1]] != self.cg.origin:
             nodes.append(int(pred[nodes[-1]]))
         nodes.reverse()
         _, first = min(((c, piece) for n, c, piece in outs if n == nodes[0]),
                        key=lambda cp: cp[0])
-        pieces = [first] if first is not None else []
         rows, ways = self.cg.path_arcs(nodes)
-        pieces.extend(Piece(row, 0.0, 1.0) if way > 0 else Piece(row, 1.0, 0.0)
-                      for row, way in zip(rows.tolist(), ways.tolist(), strict=True))
-        if last is not None:
-            pieces.append(last)
-        return Leg(a.snap, b.snap, weight, pieces)
+        return weight, first, rows, ways, last

@@ -23,6 +23,8 @@ from scipy.sparse.csgraph import dijkstra
 
 from app.routing.costs import Cost, effective_speed_kph, segment_costs
 from app.routing.geometry import bearings, vertex_fractions
+from app.routing.hierarchy import Arcs, Hierarchy
+from app.routing.settings import routing_settings
 
 ONEWAY_CODES = {"none": 0, "forward": 1, "backward": -1}
 MAX_COST_GRAPHS = 6  # per network: cost model × avoid-set combinations kept built
@@ -132,8 +134,28 @@ class CostGraph:
     max_rate: float  # most metres per unit of cost on any segment (top speed in m/s for time)
     total_cost: float  # of all segments: a bound beyond which a search is unbounded anyway
     lock: threading.Lock = field(default_factory=threading.Lock)
+    hierarchy: Hierarchy | None = None  # the shape's CCH, when the network is large enough
+    hierarchy_key: object = None
+    version: int = 0
+    arc_costs: np.ndarray | None = None  # per hierarchy arc, inf where not allowed
 
     SLOTS = 2
+
+    def fast_path(self, outs: Sequence[tuple[int, float]], ins: Sequence[tuple[int, float]]
+                  ) -> tuple[int, int, np.ndarray, np.ndarray] | None:
+        """Through the hierarchy: (departure index, arrival index, segment rows, directions)
+        of the cheapest way, or ``None`` when the hierarchy cannot answer for this version
+        (not built yet, superseded, or no path within its range): then search with Dijkstra."""
+        if self.hierarchy is None or self.arc_costs is None:
+            return None
+        metric = self.hierarchy.metric(self.hierarchy_key, self.version, self.arc_costs,
+                                       self.max_rate)
+        found = metric.shortest(self.version, outs, ins) if metric is not None else None
+        if found is None:
+            return None
+        i, j, arcs = found
+        self.hierarchy.answered += 1
+        return i, j, self.hierarchy.arcs.row[arcs], self.hierarchy.arcs.way[arcs]
 
     def search(self, departures: Iterable[tuple[int, float]],
                limit: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
@@ -166,21 +188,35 @@ class Shape:
     bbox: np.ndarray  # (n, 4) per segment
     bearing_start: np.ndarray  # compass bearing leaving the first vertex, forward
     bearing_end: np.ndarray  # ... and reaching the last
+    hierarchy: Hierarchy | None  # built lazily in the background, shared while arcs stay
 
     @classmethod
-    def of(cls, s: Segments) -> Shape:
+    def of(cls, s: Segments, previous: Shape | None = None) -> Shape:
         """Node ids, end bearings and vertex fractions of the segments, computed once per graph so
-        responses need no per-request geometry work."""
+        responses need no per-request geometry work.
+
+        ``previous``: the shape this one replaces; its hierarchy is kept when the arcs are
+        the same (a geometry edit that keeps both end nodes changes lengths, not arcs)."""
         node_ids, inverse = np.unique(np.concatenate([s.source, s.target]), return_inverse=True)
-        if len(s):
-            first, last = s.offsets[:-1], s.offsets[1:] - 1
-            starts = bearings(s.coords[first], s.coords[first + 1])
-            ends = bearings(s.coords[last - 1], s.coords[last])
-            fracs = vertex_fractions(s.coords, s.offsets)
-        else:
-            starts = ends = fracs = np.zeros(0)
-        return cls(node_ids, inverse[: len(s)].astype(np.int32),
-                   inverse[len(s):].astype(np.int32), fracs, s.bboxes(), starts, ends)
+        u, v = inverse[: len(s)].astype(np.int32), inverse[len(s):].astype(np.int32)
+        same_arcs = previous is not None and np.array_equal(previous.node_ids, node_ids) and \
+            np.array_equal(previous.u, u) and np.array_equal(previous.v, v)
+        hierarchy = previous.hierarchy if same_arcs and previous is not None else None
+        if hierarchy is None and len(s) >= max(1, routing_settings().hierarchy_min_segments):
+            lonlat = np.zeros((len(node_ids), 2))
+            lonlat[u], lonlat[v] = s.coords[s.offsets[:-1]], s.coords[s.offsets[1:] - 1]
+            hierarchy = Hierarchy(Arcs.of(u, v), lonlat)
+        fracs = vertex_fractions(s.coords, s.offsets) if len(s) else np.zeros(0)
+        return cls(node_ids, u, v, fracs, s.bboxes(), *_end_bearings(s), hierarchy)
+
+
+def _end_bearings(s: Segments) -> tuple[np.ndarray, np.ndarray]:
+    """Compass bearing leaving each segment's first vertex and reaching its last."""
+    if not len(s):
+        return np.zeros(0), np.zeros(0)
+    first, last = s.offsets[:-1], s.offsets[1:] - 1
+    return bearings(s.coords[first], s.coords[first + 1]), bearings(s.coords[last - 1],
+                                                                     s.coords[last])
 
 
 @dataclass
@@ -259,11 +295,20 @@ class RoadGraph:
              indptr),
             shape=(n + 1, n + 1),
         )
-        return CostGraph(seg_cost=seg_cost, matrix=matrix,
-                         arc_row=np.append(arc_row, -np.ones(pad, np.int64)),
-                         arc_dir=np.append(arc_dir, np.zeros(pad, np.int8)),
-                         arc_key=tail.astype(np.int64) * (n + 1) + head, origin=n,
-                         max_rate=max_rate, total_cost=float(weight.sum()))
+        cg = CostGraph(seg_cost=seg_cost, matrix=matrix,
+                       arc_row=np.append(arc_row, -np.ones(pad, np.int64)),
+                       arc_dir=np.append(arc_dir, np.zeros(pad, np.int8)),
+                       arc_key=tail.astype(np.int64) * (n + 1) + head, origin=n,
+                       max_rate=max_rate, total_cost=float(weight.sum()))
+        hierarchy = self.shape.hierarchy if self.shape is not None else None
+        if hierarchy is not None:
+            arcs = hierarchy.arcs
+            allowed = usable[arcs.row] & np.where(arcs.way > 0, s.oneway[arcs.row] >= 0,
+                                                  s.oneway[arcs.row] <= 0)
+            cg.hierarchy, cg.hierarchy_key, cg.version = hierarchy, (cost, avoid), self.version
+            cg.arc_costs = np.where(allowed, seg_cost[arcs.row], np.inf)
+            hierarchy.metric(cg.hierarchy_key, self.version, cg.arc_costs, max_rate)
+        return cg
 
     def patched(self, version: int, box: Sequence[float], fresh: Segments) -> RoadGraph:
         """A new graph where every segment inside ``box`` is replaced by ``fresh``.
@@ -280,8 +325,8 @@ class RoadGraph:
         if self._same_shape(rows, fresh):
             return RoadGraph(self.network_id, version, self._with_attributes(rows, fresh),
                              shape=self.shape)
-        kept = self.segs.take(np.flatnonzero(~stale))
-        return RoadGraph(self.network_id, version, kept.concat(fresh))
+        segs = self.segs.take(np.flatnonzero(~stale)).concat(fresh)
+        return RoadGraph(self.network_id, version, segs, shape=Shape.of(segs, self.shape))
 
     def _same_shape(self, rows: np.ndarray, fresh: Segments) -> bool:
         """True when ``fresh`` are exactly the segments at ``rows``, with the same ends and

@@ -17,6 +17,8 @@ class RoutingSettings(BaseSettings):
     max_isochrone_seconds: float = 4 * 3600.0
     max_isochrone_meters: float = 200_000.0
     min_spacing_m: float = 0.1  # format=waypoints
+    # Networks with fewer segments route by Dijkstra alone: a hierarchy would not pay off.
+    hierarchy_min_segments: int = 1000
 
 
 @lru_cache(maxsize=1)

@@ -6,14 +6,19 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 
 from sqlalchemy.orm import Session
 
 from ingest.network.file_reader import NetworkFileError, read_geojson, read_ogr
 from ingest.network.model import FeatureLike, ImportSummary, NodePoint, RoadAttributes, RoadLine
-from ingest.network.writer import NetworkExistsError, write_network
+from ingest.network.writer import (
+    NetworkExistsError,
+    NoLinesError,
+    Progress,
+    store_lines,
+    write_network,
+)
 
 __all__ = ["FeatureLike", "ImportSummary", "NetworkExistsError", "NetworkFileError",
            "NodePoint", "RoadAttributes", "RoadLine", "import_network", "write_network"]
@@ -23,31 +28,30 @@ GEOJSON_SUFFIXES = (".geojson", ".json")
 
 
 def import_network(session: Session, path: Path, network: str, *, replace: bool = False,
-                   progress: Callable[[str], None] | None = None) -> ImportSummary:
+                   progress: Progress | None = None) -> ImportSummary:
     """Import a road file into network ``network`` (created if missing) in the caller's
-    transaction. OSM files connect at shared nodes; other files are noded where lines cross
-    or touch, unless they carry ``source_node``/``target_node`` (a topology already).
-    ``progress`` is called with the name of each finished stage (read, node, store)."""
+    transaction. OSM files connect at shared nodes and are streamed (read twice, never held in
+    memory); other files are read whole and noded where lines cross or touch, unless they
+    carry ``source_node``/``target_node`` (a topology already).
+    ``progress(message, fraction)`` is told how far the import is."""
     path = Path(path)
     if not path.is_file():
         raise NetworkFileError(f"{path}: no such file")
     name = path.name.lower()
-    if name.endswith(OSM_SUFFIXES):
-        from ingest.network.osm_reader import read_osm
+    try:
+        if name.endswith(OSM_SUFFIXES):
+            from ingest.network.osm_reader import read_osm
 
-        try:
-            lines, points = read_osm(path)
-        except RuntimeError as exc:  # libosmium reports parse errors as RuntimeError
-            raise NetworkFileError(f"{path.name}: not a readable OSM file ({exc})") from exc
-        topological = True
-    elif name.endswith(GEOJSON_SUFFIXES):
-        lines, points, topological = read_geojson(path)
-    else:
-        lines, points, topological = read_ogr(path)
-    if not lines:
-        raise NetworkFileError(f"{path.name}: no road lines found")
-    if progress:
-        progress("read")
+            return store_lines(session, network, lambda: read_osm(path), replace=replace,
+                               allow_empty=False, progress=progress)
+        if name.endswith(GEOJSON_SUFFIXES):
+            lines, points, topological = read_geojson(path)
+        else:
+            lines, points, topological = read_ogr(path)
+        if not lines:
+            raise NoLinesError("no road lines found")
+    except NoLinesError as exc:
+        raise NetworkFileError(f"{path.name}: {exc}") from exc
     return write_network(session, network, lines, replace=replace,
                          node_crossings=not topological, node_points=points,
                          progress=progress)

@@ -13,14 +13,20 @@ import click
 from tqdm import tqdm
 
 from app.errors import UserError
+from cli.jobs import absolute, enqueue_job, queue_option
 
 
 @click.command("network")
 @click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--network", "network", required=True, help="Network name (slug).")
 @click.option("--replace", is_flag=True, help="Replace the network's segments if it exists.")
-def ingest_network(file: Path, network: str, replace: bool) -> None:
+@queue_option
+def ingest_network(file: Path, network: str, replace: bool, queued: bool) -> None:
     """Import a GeoJSON / GeoPackage / OSM (.osm, .osm.pbf) road FILE as a network."""
+    if queued:
+        enqueue_job("ingest-network",
+                    {"file": absolute(file), "network": network, "replace": replace})
+        return
     from app.db.session import session_scope
     from app.jobs.recorder import JobRecorder
     from ingest.network import import_network

@@ -59,9 +59,9 @@ def _reader(params: RasterParams) -> tuple[Callable[[Path], Source],
     return (lambda p: inspect(p, crs=params.crs)), None
 
 
-def job_folder(params: RasterParams, job_id: int) -> Path:
+def job_folder(layer: str, job_id: int) -> Path:
     """Where the job's COGs are written, and stay once registered."""
-    return Path(get_settings().raster_store_uri) / params.layer / f"job-{job_id}"
+    return Path(get_settings().raster_store_uri) / layer / f"job-{job_id}"
 
 
 def _to_json(written: WrittenSource) -> dict[str, Any]:
@@ -109,7 +109,7 @@ def write_part(job_id: int, part: int) -> None:
     check, to_cog = _reader(params)
     with Lease(get_engine(), job_id):
         try:
-            written = write_source(check(Path(source)), job_folder(params, job_id), to_cog)
+            written = write_source(check(Path(source)), job_folder(params.layer, job_id), to_cog)
         except BaseException:
             with get_engine().begin() as conn:
                 conn.execute(text("UPDATE ingest_job_parts SET status = 'failed', "
@@ -179,7 +179,7 @@ def finish(job_id: int) -> None:
     if replaced:
         Path(replaced).unlink(missing_ok=True)
     kept = {w.uri for w in written}
-    folder = job_folder(params, job_id)
+    folder = job_folder(params.layer, job_id)
     for leftover in folder.iterdir() if folder.is_dir() else ():  # files of killed attempts
         if str(leftover) not in kept:
             leftover.unlink(missing_ok=True)

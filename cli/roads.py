@@ -74,7 +74,7 @@ def extract_params(classifier: str, k: float, work_resolution: float, spur_max: 
     """The pipeline parameters from the shared tuning options."""
     from ingest.roads.pipeline import tuned_params
 
-    return tuned_params(cast(Classifier, classifier), k, work_resolution, spur_max, simplify)
+    return tuned_params(cast("Classifier", classifier), k, work_resolution, spur_max, simplify)
 
 
 @click.command("extract-roads")

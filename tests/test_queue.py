@@ -3,6 +3,7 @@ registers its layer exactly once, and survives a worker SIGKILLed mid-task."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -121,6 +122,29 @@ def test_post_jobs_queues_the_job_and_its_task(client) -> None:
 def test_task_names_match_the_blueprint() -> None:
     names = set(make_worker_app().tasks)
     assert {"ugvmap:run_job", raster.WRITE_PART, raster.FINISH} <= names
+
+
+def test_queued_network_import_commits_with_its_job(database_url: str, tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    roads = tmp_path / "roads.geojson"
+    roads.write_text(json.dumps({"type": "FeatureCollection", "features": [
+        {"type": "Feature", "properties": {"name": "A"},
+         "geometry": {"type": "LineString", "coordinates": [[10, 50], [10.001, 50]]}}]}))
+    name = f"qnet-{uuid.uuid4().hex[:6]}"
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(main, ["ingest", "network", "roads.geojson", "--network", name,
+                                       "--queue"])
+    assert result.exit_code == 0 and "queued job" in result.output, result.output
+    job_id = int(result.output.split()[2])
+    assert scalar("SELECT params->>'file' FROM ingest_jobs WHERE id = :id", id=job_id) == \
+        str(roads.resolve())  # workers get an absolute path
+    tasks.run_job(job_id)
+    tasks.run_job(job_id)  # delivered twice: the second run finds the job done
+    row = get_engine().connect().execute(text(
+        "SELECT status, progress, message FROM ingest_jobs WHERE id = :id"), {"id": job_id}).one()
+    assert (row.status, row.progress) == ("succeeded", 1) and "1 segments" in row.message
+    assert scalar("SELECT count(*) FROM road_segments s JOIN networks n ON n.id = s.network_id"
+                  " WHERE n.name = :n", n=name) == 1
 
 
 def _queued_raster(folder: Path, slug: str, n: int) -> int:

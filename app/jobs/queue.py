@@ -48,15 +48,15 @@ def defer(session: Session, task: str, **kwargs: Any) -> int:
     return app.configure_task(task, connection=connection).defer(**kwargs)
 
 
-def enqueue(session: Session, kind: str, params: dict[str, Any]) -> int:
+def enqueue(session: Session, kind: Any, params: Any) -> int:
     """Validate a job, insert its ``queued`` row and queue its first task, in the caller's
     transaction; returns the job id. Bad parameters raise 422 ``InvalidValue`` before
     anything is written."""
     job = validate_job(kind, params)
-    job_id = session.execute(text(
+    job_id: int = session.execute(text(
         "INSERT INTO ingest_jobs (kind, target, params, status, queued) "
         "VALUES (:kind, :target, CAST(:params AS jsonb), 'queued', true) RETURNING id"),
         {"kind": kind, "target": job.target,
          "params": json.dumps(job.model_dump(mode="json"))}).scalar_one()
     defer(session, RUN_JOB, job_id=job_id)
-    return int(job_id)
+    return job_id

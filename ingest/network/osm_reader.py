@@ -79,9 +79,11 @@ class NewNodes:
         way was kept)."""
         if not self._ways:
             return
-        found = {n.id: (n.location.lon, n.location.lat)
-                 for n in osmium.FileProcessor(str(path), osmium.osm.NODE)
-                 if n.id < 0 and n.id in self._wanted and n.location.valid()}
+        found: dict[int, Coord] = {}
+        for node in osmium.FileProcessor(str(path), osmium.osm.NODE):
+            assert isinstance(node, osmium.osm.Node)  # the processor yields only nodes
+            if node.id < 0 and node.id in self._wanted and node.location.valid():
+                found[node.id] = (node.location.lon, node.location.lat)
         for refs, coords, attributes in self._ways:
             yield [c if c is not None else found.get(ref)
                    for ref, c in zip(refs, coords, strict=True)], attributes

@@ -119,16 +119,16 @@ def write_part(job_id: int, part: int) -> None:
     with _discard_unless_kept(written.uri) as keep, session_scope() as session:
         if not lock_running(session.connection(), job_id):
             return  # the job failed meanwhile: this COG will never be registered
-        marked = session.execute(text(
+        marked = session.connection().execute(text(
             "UPDATE ingest_job_parts SET status = 'succeeded', result = CAST(:r AS jsonb), "
             " updated_at = now() WHERE job_id = :id AND part = :part AND status <> 'succeeded'"),
             {"id": job_id, "part": part, "r": json.dumps(_to_json(written))}).rowcount
         if not marked:
             return  # a duplicate run of this part finished first
         keep()
-        done, total = session.execute(text(
+        done, total = (int(n) for n in session.execute(text(
             "SELECT count(*) FILTER (WHERE status = 'succeeded'), count(*) "
-            "FROM ingest_job_parts WHERE job_id = :id"), {"id": job_id}).one()
+            "FROM ingest_job_parts WHERE job_id = :id"), {"id": job_id}).one())
         session.execute(text("UPDATE ingest_jobs SET progress = :p, message = :m WHERE id = :id"),
                         {"id": job_id, "p": done / (total + 1),
                          "m": f"{done}/{total} sources written"})
@@ -166,9 +166,9 @@ def finish(job_id: int) -> None:
         sweep_leftovers(store / params.layer)
         try:
             with session_scope() as session:
-                written = [_from_json(r) for r in session.execute(text(
+                written = [_from_json(r) for r in session.scalars(text(
                     "SELECT result FROM ingest_job_parts WHERE job_id = :id ORDER BY part"),
-                    {"id": job_id}).scalars()]
+                    {"id": job_id})]
                 version, replaced = register(session, written, params.layer, params.title,
                                              params.kind, params.priority, overview)
                 succeed_in(session.connection(), job_id,
@@ -188,9 +188,9 @@ def finish(job_id: int) -> None:
 def discard(job_id: int) -> None:
     """A failed job's COGs: delete those its parts wrote (none of them is registered)."""
     with get_engine().connect() as conn:
-        uris = conn.execute(text(
+        uris: list[str] = list(conn.execute(text(
             "SELECT p.result->>'uri' FROM ingest_job_parts p JOIN ingest_jobs j ON j.id = p.job_id"
             " WHERE p.job_id = :id AND j.status = 'failed' AND p.result IS NOT NULL"),
-            {"id": job_id}).scalars().all()
+            {"id": job_id}).scalars())
     for uri in uris:
         Path(uri).unlink(missing_ok=True)

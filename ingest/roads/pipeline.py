@@ -67,8 +67,12 @@ def tuned_params(classifier: Classifier | None = None, k: float | None = None,
     """The parameters from the tuning options of ``extract-roads`` / ``ingest roads`` (or a
     queued job's): None keeps the default, a ``work_resolution`` of 0 keeps the source grid."""
     params = ExtractParams()
-    changes = {"classifier": classifier, "k": k, "spur_max_m": spur_max}
-    params = replace(params, **{key: v for key, v in changes.items() if v is not None})
+    if classifier is not None:
+        params = replace(params, classifier=classifier)
+    if k is not None:
+        params = replace(params, k=k)
+    if spur_max is not None:
+        params = replace(params, spur_max_m=spur_max)
     if work_resolution is not None:
         params = replace(params, work_resolution_m=work_resolution or None)
     if simplify is not None:

@@ -43,6 +43,18 @@ def scalar(sql: str, **values) -> object:
         return conn.execute(text(sql), values).scalar()
 
 
+def one(sql: str, **values):
+    with get_engine().connect() as conn:
+        return conn.execute(text(sql), values).one()
+
+
+def registered_uris(slug: str) -> set[str]:
+    with get_engine().connect() as conn:
+        return set(conn.execute(text(
+            "SELECT uri FROM raster_sources s JOIN layers l ON l.id = s.layer_id "
+            "WHERE l.slug = :s"), {"s": slug}).scalars())
+
+
 def layer_state(slug: str) -> tuple[int, int]:
     """(version, number of sources) of a layer."""
     with get_engine().connect() as conn:
@@ -140,8 +152,7 @@ def test_queued_network_import_commits_with_its_job(database_url: str, tmp_path:
         str(roads.resolve())  # workers get an absolute path
     tasks.run_job(job_id)
     tasks.run_job(job_id)  # delivered twice: the second run finds the job done
-    row = get_engine().connect().execute(text(
-        "SELECT status, progress, message FROM ingest_jobs WHERE id = :id"), {"id": job_id}).one()
+    row = one("SELECT status, progress, message FROM ingest_jobs WHERE id = :id", id=job_id)
     assert (row.status, row.progress) == ("succeeded", 1) and "1 segments" in row.message
     assert scalar("SELECT count(*) FROM road_segments s JOIN networks n ON n.id = s.network_id"
                   " WHERE n.name = :n", n=name) == 1
@@ -170,10 +181,7 @@ def test_fan_out_registers_the_layer_exactly_once(database_url: str, tmp_path: P
     tasks.raster_finish(job_id)
     assert layer_state(slug) == (1, 3)
     assert scalar("SELECT status FROM ingest_jobs WHERE id = :id", id=job_id) == "succeeded"
-    registered = {Path(u) for u in get_engine().connect().execute(text(
-        "SELECT uri FROM raster_sources s JOIN layers l ON l.id = s.layer_id "
-        "WHERE l.slug = :s"), {"s": slug}).scalars()}
-    assert set(raster.job_folder(slug, job_id).iterdir()) == registered
+    assert {str(p) for p in raster.job_folder(slug, job_id).iterdir()} == registered_uris(slug)
 
 
 def test_a_bad_source_fails_the_queued_job_and_writes_nothing(database_url: str,
@@ -187,8 +195,7 @@ def test_a_bad_source_fails_the_queued_job_and_writes_nothing(database_url: str,
                                                     "layer": slug})
     with pytest.raises(Exception, match=r"bogus\.tif"):
         tasks.run_job(job_id)
-    row = get_engine().connect().execute(text(
-        "SELECT status, error FROM ingest_jobs WHERE id = :id"), {"id": job_id}).one()
+    row = one("SELECT status, error FROM ingest_jobs WHERE id = :id", id=job_id)
     assert row.status == "failed" and "bogus.tif" in row.error
     assert scalar("SELECT count(*) FROM ingest_job_parts WHERE job_id = :id", id=job_id) == 0
     assert not raster.job_folder(slug, job_id).exists()
@@ -264,13 +271,9 @@ def test_queued_ingest_survives_a_worker_killed_mid_task(database_url: str,
     assert scalar("SELECT status FROM ingest_jobs WHERE id = :id", id=job_id) == "succeeded", \
         log[-3000:]
     assert layer_state(slug) == (1, 4)
-    part = get_engine().connect().execute(text(
-        "SELECT attempts, worker FROM ingest_job_parts WHERE job_id = :id AND part = :p"),
-        {"id": job_id, "p": killed}).one()
+    part = one("SELECT attempts, worker FROM ingest_job_parts WHERE job_id = :id AND part = :p",
+               id=job_id, p=killed)
     assert part.attempts == 2 and part.worker.endswith(f":{b.pid}")
     assert "its worker died; queued again" in log
-    registered = {u for u in get_engine().connect().execute(text(
-        "SELECT uri FROM raster_sources s JOIN layers l ON l.id = s.layer_id "
-        "WHERE l.slug = :s"), {"s": slug}).scalars()}
     # the killed attempt's half-written file is gone; only the registered COGs remain
-    assert {str(p) for p in raster.job_folder(slug, job_id).iterdir()} == registered
+    assert {str(p) for p in raster.job_folder(slug, job_id).iterdir()} == registered_uris(slug)

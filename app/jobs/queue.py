@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import json
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import procrastinate
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
@@ -24,13 +23,19 @@ from app.db.session import libpq_dsn
 from app.jobs.kinds import validate_job
 from app.settings import get_settings
 
+if TYPE_CHECKING:
+    import procrastinate
+
 #: The tasks' namespace (``procrastinate.App.add_tasks_from``) and the entry task of a job.
 NAMESPACE = "ugvmap"
 RUN_JOB = f"{NAMESPACE}:run_job"
 
 
 def make_queue_app(url: str | None = None, **pool: Any) -> procrastinate.App:
-    """A procrastinate app on ``url`` (default: the configured database)."""
+    """A procrastinate app on ``url`` (default: the configured database); imported here, not
+    at module level, so the HTTP service loads it only when a job is queued."""
+    import procrastinate
+
     dsn = libpq_dsn(url or get_settings().database_url)
     return procrastinate.App(connector=procrastinate.PsycopgConnector(conninfo=dsn, **pool))
 

@@ -83,6 +83,8 @@ def test_post_jobs_needs_an_admin_token(client) -> None:
      "params.layer"),
     ({"kind": "ingest-raster", "params": {"sources": ["/a.tif"], "layer": "ok",
                                           "kind": "movie"}}, "params.kind"),
+    ({"kind": "ingest-raster", "params": {"sources": ["/a.tif"], "layer": "ok",
+                                          "crs": "EPSG:999999"}}, "params.crs"),
     ({"kind": "ingest-raster", "params": {"sources": ["/a.tif", "/b.tif"], "layer": "ok",
                                           "gcps": "/g.csv"}}, "params"),
     ({"kind": "ingest-network", "params": {"file": "/x.geojson", "network": "n",

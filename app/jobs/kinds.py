@@ -27,6 +27,8 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pyproj import CRS
+from pyproj.exceptions import CRSError
 
 from app.db.models import LAYER_KINDS, SLUG_RE
 from app.errors import InvalidValueError
@@ -75,6 +77,16 @@ class RasterParams(JobParams):
     priority: int = Field(default=0, ge=-(2**31), lt=2**31)
     gcps: ServerPath | None = None
     gcp_method: Literal["poly1", "poly2", "tps"] = "poly1"
+
+    @field_validator("crs")
+    @classmethod
+    def _known_crs(cls, crs: str | None) -> str | None:
+        if crs is not None:
+            try:
+                CRS.from_user_input(crs)
+            except CRSError:
+                raise ValueError("is not a CRS PROJ knows (e.g. EPSG:32633)") from None
+        return crs
 
     @field_validator("kind")
     @classmethod

@@ -29,6 +29,14 @@ class Settings(BaseSettings):
     db_connect_timeout_s: int = 3
     # Least token role needed to read networks (features, tiles, history); unset: public.
     network_read_role: Literal["viewer", "editor", "admin"] | None = None
+    # Least token role needed to read /jobs; unset: the network read role (public if unset too).
+    # Whoever is not admin sees file names instead of absolute server paths.
+    jobs_read_role: Literal["viewer", "editor", "admin"] | None = None
+    # A running job renews its lease every third of this; a job whose lease ran out belongs
+    # to a dead process. Queue workers use it for their procrastinate heartbeat too.
+    job_lease_s: float = Field(default=30.0, gt=0)
+    # A queued task whose worker died is retried on another worker up to this many runs.
+    job_max_attempts: int = Field(default=3, ge=1)
 
     @property
     def embedded(self) -> bool:
@@ -51,6 +59,11 @@ class Settings(BaseSettings):
     def raster_store_uri(self) -> str:
         """Where COGs are written: a directory by default, any GDAL-writable prefix if set."""
         return self.raster_store or str((self.data_dir / "rasters").resolve())
+
+    @property
+    def jobs_role(self) -> str | None:
+        """The least role that reads ``/jobs`` (None: public)."""
+        return self.jobs_read_role or self.network_read_role
 
 
 def normalize_url(url: str) -> str:

@@ -11,6 +11,7 @@ from typing import Any
 import click
 
 from app.errors import UserError
+from cli.jobs import absolute, enqueue_job, queue_option
 
 
 @click.command("raster")
@@ -26,16 +27,26 @@ from app.errors import UserError
               help="CSV pixel_x,pixel_y,X,Y[,id] (lon/lat, or in --crs) to georeference SRC.")
 @click.option("--gcp-method", default="poly1", show_default=True,
               type=click.Choice(["poly1", "poly2", "tps"]))
+@queue_option
 def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, kind: str,
                       crs: str | None, priority: int, gcps_file: Path | None,
-                      gcp_method: str) -> None:
-    """Ingest GeoTIFFs / world-file images / zone mosaics / GCP images into layer SLUG."""
+                      gcp_method: str, queued: bool) -> None:
+    """Ingest GeoTIFFs / world-file images / zone mosaics / GCP images into layer SLUG.
+
+    With --queue, workers write one source each, in parallel, and the layer is registered
+    once when all are written."""
     from app.jobs.recorder import JobRecorder
     from ingest.raster.gcps import ingest_with_gcps
     from ingest.raster.job import ingest_raster
 
     if gcps_file is not None and len(sources) != 1:
         raise UserError("--gcps georeferences exactly one SRC image")
+    if queued:
+        enqueue_job("ingest-raster", {
+            "sources": [absolute(s) for s in sources], "layer": slug, "title": title,
+            "kind": kind, "crs": crs, "priority": priority, "gcps": absolute(gcps_file),
+            "gcp_method": gcp_method})
+        return
     params = {"sources": [str(s) for s in sources], "kind": kind, "crs": crs,
               "gcps": str(gcps_file) if gcps_file else None}
     with JobRecorder("ingest-raster", slug, params) as job:

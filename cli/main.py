@@ -42,9 +42,9 @@ def ingest() -> None:
 
 def _register_capabilities() -> None:
     """Each capability owns its commands; this is the table of contents (one line each)."""
-    from cli import db, demo, layers, network, roads, routing
+    from cli import db, demo, jobs, layers, network, roads, routing
 
-    for command in (db.db, demo.demo, demo.serve,
+    for command in (db.db, demo.demo, demo.serve, jobs.jobs, jobs.worker,
                     network.tokens, network.export, network.network,
                     layers.layers, routing.route,
                     roads.extract_roads, roads.evaluate_roads, roads.roads):

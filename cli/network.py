@@ -13,14 +13,20 @@ import click
 from tqdm import tqdm
 
 from app.errors import UserError
+from cli.jobs import absolute, enqueue_job, queue_option
 
 
 @click.command("network")
 @click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--network", "network", required=True, help="Network name (slug).")
 @click.option("--replace", is_flag=True, help="Replace the network's segments if it exists.")
-def ingest_network(file: Path, network: str, replace: bool) -> None:
+@queue_option
+def ingest_network(file: Path, network: str, replace: bool, queued: bool) -> None:
     """Import a GeoJSON / GeoPackage / OSM (.osm, .osm.pbf) road FILE as a network."""
+    if queued:
+        enqueue_job("ingest-network",
+                    {"file": absolute(file), "network": network, "replace": replace})
+        return
     from app.db.session import session_scope
     from app.jobs.recorder import JobRecorder, Throttle
     from ingest.network import import_network
@@ -70,15 +76,18 @@ def export() -> None:
 @click.argument("name")
 @click.option("--format", "fmt", type=click.Choice(["geojson", "gpkg", "osm"]), required=True)
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="Output file (for osm: .osm or .osm.pbf).")
+              help="Output file (for osm: .osm or .osm.pbf; for geojson: x.geojson writes "
+                   "x.segments.geojson and x.nodes.geojson).")
 def export_network(name: str, fmt: str, out: Path) -> None:
-    """Export network NAME losslessly (import of the file gives the same network)."""
+    """Export network NAME losslessly (import of the file gives the same network; for
+    GeoJSON, import the .segments file: its .nodes file is read with it)."""
     from app.db.session import session_scope
     from ingest.network.exporter import export_network as export_file
 
     with session_scope() as session:
-        count = export_file(session, name, out, fmt)
-    click.echo(f"wrote {count} segments of {name} to {out}")
+        summary = export_file(session, name, out, fmt)
+    click.echo(f"wrote {summary.segments} segments and {summary.nodes} nodes of {name} to "
+               + " and ".join(str(f) for f in summary.files))
 
 
 @click.group("network")

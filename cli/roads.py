@@ -17,8 +17,10 @@ from typing import TYPE_CHECKING, Any, cast
 import click
 
 from app.errors import UserError
+from cli.jobs import absolute, enqueue_job, queue_option
 
 if TYPE_CHECKING:
+    from app.jobs.kinds import Classifier
     from ingest.roads.pipeline import ExtractParams
 
 
@@ -70,13 +72,9 @@ def extraction_options(command: Callable[..., Any]) -> Callable[..., Any]:
 def extract_params(classifier: str, k: float, work_resolution: float, spur_max: float,
                    simplify: float) -> ExtractParams:
     """The pipeline parameters from the shared tuning options."""
-    from dataclasses import replace
+    from ingest.roads.pipeline import tuned_params
 
-    from ingest.roads.pipeline import Classifier, ExtractParams
-
-    params = ExtractParams(classifier=cast(Classifier, classifier), k=k,
-                           work_resolution_m=work_resolution or None, spur_max_m=spur_max)
-    return replace(params, graph=replace(params.graph, simplify_m=simplify))
+    return tuned_params(cast("Classifier", classifier), k, work_resolution, spur_max, simplify)
 
 
 @click.command("extract-roads")
@@ -187,13 +185,20 @@ def _lonlat_box(ctx: click.Context, param: click.Parameter, values: tuple[str, .
               help="Road width (m) around --train-lines centerlines.")
 @extraction_options
 @click.option("--replace", is_flag=True, help="Replace the network if it exists.")
+@queue_option
 def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: list,
-                 train_lines: Path | None, line_width: float, replace: bool,
+                 train_lines: Path | None, line_width: float, replace: bool, queued: bool,
                  **tuning: Any) -> None:
     """Extract the roads of raster layer SLUG into road network NETWORK (PostGIS).
 
     The road model runs zero-shot without a sample and adapts to one when given.
     """
+    if queued:
+        enqueue_job("ingest-roads", {
+            "layer": slug, "network": network, "replace": replace, "train_boxes": train_boxes,
+            "not_road_boxes": not_road_boxes, "train_lines": absolute(train_lines),
+            "line_width": line_width, **tuning})
+        return
     from app.db.session import session_scope
     from app.jobs.recorder import JobRecorder
     from ingest.roads.layer import GeoSample, ingest_layer_roads, read_sample_lines

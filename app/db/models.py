@@ -32,7 +32,7 @@ SLUG_RE = "^[a-z0-9][a-z0-9_-]{0,63}$"
 LAYER_KINDS = ("orthophoto", "ipm-mosaic", "raster")
 NODE_KINDS = ("junction", "endpoint", "node")
 ONEWAY_VALUES = ("none", "forward", "backward")
-JOB_STATUSES = ("queued", "running", "succeeded", "failed")
+JOB_STATUSES = ("queued", "running", "succeeded", "failed")  # of jobs and of their parts
 TOKEN_ROLES = ("viewer", "editor", "admin")
 
 
@@ -230,13 +230,38 @@ class IngestJob(Base):
     kind: Mapped[str] = mapped_column(Text, nullable=False)
     target: Mapped[str | None] = mapped_column(Text)
     params: Mapped[dict[str, Any]] = mapped_column(JSONB, nullable=False, server_default="{}")
-    status: Mapped[str] = mapped_column(Text, nullable=False, server_default="queued")
+    status: Mapped[str] = mapped_column(Text, nullable=False, server_default="queued",
+                                        index=True)
     progress: Mapped[float] = mapped_column(Float, nullable=False, server_default="0")
     message: Mapped[str | None] = mapped_column(Text)
     error: Mapped[str | None] = mapped_column(Text)
     created_at: Mapped[datetime] = _now()
     started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    # The running process renews this lease; when it runs out the process is dead (0005).
+    heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    # Runs on `ugvmap worker` processes (retried by the queue) rather than in its caller.
+    queued: Mapped[bool] = mapped_column(Boolean, nullable=False, server_default="false")
+    worker: Mapped[str | None] = mapped_column(Text)  # host:pid that last worked on it
+
+
+class IngestJobPart(Base):
+    """One source of a fanned-out job: its own task writes it, the last one to finish queues
+    the registration of them all (migration 0005)."""
+    __tablename__ = "ingest_job_parts"
+    __table_args__ = (
+        CheckConstraint(f"status IN {JOB_STATUSES}", name="ingest_job_parts_status_known"),
+    )
+
+    job_id: Mapped[int] = mapped_column(
+        ForeignKey("ingest_jobs.id", ondelete="CASCADE"), primary_key=True)
+    part: Mapped[int] = mapped_column(Integer, primary_key=True)
+    source: Mapped[str] = mapped_column(Text, nullable=False)
+    status: Mapped[str] = mapped_column(Text, nullable=False, server_default="queued")
+    attempts: Mapped[int] = mapped_column(Integer, nullable=False, server_default="0")
+    worker: Mapped[str | None] = mapped_column(Text)
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSONB)
+    updated_at: Mapped[datetime] = _now()
 
 
 class ApiToken(Base):

@@ -1,24 +1,21 @@
-"""Record a batch job's status and progress in ``ingest_jobs``.
+"""Record a job run in the calling process (``ugvmap ingest ...`` without ``--queue``).
 
-The row is written on its own autocommit connection, not in the job's transaction: an ingest
-commits its catalogue rows only at the very end (so a failed job leaves nothing half
-registered), yet the API and other users must see "running, 40 %" while it works, and see
-"failed: <reason>" after a crash that rolled the job's own transaction back.
+The row is written on its own autocommit connection, not in the job's transaction (see
+:mod:`app.jobs.rows`). While the job runs, a :class:`~app.jobs.lease.Lease` renews the row,
+so a killed process's job is marked failed by :func:`~app.jobs.lease.reap_dead_jobs` instead
+of staying ``running`` forever.
 """
 
 from __future__ import annotations
 
 import json
 import time
-import traceback
 from types import TracebackType
 from typing import Any
 
-from sqlalchemy import text
-
 from app.db.session import get_engine
-
-MAX_ERROR = 2000
+from app.jobs.lease import Lease, worker_name
+from app.jobs.rows import failure_reason, record_failure, record_progress, record_success, write
 
 
 class JobRecorder:
@@ -27,38 +24,35 @@ class JobRecorder:
     def __init__(self, kind: str, target: str | None,
                  params: dict[str, Any] | None = None) -> None:
         self.kind, self.target, self.params = kind, target, params or {}
-        self.engine = get_engine()
         self.id: int | None = None
-
-    def _write(self, sql: str, **values: Any) -> Any:
-        with self.engine.connect().execution_options(isolation_level="AUTOCOMMIT") as conn:
-            result = conn.execute(text(sql), {"id": self.id, **values})
-            return result.scalar() if result.returns_rows else None
+        self._lease: Lease | None = None
 
     def __enter__(self) -> JobRecorder:
-        self.id = self._write(
-            "INSERT INTO ingest_jobs (kind, target, params, status, started_at) "
-            "VALUES (:kind, :target, CAST(:params AS jsonb), 'running', now()) RETURNING id",
-            kind=self.kind, target=self.target, params=json.dumps(self.params, default=str))
+        self.id = int(write(
+            "INSERT INTO ingest_jobs (kind, target, params, status, started_at, heartbeat_at, "
+            " worker) VALUES (:kind, :target, CAST(:params AS jsonb), 'running', now(), now(), "
+            " :worker) RETURNING id",
+            kind=self.kind, target=self.target, params=json.dumps(self.params, default=str),
+            worker=worker_name()))
+        self._lease = Lease(get_engine(), self.id)
+        self._lease.__enter__()
         return self
 
     def progress(self, fraction: float, message: str | None = None) -> None:
         """Record progress (clamped to 0..1) and what the job is doing, visible at once on
         ``/jobs``."""
-        self._write("UPDATE ingest_jobs SET progress = :p, message = :m WHERE id = :id",
-                    p=min(1.0, max(0.0, fraction)), m=message)
+        assert self.id is not None
+        record_progress(self.id, fraction, message)
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
+        assert self.id is not None and self._lease is not None
+        self._lease.__exit__(exc_type, exc, tb)
         if exc is None:
-            self._write("UPDATE ingest_jobs SET status = 'succeeded', progress = 1, "
-                        "finished_at = now() WHERE id = :id")
-            return
-        reason = str(exc) or "".join(traceback.format_exception_only(exc)).strip()
-        if isinstance(exc, KeyboardInterrupt):
-            reason = "interrupted"
-        self._write("UPDATE ingest_jobs SET status = 'failed', error = :e, finished_at = now() "
-                    "WHERE id = :id", e=reason[:MAX_ERROR])
+            with get_engine().begin() as conn:
+                record_success(conn, self.id)
+        else:
+            record_failure(self.id, failure_reason(exc))
 
 
 class Throttle:

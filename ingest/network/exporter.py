@@ -2,9 +2,13 @@
 
 Every format carries enough to rebuild the same network: segment geometries in their
 digitising direction with every attribute, and node attributes (traffic lights, external ids).
-GeoJSON and GeoPackage also carry ``source_node``/``target_node``, which tells the importer
-the file is already a topology. OSM stores coordinates at 1e-7 degrees, so an OSM round trip
-is exact for networks that came from OSM and accurate to ~1 cm otherwise.
+Segments and nodes are kept apart, as clients expect one geometry type per layer: two
+GeoJSON files (``x.segments.geojson`` with LineStrings, ``x.nodes.geojson`` with Points, which
+the importer reads back as one network) and two GeoPackage layers. GeoJSON and GeoPackage
+also carry ``source_node``/``target_node``, which tells the importer the file is already a
+topology. OSM files follow the convention for objects not (yet) in OSM, which JOSM and
+osmium expect: negative ids and no ``version``. OSM stores coordinates at 1e-7 degrees, so an
+OSM round trip is exact for networks that came from OSM and accurate to ~1 cm otherwise.
 """
 
 from __future__ import annotations
@@ -84,16 +88,32 @@ def _node_properties(n: StoredNode) -> dict[str, Any]:
             "external_id": n.external_id}
 
 
-def write_geojson(path: Path, segments: list[StoredSegment], nodes: list[StoredNode]) -> None:
-    """Write segments and nodes as one GeoJSON FeatureCollection whose properties name the topology,
-    so import keeps it as is."""
-    features = [{"type": "Feature", "id": s.id, "properties": _segment_properties(s),
-                 "geometry": {"type": "LineString", "coordinates": s.coords}}
-                for s in segments]
-    features += [{"type": "Feature", "id": n.id, "properties": _node_properties(n),
-                  "geometry": {"type": "Point", "coordinates": n.coord}} for n in nodes]
+def geojson_paths(out: Path) -> tuple[Path, Path]:
+    """``x.geojson`` (or ``x.segments.geojson``) -> (``x.segments.geojson``,
+    ``x.nodes.geojson``): the two files a GeoJSON export writes."""
+    stem = out.name
+    for suffix in (".geojson", ".json", ".segments", ".nodes"):
+        stem = stem.removesuffix(suffix)
+    ext = ".json" if out.name.endswith(".json") else ".geojson"
+    return out.with_name(f"{stem}.segments{ext}"), out.with_name(f"{stem}.nodes{ext}")
+
+
+def _feature_collection(path: Path, features: list[dict[str, Any]]) -> None:
     path.write_text(json.dumps({"type": "FeatureCollection", "features": features},
                                ensure_ascii=False), encoding="utf-8")
+
+
+def segment_features(segments: list[StoredSegment]) -> list[dict[str, Any]]:
+    """Segments as LineString features whose properties name the topology, so import keeps
+    it as is."""
+    return [{"type": "Feature", "id": s.id, "properties": _segment_properties(s),
+             "geometry": {"type": "LineString", "coordinates": s.coords}} for s in segments]
+
+
+def node_features(nodes: list[StoredNode]) -> list[dict[str, Any]]:
+    """Nodes as Point features with their attributes."""
+    return [{"type": "Feature", "id": n.id, "properties": _node_properties(n),
+             "geometry": {"type": "Point", "coordinates": n.coord}} for n in nodes]
 
 
 def _columns(rows: list[dict[str, Any]]) -> tuple[list[str], list[np.ndarray]]:
@@ -135,21 +155,23 @@ def write_gpkg(path: Path, segments: list[StoredSegment], nodes: list[StoredNode
 
 
 def write_osm(path: Path, segments: list[StoredSegment], nodes: list[StoredNode]) -> None:
-    """Network nodes keep their ids; interior vertices get ids above them; ways are segments."""
-    node_ids = {n.coord: n.id for n in nodes}
-    next_id = max(node_ids.values(), default=0) + 1
+    """New OSM objects: network nodes are -1..-n, interior vertices count on down from there,
+    ways (one per segment) are -1..-m, and nothing has a version (libosmium writes none for
+    version 0)."""
+    node_ids = {n.coord: -i for i, n in enumerate(nodes, start=1)}
+    next_id = -len(nodes) - 1
     vertices: dict[Coord, int] = {}
     ways = []
-    for s in segments:
+    for way_id, s in enumerate(segments, start=1):
         refs = []
         for c in s.coords:
             if c in node_ids:
                 refs.append(node_ids[c])
                 continue
             if c not in vertices:
-                vertices[c], next_id = next_id, next_id + 1
+                vertices[c], next_id = next_id, next_id - 1
             refs.append(vertices[c])
-        ways.append((s.id, refs, tags_from_attributes(s.attributes)))
+        ways.append((-way_id, refs, tags_from_attributes(s.attributes)))
     if path.exists():
         path.unlink()
     writer = osmium.SimpleWriter(str(path))
@@ -158,7 +180,8 @@ def write_osm(path: Path, segments: list[StoredSegment], nodes: list[StoredNode]
             tags = {"highway": "traffic_signals"} if n.traffic_light else {}
             if n.external_id is not None:
                 tags[EXTERNAL_ID_TAG] = n.external_id
-            writer.add_node(osmium.osm.mutable.Node(id=n.id, location=n.coord, tags=tags))
+            writer.add_node(osmium.osm.mutable.Node(id=node_ids[n.coord], location=n.coord,
+                                                    tags=tags))
         for coord, vid in vertices.items():
             writer.add_node(osmium.osm.mutable.Node(id=vid, location=coord))
         for wid, refs, tags in ways:
@@ -167,22 +190,43 @@ def write_osm(path: Path, segments: list[StoredSegment], nodes: list[StoredNode]
         writer.close()
 
 
-WRITERS: dict[str, Callable[[Path, list[StoredSegment], list[StoredNode]], None]] = {
-    "geojson": write_geojson, "gpkg": write_gpkg, "osm": write_osm}
+@dataclass(frozen=True)
+class ExportSummary:
+    """What an export wrote."""
+
+    segments: int
+    nodes: int
+    files: list[Path]
 
 
-def export_network(session: Session, network: str, out: Path, fmt: str) -> int:
-    """Write network ``network`` to ``out``; returns the number of segments written.
-    The file appears complete or not at all (written under a temporary name, then renamed)."""
-    if fmt not in WRITERS:
-        raise UserError(f"format must be one of {', '.join(FORMATS)}")
-    segments, nodes = load_network(session, network)
-    suffix = "".join(out.suffixes) or {"geojson": ".geojson", "gpkg": ".gpkg",
+def _write_atomically(path: Path, write: Callable[[Path], None], fmt: str) -> None:
+    """Write ``path`` under a temporary name and rename it: it appears complete or not at all.
+    The temporary name keeps the suffix (GDAL and osmium choose the format by it)."""
+    suffix = "".join(path.suffixes) or {"geojson": ".geojson", "gpkg": ".gpkg",
                                         "osm": ".osm"}[fmt]
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp{suffix}")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp{suffix}")
     try:
-        WRITERS[fmt](tmp, segments, nodes)
-        tmp.replace(out)
+        write(tmp)
+        tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)
-    return len(segments)
+
+
+def export_network(session: Session, network: str, out: Path, fmt: str) -> ExportSummary:
+    """Write network ``network`` to ``out`` (GeoJSON: the two files of :func:`geojson_paths`,
+    the nodes first, so the segments file, which import starts from, appears last)."""
+    if fmt not in FORMATS:
+        raise UserError(f"format must be one of {', '.join(FORMATS)}")
+    segments, nodes = load_network(session, network)
+    outputs: list[tuple[Path, Callable[[Path], None]]]
+    if fmt == "geojson":
+        segment_path, node_path = geojson_paths(out)
+        outputs = [(node_path, lambda p: _feature_collection(p, node_features(nodes))),
+                   (segment_path, lambda p: _feature_collection(p, segment_features(segments)))]
+    elif fmt == "gpkg":
+        outputs = [(out, lambda p: write_gpkg(p, segments, nodes))]
+    else:
+        outputs = [(out, lambda p: write_osm(p, segments, nodes))]
+    for path, write in outputs:
+        _write_atomically(path, write, fmt)
+    return ExportSummary(len(segments), len(nodes), [path for path, _ in outputs])

@@ -57,23 +57,50 @@ def split_features(features: Iterable[Mapping[str, Any]]
     return lines, points, topological and bool(lines)
 
 
-def read_geojson(path: Path) -> tuple[list[RoadLine], list[NodePoint], bool]:
-    """Lines, node attributes and whether the file is already a topology (names
-    ``source_node``/``target_node``: our exports, not to be noded again)."""
+def nodes_file(path: Path) -> Path | None:
+    """``x.segments.geojson`` -> ``x.nodes.geojson`` when it exists: the node attributes our
+    GeoJSON export writes beside the segments."""
+    stem, dot, ext = path.name.rpartition(".")
+    if not stem.endswith(".segments"):
+        return None
+    sibling = path.with_name(f"{stem.removesuffix('.segments')}.nodes{dot}{ext}")
+    return sibling if sibling.is_file() else None
+
+
+def _geojson_features(path: Path) -> list[dict[str, Any]] | None:
+    """The features of a GeoJSON file in lon/lat; None for a legacy projected ``crs``."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise NetworkFileError(f"{path.name}: not a readable GeoJSON file ({exc})") from exc
     crs_name = ((data.get("crs") or {}).get("properties") or {}).get("name")
     if crs_name and not _is_lonlat(crs_name):
-        return read_ogr(path)  # legacy GeoJSON in a projected CRS: let GDAL reproject
+        return None
     if data.get("type") == "FeatureCollection":
-        features = data.get("features") or []
-    elif data.get("type") == "Feature":
-        features = [data]
-    else:
-        features = [{"type": "Feature", "geometry": data, "properties": {}}]
-    return split_features(features)
+        return data.get("features") or []
+    if data.get("type") == "Feature":
+        return [data]
+    return [{"type": "Feature", "geometry": data, "properties": {}}]
+
+
+def read_geojson(path: Path) -> tuple[list[RoadLine], list[NodePoint], bool]:
+    """Lines, node attributes and whether the file is already a topology (names
+    ``source_node``/``target_node``: our exports, not to be noded again). Points of the
+    file's :func:`nodes_file`, if any, are node attributes too."""
+    features = _geojson_features(path)
+    if features is None:
+        return read_ogr(path)  # legacy GeoJSON in a projected CRS: let GDAL reproject
+    lines, points, topological = split_features(features)
+    sibling = nodes_file(path)
+    if sibling is not None:
+        node_lines, node_points, _ = split_features(_geojson_features(sibling) or [])
+        if node_lines:
+            raise NetworkFileError(f"{sibling.name}: a nodes file must hold only Points")
+        points += node_points
+    if not lines and points and path.name.rpartition(".")[0].endswith(".nodes"):
+        segments = path.name.replace(".nodes.", ".segments.")
+        raise NetworkFileError(f"{path.name} holds only the nodes: import {segments}")
+    return lines, points, topological
 
 
 def _clean(value: Any) -> Any:

@@ -110,6 +110,12 @@ def _parse_width(value: str | None) -> float | None:
     return width if width and width > 0 else None
 
 
+def osm_external_id(kind: str, osm_id: int) -> str | None:
+    """``w123`` / ``n45`` for an object of OSM; None for an id <= 0, which is a placeholder
+    for an object not (yet) in OSM (JOSM's convention, and our export's)."""
+    return f"{kind}{osm_id}" if osm_id > 0 else None
+
+
 def attributes_from_tags(tags: Mapping[str, str], external_id: str | None = None
                          ) -> RoadAttributes:
     """Map one OSM way's tags to segment attributes; unmapped tags go to ``attrs``."""

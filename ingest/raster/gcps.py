@@ -215,11 +215,16 @@ def gcp_writer(method: str):
     return write
 
 
+def inspect_with_gcps(path: Path, gcps: GcpSet) -> Source:
+    """Validate ``path`` as an image georeferenced by ``gcps`` (warped by :func:`gcp_writer`)."""
+    return inspect(path, gcps=gcps.control_points(), gcp_crs=gcps.crs)
+
+
 def ingest_with_gcps(path: Path, layer: str, gcps_file: Path, method: str, crs: str | None,
                      **options) -> tuple[GcpReport, IngestReport]:
     """Validate, report the fit accuracy, then ingest ``path`` warped through its GCPs."""
     gcps = read_gcps(gcps_file, crs)
-    source = inspect(path, gcps=gcps.control_points(), gcp_crs=gcps.crs)
+    source = inspect_with_gcps(path, gcps)
     report = residual_report(gcps, method, source.width, source.height)
     ingested = ingest_raster([path], layer, inspect_source=lambda _: source,
                              to_cog=gcp_writer(method), **options)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sqlalchemy import Connection, text
+from sqlalchemy.orm import Session
 from tqdm import tqdm
 
 from app.db.models import LAYER_KINDS, SLUG_RE
@@ -62,10 +63,11 @@ class IngestReport:
     sources: list[WrittenSource]
 
 
-def write_source(source: Source, store: Path, layer: str,
+def write_source(source: Source, folder: Path,
                  to_cog: Callable[[Source, Path], None] | None = None) -> WrittenSource:
-    """Write one validated source into the store and measure what the catalogue needs."""
-    dst = store / layer / f"{uuid.uuid4().hex}.tif"
+    """Write one validated source as a COG in the store ``folder`` and measure what the
+    catalogue needs."""
+    dst = folder / f"{uuid.uuid4().hex}.tif"
     if to_cog is None:
         write_cog(source.cog_input(), dst, source.dtype, len(source.bands))
     else:
@@ -89,49 +91,48 @@ def write_source(source: Source, store: Path, layer: str,
         raise
 
 
-def register(written: Sequence[WrittenSource], layer: str, title: str | None, kind: str,
-             priority: int, overview: Path,
-             database_url: str | None = None) -> tuple[int, str | None]:
+def register(session: Session, written: Sequence[WrittenSource], layer: str,
+             title: str | None, kind: str, priority: int,
+             overview: Path) -> tuple[int, str | None]:
     """Upsert the layer, insert its new sources, render its new overview into ``overview``
-    and point the layer at it, in one transaction; return the new version and the replaced
-    overview file (to delete)."""
-    with session_scope(database_url) as session:
-        old_overview = session.execute(
-            text("SELECT overview_uri FROM layers WHERE slug = :slug FOR UPDATE"),
-            {"slug": layer}).scalar()
-        row = session.execute(text(
-            "INSERT INTO layers (slug, title, kind, overview_uri) "
-            "VALUES (:slug, :title, :kind, :overview) "
-            "ON CONFLICT (slug) DO UPDATE SET title = COALESCE(:given_title, layers.title), "
-            "  version = layers.version + 1, updated_at = now(), overview_uri = :overview "
-            "RETURNING id, version"),
-            {"slug": layer, "title": title or layer, "given_title": title, "kind": kind,
-             "overview": str(overview)},
-        ).one()
-        layer_id, version = int(row[0]), int(row[1])
-        for src in written:
-            session.execute(text(
-                "INSERT INTO raster_sources (layer_id, name, uri, footprint, priority, width, "
-                " height, band_count, dtype, resolution_m, meta) VALUES (:layer_id, :name, :uri,"
-                " ST_Multi(ST_SetSRID(ST_GeomFromWKB(:wkb), 3857)), :priority, :width, :height,"
-                " :bands, :dtype, :res, CAST(:meta AS jsonb))"),
-                {"layer_id": layer_id, "name": src.name, "uri": src.uri,
-                 "wkb": src.footprint_wkb, "priority": priority, "width": src.width,
-                 "height": src.height, "bands": src.band_count, "dtype": src.dtype,
-                 "res": src.resolution_m, "meta": json.dumps(src.meta)})
+    and point the layer at it, in the caller's transaction (so the layer changes at once, on
+    commit); return the new version and the replaced overview file (to delete)."""
+    old_overview = session.execute(
+        text("SELECT overview_uri FROM layers WHERE slug = :slug FOR UPDATE"),
+        {"slug": layer}).scalar()
+    row = session.execute(text(
+        "INSERT INTO layers (slug, title, kind, overview_uri) "
+        "VALUES (:slug, :title, :kind, :overview) "
+        "ON CONFLICT (slug) DO UPDATE SET title = COALESCE(:given_title, layers.title), "
+        "  version = layers.version + 1, updated_at = now(), overview_uri = :overview "
+        "RETURNING id, version"),
+        {"slug": layer, "title": title or layer, "given_title": title, "kind": kind,
+         "overview": str(overview)},
+    ).one()
+    layer_id, version = int(row[0]), int(row[1])
+    for src in written:
         session.execute(text(
-            "UPDATE layers l SET "
-            " bounds = (SELECT ST_Envelope(ST_Transform(ST_SetSRID(ST_Extent(s.footprint),"
-            "   3857), 4326)) FROM raster_sources s WHERE s.layer_id = l.id),"
-            " resolution_m = (SELECT min(resolution_m) FROM raster_sources s"
-            "   WHERE s.layer_id = l.id),"
-            " maxzoom = (SELECT max((meta->>'zoom')::int) FROM raster_sources s"
-            "   WHERE s.layer_id = l.id),"
-            " minzoom = (SELECT min((meta->>'minzoom')::int) FROM raster_sources s"
-            "   WHERE s.layer_id = l.id) "
-            "WHERE l.id = :id"), {"id": layer_id})
-        render_overview(session.connection(), layer_id, layer, overview)
-        return version, old_overview
+            "INSERT INTO raster_sources (layer_id, name, uri, footprint, priority, width, "
+            " height, band_count, dtype, resolution_m, meta) VALUES (:layer_id, :name, :uri,"
+            " ST_Multi(ST_SetSRID(ST_GeomFromWKB(:wkb), 3857)), :priority, :width, :height,"
+            " :bands, :dtype, :res, CAST(:meta AS jsonb))"),
+            {"layer_id": layer_id, "name": src.name, "uri": src.uri,
+             "wkb": src.footprint_wkb, "priority": priority, "width": src.width,
+             "height": src.height, "bands": src.band_count, "dtype": src.dtype,
+             "res": src.resolution_m, "meta": json.dumps(src.meta)})
+    session.execute(text(
+        "UPDATE layers l SET "
+        " bounds = (SELECT ST_Envelope(ST_Transform(ST_SetSRID(ST_Extent(s.footprint),"
+        "   3857), 4326)) FROM raster_sources s WHERE s.layer_id = l.id),"
+        " resolution_m = (SELECT min(resolution_m) FROM raster_sources s"
+        "   WHERE s.layer_id = l.id),"
+        " maxzoom = (SELECT max((meta->>'zoom')::int) FROM raster_sources s"
+        "   WHERE s.layer_id = l.id),"
+        " minzoom = (SELECT min((meta->>'minzoom')::int) FROM raster_sources s"
+        "   WHERE s.layer_id = l.id) "
+        "WHERE l.id = :id"), {"id": layer_id})
+    render_overview(session.connection(), layer_id, layer, overview)
+    return version, old_overview
 
 
 def render_overview(conn: Connection, layer_id: int, layer: str, dst: Path) -> None:
@@ -216,12 +217,13 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
                 if on_progress:
                     on_progress(done / len(bar), source.name if source else "layer overview")
                 if source is not None:
-                    written.append(write_source(source, store, layer, to_cog))
+                    written.append(write_source(source, store / layer, to_cog))
                     created.append(written[-1].uri)
             overview = store / layer / f"overview-{uuid.uuid4().hex}.tif"
             created.append(str(overview))
-            version, replaced = register(written, layer, title, kind, priority, overview,
-                                         database_url)
+            with session_scope(database_url) as session:
+                version, replaced = register(session, written, layer, title, kind, priority,
+                                             overview)
         except BaseException:
             for uri in created:
                 with contextlib.suppress(FileNotFoundError):

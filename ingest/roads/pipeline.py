@@ -13,14 +13,14 @@ gaps in the skeleton are real roads the threshold broke.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
 
 import cv2
 import numpy as np
 from skimage.filters import apply_hysteresis_threshold
 
+from app.jobs.kinds import Classifier
 from ingest.roads import RoadsInputError
 from ingest.roads.classify import ROAD, learned_classify, spectral_classify
 from ingest.roads.clean import clean_mask
@@ -30,7 +30,6 @@ from ingest.roads.houses import HouseRule, remove_houses
 from ingest.roads.skeleton import prune_spurs, thin
 from ingest.roads.topology import TopologyParams, clean_topology
 
-Classifier = Literal["auto", "model", "adapted", "learned", "spectral"]
 MODEL_MAX_COARSER = 1.4
 """The model saw scales down to 1/1.4 in training: coarser pixels hide its roads."""
 
@@ -60,6 +59,25 @@ class ExtractParams:
     topology: TopologyParams = field(default_factory=TopologyParams)
     model_path: Path | None = None
     """ONNX road model; None = ``UGVMAP_ROAD_MODEL`` or the shipped ``models/roads-v1``."""
+
+
+def tuned_params(classifier: Classifier | None = None, k: float | None = None,
+                 work_resolution: float | None = None, spur_max: float | None = None,
+                 simplify: float | None = None) -> ExtractParams:
+    """The parameters from the tuning options of ``extract-roads`` / ``ingest roads`` (or a
+    queued job's): None keeps the default, a ``work_resolution`` of 0 keeps the source grid."""
+    params = ExtractParams()
+    if classifier is not None:
+        params = replace(params, classifier=classifier)
+    if k is not None:
+        params = replace(params, k=k)
+    if spur_max is not None:
+        params = replace(params, spur_max_m=spur_max)
+    if work_resolution is not None:
+        params = replace(params, work_resolution_m=work_resolution or None)
+    if simplify is not None:
+        params = replace(params, graph=replace(params.graph, simplify_m=simplify))
+    return params
 
 
 @dataclass(frozen=True)

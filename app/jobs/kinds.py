@@ -1,0 +1,177 @@
+"""The kinds of batch job, their parameters and the code that runs them: one table to extend.
+
+A kind's parameters are a pydantic model, so ``POST /jobs`` and ``ugvmap ingest ... --queue``
+refuse bad input (422 per field / one line) before anything is queued. ``runner`` names the
+function a worker calls (``module:function``) instead of importing it: the HTTP service
+validates and enqueues without loading the ingest code (``app`` never imports ``ingest``).
+Adding a kind (the IPM ingest, say) is one model and one row in :data:`JOB_KINDS`.
+
+Paths are paths on the workers' file system and must be absolute: a worker's working
+directory is not the caller's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import PurePosixPath
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    StringConstraints,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pyproj import CRS
+from pyproj.exceptions import CRSError
+
+from app.db.models import LAYER_KINDS, SLUG_RE
+from app.errors import InvalidValueError
+
+#: The road extraction classifiers (``ingest.roads.pipeline`` runs them).
+Classifier = Literal["auto", "model", "adapted", "learned", "spectral"]
+
+
+def _absolute(path: str) -> str:
+    if "\x00" in path or not PurePosixPath(path).is_absolute():
+        raise ValueError("must be an absolute path on the workers' file system")
+    return path
+
+
+def _lonlat_box(box: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    x0, y0, x1, y1 = box
+    if not (all(map(math.isfinite, box)) and -180 <= x0 < x1 <= 180 and -90 <= y0 < y1 <= 90):
+        raise ValueError("must be [minlon, minlat, maxlon, maxlat] in degrees")
+    return box
+
+
+ServerPath = Annotated[str, StringConstraints(max_length=4096), AfterValidator(_absolute)]
+Slug = Annotated[str, StringConstraints(pattern=SLUG_RE)]
+LonLatBox = Annotated[tuple[float, float, float, float], AfterValidator(_lonlat_box)]
+
+
+class JobParams(BaseModel):
+    """Parameters of one job kind; unknown keys are refused (a typo must not be ignored)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    @property
+    def target(self) -> str:
+        """The layer or network the job writes (the ``target`` column of its row)."""
+        raise NotImplementedError
+
+
+class RasterParams(JobParams):
+    """``ingest-raster``: one task per source, then the layer registered once."""
+
+    sources: list[ServerPath] = Field(min_length=1, max_length=10_000)
+    layer: Slug
+    title: str | None = Field(default=None, max_length=200)
+    kind: str = "orthophoto"
+    crs: str | None = Field(default=None, max_length=2000)
+    priority: int = Field(default=0, ge=-(2**31), lt=2**31)
+    gcps: ServerPath | None = None
+    gcp_method: Literal["poly1", "poly2", "tps"] = "poly1"
+
+    @field_validator("crs")
+    @classmethod
+    def _known_crs(cls, crs: str | None) -> str | None:
+        if crs is not None:
+            try:
+                CRS.from_user_input(crs)
+            except CRSError:
+                raise ValueError("is not a CRS PROJ knows (e.g. EPSG:32633)") from None
+        return crs
+
+    @field_validator("kind")
+    @classmethod
+    def _known_kind(cls, kind: str) -> str:
+        if kind not in LAYER_KINDS:
+            raise ValueError(f"must be one of {', '.join(LAYER_KINDS)}")
+        return kind
+
+    @model_validator(mode="after")
+    def _one_source_with_gcps(self) -> RasterParams:
+        if self.gcps is not None and len(self.sources) != 1:
+            raise ValueError("gcps georeferences exactly one source")
+        return self
+
+    @property
+    def target(self) -> str:
+        """The layer."""
+        return self.layer
+
+
+class NetworkParams(JobParams):
+    """``ingest-network``: a road file imported as a network."""
+
+    file: ServerPath
+    network: Slug
+    replace: bool = False
+
+    @property
+    def target(self) -> str:
+        """The network."""
+        return self.network
+
+
+class RoadsParams(JobParams):
+    """``ingest-roads``: a raster layer's roads extracted into a network. Tuning left out
+    (None) keeps the pipeline's default."""
+
+    layer: Slug
+    network: Slug
+    replace: bool = False
+    train_boxes: list[LonLatBox] = Field(default_factory=list, max_length=1000)
+    not_road_boxes: list[LonLatBox] = Field(default_factory=list, max_length=1000)
+    train_lines: ServerPath | None = None
+    line_width: float | None = Field(default=None, gt=0, le=100)
+    classifier: Classifier | None = None
+    k: float | None = Field(default=None, gt=0, le=100)
+    work_resolution: float | None = Field(default=None, ge=0, le=100)
+    spur_max: float | None = Field(default=None, ge=0, le=1000)
+    simplify: float | None = Field(default=None, ge=0, le=100)
+
+    @property
+    def target(self) -> str:
+        """The network."""
+        return self.network
+
+
+@dataclass(frozen=True)
+class JobKind:
+    """A row of the table: how to check a job's parameters and what runs it."""
+
+    params: type[JobParams]
+    runner: str  # "module:function(job_id, params)", imported by the worker only
+
+
+JOB_KINDS: dict[str, JobKind] = {
+    "ingest-raster": JobKind(RasterParams, "ingest.queue.raster:run"),
+    "ingest-network": JobKind(NetworkParams, "ingest.queue.runners:ingest_network"),
+    "ingest-roads": JobKind(RoadsParams, "ingest.queue.runners:ingest_roads"),
+}
+
+
+def validate_job(kind: Any, params: Any) -> JobParams:
+    """The job's parameters as their model; 422 ``InvalidValue`` naming each bad field."""
+    if not isinstance(kind, str) or kind not in JOB_KINDS:
+        raise InvalidValueError(f"kind must be one of {', '.join(JOB_KINDS)}",
+                                errors={"kind": f"must be one of {', '.join(JOB_KINDS)}"})
+    if not isinstance(params, dict):
+        raise InvalidValueError("params must be a JSON object",
+                                errors={"params": "must be a JSON object"})
+    try:
+        return JOB_KINDS[kind].params.model_validate(params)
+    except ValidationError as exc:
+        errors: dict[str, str] = {}
+        for err in exc.errors():
+            field = ".".join(str(p) for p in ("params", *err["loc"]))
+            errors.setdefault(field, err["msg"])
+        raise InvalidValueError("; ".join(f"{k}: {v}" for k, v in errors.items()),
+                                errors=errors) from None

@@ -1,0 +1,46 @@
+"""Job kinds that run as one task: the same work as their ``ugvmap ingest`` command.
+
+Each commits its result and the job's success in one transaction
+(:func:`~app.jobs.rows.succeed_in`): a worker killed before the commit left nothing, and the
+retried task redoes it; a retry after the commit finds the job succeeded and does nothing.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from app.db.session import get_engine, session_scope
+from app.jobs.kinds import NetworkParams, RoadsParams
+from app.jobs.lease import Lease
+from app.jobs.rows import succeed_in
+
+
+def ingest_network(job_id: int, params: NetworkParams) -> None:
+    """Import a road file as a network (``ugvmap ingest network``)."""
+    from ingest.network import import_network
+
+    with Lease(get_engine(), job_id), session_scope() as session:
+        summary = import_network(session, Path(params.file), params.network,
+                                 replace=params.replace)
+        succeed_in(session.connection(), job_id,
+                   f"network {summary.network}: {summary.segments} segments, "
+                   f"{summary.nodes} nodes")
+
+
+def ingest_roads(job_id: int, params: RoadsParams) -> None:
+    """Extract a raster layer's roads into a network (``ugvmap ingest roads``)."""
+    from ingest.roads.layer import GeoSample, ingest_layer_roads, read_sample_lines
+    from ingest.roads.pipeline import tuned_params
+
+    lines = read_sample_lines(Path(params.train_lines)) if params.train_lines else []
+    width = {} if params.line_width is None else {"line_width_m": params.line_width}
+    sample = (GeoSample(params.train_boxes, params.not_road_boxes, lines, **width)
+              if params.train_boxes or params.not_road_boxes or lines else None)
+    tuning = tuned_params(params.classifier, params.k, params.work_resolution,
+                          params.spur_max, params.simplify)
+    with Lease(get_engine(), job_id), session_scope() as session:
+        extraction, summary = ingest_layer_roads(session, params.layer, params.network, sample,
+                                                 tuning, replace=params.replace)
+        succeed_in(session.connection(), job_id,
+                   f"network {summary.network}: {summary.segments} segments "
+                   f"({extraction.classifier} classifier)")

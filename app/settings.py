@@ -29,6 +29,8 @@ class Settings(BaseSettings):
     db_connect_timeout_s: int = 3
     # Least token role needed to read networks (features, tiles, history); unset: public.
     network_read_role: Literal["viewer", "editor", "admin"] | None = None
+    # Largest request body, counted while it is read (chunked bodies too): 413 beyond it.
+    max_body_bytes: int = Field(default=1_000_000, ge=0)
 
     @property
     def embedded(self) -> bool:

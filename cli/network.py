@@ -1,4 +1,4 @@
-"""``ugvmap`` commands for road networks: import, export, validate, API tokens.
+"""``ugvmap`` commands for road networks: import, export, validate, delete.
 
 Registered in :mod:`cli.main`. Bad input (unreadable file, unknown network, bad name) is a
 :class:`~app.errors.UserError` from the code below, shown as one line by the CLI root.
@@ -39,24 +39,6 @@ def ingest_network(file: Path, network: str, replace: bool) -> None:
                f"{summary.total_length_m / 1000:.3f} km from {summary.lines_read} lines "
                f"({summary.crossings_noded} crossings noded, "
                f"{summary.duplicates_dropped} duplicates dropped)")
-
-
-@click.group("tokens")
-def tokens() -> None:
-    """API tokens for editing (stored hashed; shown once)."""
-
-
-@tokens.command("create")
-@click.option("--role", type=click.Choice(["viewer", "editor", "admin"]), required=True)
-@click.option("--name", required=True, help="Who or what uses the token (shown in history).")
-def tokens_create(role: str, name: str) -> None:
-    """Create a token and print it once; only its hash is stored."""
-    from app.db.session import session_scope
-    from app.network.tokens import create_token
-
-    with session_scope() as session:
-        token = create_token(session, name, role)
-    click.echo(token)
 
 
 @click.group("export")

@@ -80,3 +80,20 @@ def validate(name: str) -> None:
     if not report.ok:
         raise UserError(report.lines()[-1])
     click.echo(report.lines()[-1])
+
+
+@network.command("delete")
+@click.argument("name")
+@click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
+def delete(name: str, yes: bool) -> None:
+    """Delete network NAME with its segments, nodes and edit history (asks first)."""
+    from app.db.session import session_scope
+    from app.network.deletion import delete_network
+
+    if not yes:
+        click.confirm(f"Delete network {name!r} with all its segments, nodes and edit history?",
+                      abort=True)
+    with session_scope() as session:
+        gone = delete_network(session, name)
+    click.echo(f"deleted network {gone.name}: {gone.segments} segments, {gone.nodes} nodes, "
+               f"{gone.edits} history entries")

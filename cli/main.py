@@ -42,9 +42,9 @@ def ingest() -> None:
 
 def _register_capabilities() -> None:
     """Each capability owns its commands; this is the table of contents (one line each)."""
-    from cli import db, demo, layers, network, roads, routing, tokens
+    from cli import backup, db, demo, layers, network, roads, routing, tokens
 
-    for command in (db.db, demo.demo, demo.serve,
+    for command in (db.db, backup.backup, backup.restore, demo.demo, demo.serve,
                     tokens.tokens, network.export, network.network,
                     layers.layers, routing.route,
                     roads.extract_roads, roads.evaluate_roads, roads.roads):

@@ -10,7 +10,9 @@ Two layers, both raising an :class:`~app.errors.ApiError` (default
 code, e.g. routing's OSRM ``InvalidQuery``):
 
 - ``parse_*``: pure functions from the text a client sent (or a JSON value) to a checked
-  Python value, for code that parses by hand (tile addresses, JSON bodies, the CLI);
+  Python value, for code that parses by hand (JSON bodies, the CLI; tile addresses keep their
+  parser in :func:`app.grid.parse_tile`, with the same ASCII-digits rule, because a well-formed
+  address outside the grid is a 404 there, not a 400);
 - :class:`Slug`, :class:`Int`, :class:`Finite`, :class:`LonLat`: the same rules as
   ``Annotated`` metadata for FastAPI path and query parameters (``name: NetworkName``,
   ``radius: Annotated[float, Finite("radius", low=0, high=...)] = 50``). The rule runs before

@@ -6,17 +6,32 @@ from __future__ import annotations
 
 import json
 import uuid
+from typing import Annotated, Any
 
 import pytest
+from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from app.db.session import session_scope
 from app.errors import InvalidParameterValueError, InvalidQueryError, InvalidValueError
-from app.params import parse_float, parse_int, parse_lonlat, parse_position, parse_slug
+from app.main import EXCEPTION_HANDLERS
+from app.params import (
+    Finite,
+    Int,
+    LonLat,
+    NetworkName,
+    parse_float,
+    parse_int,
+    parse_lonlat,
+    parse_position,
+    parse_slug,
+)
 from ingest.network import RoadAttributes, RoadLine, write_network
 from ingest.raster.job import ingest_raster
 from tests.network_helpers import bearer, grid_network
 from tests.raster_synth import synthetic_utm
+
+RADIUS_LIMIT = {"radius": 100.0}  # stands for a bound read from settings per request
 
 
 @pytest.fixture(scope="module")
@@ -170,3 +185,36 @@ def test_revert_version_is_ascii_digits(safe_client) -> None:
         _problem(safe_client.post(f"{items}/{fid}/revert?to={to}",
                                   headers={**bearer("editor"), "If-Match": '"1"'}),
                  400, "InvalidParameterValue")
+
+
+def test_annotated_rules_on_an_endpoint() -> None:
+    """The parameter types as another capability (routing) uses them: the rule's own error
+    class and code, bounds read from settings at request time, and an honest OpenAPI."""
+    limit = RADIUS_LIMIT
+    probe = FastAPI(exception_handlers=EXCEPTION_HANDLERS)
+
+    @probe.get("/n/{name}")
+    def endpoint(name: NetworkName,
+                 point: Annotated[Any, LonLat("point", error=InvalidQueryError)],
+                 radius: Annotated[float, Finite("radius", low=0,
+                                                 high=lambda: RADIUS_LIMIT["radius"])] = 50.0,
+                 n: Annotated[int, Int("n", low=1, high=10)] = 1) -> dict:
+        return {"name": name, "point": list(point), "radius": radius, "n": n}
+
+    c = TestClient(probe)
+    assert c.get("/n/x?point=1.5,42.5&radius=75&n=3").json() == \
+        {"name": "x", "point": [1.5, 42.5], "radius": 75.0, "n": 3}
+    assert c.get("/n/x?point=1.5,42.5").json()["radius"] == 50.0
+    for query, code in (("point=1.5,95", "InvalidQuery"), ("point=nan,1", "InvalidQuery"),
+                        ("point=1,1&radius=inf", "InvalidParameterValue"),
+                        ("point=1,1&radius=101", "InvalidParameterValue"),
+                        ("point=1,1&n=%D9%A3", "InvalidParameterValue")):
+        _problem(c.get(f"/n/x?{query}"), 400, code)
+    limit["radius"] = 200.0  # a bound from settings follows them
+    assert c.get("/n/x?point=1,1&radius=150").status_code == 200
+    _problem(c.get("/n/a%00b?point=1,1"), 400, "InvalidParameterValue")
+    params = {p["name"]: p["schema"] for p in
+              probe.openapi()["paths"]["/n/{name}"]["get"]["parameters"]}
+    assert params["name"]["pattern"].startswith("^[a-z0-9]")
+    assert (params["n"]["minimum"], params["n"]["maximum"]) == (1, 10)
+    assert params["radius"]["minimum"] == 0 and "maximum" not in params["radius"]

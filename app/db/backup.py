@@ -1,7 +1,7 @@
 """``ugvmap backup DIR`` / ``ugvmap restore DIR``: the database and the raster store, together.
 
-A backup directory holds ``database.dump`` (``pg_dump`` custom format, made by the server's
-own PostgreSQL client binaries), ``rasters/`` (every COG the dump references, at its
+A backup directory holds ``database.dump`` (``pg_dump`` custom format, made by the newest
+installed PostgreSQL client: the embedded cluster's own PostgreSQL 15 binaries here), ``rasters/`` (every COG the dump references, at its
 store-relative path) and ``manifest.json`` (written last: sizes and SHA-256 of every file,
 the schema revision, row counts). A directory without a manifest is not a backup.
 
@@ -23,6 +23,7 @@ reads the new store wherever it is.
 
 from __future__ import annotations
 
+import glob
 import hashlib
 import json
 import shutil
@@ -36,7 +37,7 @@ from typing import Any
 
 import psycopg
 
-from app.db import embedded, migrate
+from app.db import migrate
 from app.db.session import libpq_dsn
 from app.errors import UserError
 from app.tiles.store import STORE_LOCK, is_absolute
@@ -70,14 +71,16 @@ class Summary:
 
 
 def _tool(name: str) -> str:
-    """The PostgreSQL client binary matching the embedded server (Debian keeps it off PATH)."""
-    path = embedded.pg_bindir() / name
-    if not path.exists():
-        found = shutil.which(name)
-        if found is None:
-            raise BackupError(f"{name} not found; install postgresql-client-15")
-        return found
-    return str(path)
+    """The newest installed PostgreSQL client binary ``name`` (Debian keeps them off PATH in
+    /usr/lib/postgresql/<major>/bin): pg_dump must be at least the server's version, and
+    pg_restore at least the version of the pg_dump that wrote the dump."""
+    found = sorted(glob.glob(f"/usr/lib/postgresql/*/bin/{name}"),
+                   key=lambda p: int(Path(p).parts[-3]) if Path(p).parts[-3].isdigit() else 0)
+    path = found[-1] if found else shutil.which(name)
+    if path is None:
+        raise BackupError(f"{name} not found; install the PostgreSQL client of the server's "
+                          "version (postgresql-client-15 for the embedded cluster)")
+    return path
 
 
 def _run(cmd: list[str]) -> None:

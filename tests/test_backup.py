@@ -116,6 +116,12 @@ def test_round_trip_into_a_new_database_and_store(source, database_url: str,
         assert "restored" in proc.stdout
         assert _fingerprints(new_url) == before
         assert (new_store / files[0]["path"]).is_file()
+        engine = create_engine(new_url)
+        with engine.connect() as conn:  # the backup's own job row was running in the snapshot
+            assert conn.execute(text("SELECT status, error FROM ingest_jobs WHERE kind = "
+                                     "'backup' ORDER BY id DESC LIMIT 1")).one() == \
+                ("failed", "interrupted: restored from a backup taken while it ran")
+        engine.dispose()
         # The old store is out of reach: a restored catalogue naming it would fail loudly.
         old = Path(store_root())
         away = old.with_name(old.name + ".away")

@@ -1,9 +1,10 @@
 """``ugvmap backup DIR`` / ``ugvmap restore DIR``: the database and the raster store, together.
 
 A backup directory holds ``database.dump`` (``pg_dump`` custom format, made by the newest
-installed PostgreSQL client: the embedded cluster's own PostgreSQL 15 binaries here), ``rasters/`` (every COG the dump references, at its
-store-relative path) and ``manifest.json`` (written last: sizes and SHA-256 of every file,
-the schema revision, row counts). A directory without a manifest is not a backup.
+installed PostgreSQL client: the embedded cluster's own PostgreSQL 15 binaries here),
+``rasters/`` (every COG the dump references, at its store-relative path) and
+``manifest.json`` (written last: sizes and SHA-256 of every file, the schema revision, row
+counts). A directory without a manifest is not a backup.
 
 Consistency: the dump and the file list come from one database snapshot. The backup opens a
 REPEATABLE READ transaction, exports its snapshot and runs ``pg_dump --snapshot`` on it, and
@@ -258,6 +259,11 @@ def restore(src: Path, database_url: str, store_root: str,
     migrate.upgrade(database_url)
     with psycopg.connect(dsn) as conn:
         counts = _counts(conn)
+        # Jobs running when the snapshot was taken (this backup's own row among them) never
+        # finish in the restored world.
+        conn.execute("UPDATE ingest_jobs SET status = 'failed', finished_at = now(), "
+                     "error = 'interrupted: restored from a backup taken while it ran' "
+                     "WHERE status = 'running'")
     expected = manifest["database"]["counts"]
     if any(counts[t] != expected.get(t, counts[t]) for t in COUNTED):
         raise BackupError(f"restored row counts {counts} differ from the backup's {expected}")

@@ -22,6 +22,7 @@ from fastapi import Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
+from starlette.middleware.body_limit import MAX_BODY_SIZE_SCOPE_KEY
 
 
 class UserError(ValueError):
@@ -153,6 +154,11 @@ class NoRouteError(ApiError):
     status, code = 422, "NoRoute"
 
 
+def body_limit_message(limit: object) -> str:
+    """What a 413 says: the body limit in force for the route (``UGVMAP_MAX_BODY_BYTES``)."""
+    return f"the request body exceeds the limit of {limit} bytes"
+
+
 def _body(code: str, message: str, errors: dict[str, str] | None = None) -> dict[str, Any]:
     body: dict[str, Any] = {"code": code, "message": message}
     if errors:
@@ -182,6 +188,8 @@ def http_error(request: Request, exc: Exception) -> JSONResponse:
         message = f"no such path: {request.url.path[:200]}"
     elif exc.status_code == 405:
         message = f"{request.method} is not allowed on {request.url.path[:200]}"
+    elif exc.status_code == 413:  # Starlette's body limit, tripped while the body was read
+        message = body_limit_message(request.scope.get(MAX_BODY_SIZE_SCOPE_KEY))
     else:
         message = str(exc.detail)
     return JSONResponse(_body(code, message), status_code=exc.status_code, headers=exc.headers)

@@ -13,13 +13,16 @@ from fastapi import FastAPI
 from fastapi.exceptions import RequestValidationError
 from sqlalchemy.exc import InterfaceError, OperationalError
 from starlette.exceptions import HTTPException
+from starlette.types import ASGIApp
 
 from app import errors
+from app.body_limit import JsonPayloadTooLarge
 from app.health.router import router as health_router
 from app.jobs.router import router as jobs_router
 from app.logs import RequestLogMiddleware
 from app.network.router import include_network
 from app.routing.router import include_routing
+from app.settings import get_settings
 from app.tiles.router import router as tiles_router
 from app.web.router import include_web
 
@@ -34,9 +37,22 @@ EXCEPTION_HANDLERS: dict[Any, Callable[..., Any]] = {
 }
 
 
+class UgvmapApp(FastAPI):
+    """FastAPI with :class:`~app.body_limit.JsonPayloadTooLarge` outside its whole stack (the
+    body limiter sits outside user middleware, so only here can its 413 be reshaped)."""
+
+    def build_middleware_stack(self) -> ASGIApp:
+        """The framework's stack, wrapped."""
+        return JsonPayloadTooLarge(super().build_middleware_stack())
+
+
 def create_app() -> FastAPI:
     """Build the app; a factory so each uvicorn worker and each test gets a fresh one."""
-    app = FastAPI(
+    app = UgvmapApp(
+        # Counted while the body arrives (Starlette's RequestBodyLimitMiddleware), so neither a
+        # large Content-Length nor a chunked body without one is read past the limit; a route
+        # may set its own ``max_body_size``.
+        max_body_size=get_settings().max_body_bytes,
         title="ugvmap",
         version="0.1.0",
         description="Map tiles, road network and routes for unmanned ground vehicles.",

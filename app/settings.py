@@ -37,6 +37,8 @@ class Settings(BaseSettings):
     job_lease_s: float = Field(default=30.0, gt=0)
     # A queued task whose worker died is retried on another worker up to this many runs.
     job_max_attempts: int = Field(default=3, ge=1)
+    # Largest request body, counted while it is read (chunked bodies too): 413 beyond it.
+    max_body_bytes: int = Field(default=1_000_000, ge=0)
 
     @property
     def embedded(self) -> bool:

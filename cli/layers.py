@@ -107,11 +107,11 @@ def layers_delete(slug: str) -> None:
     """Delete a layer, its catalogue rows and its COG files."""
     from app.db.session import get_engine
     from app.tiles.catalog import delete_layer
+    from app.tiles.store import remove_files
 
     with get_engine().begin() as conn:
         uris = delete_layer(conn, slug)
     if uris is None:
         raise UserError(f"no raster layer {slug!r}")
-    for uri in uris:
-        Path(uri).unlink(missing_ok=True)
+    remove_files(get_engine(), uris)
     click.echo(f"deleted layer {slug} ({len(uris)} files)")

@@ -42,10 +42,10 @@ def ingest() -> None:
 
 def _register_capabilities() -> None:
     """Each capability owns its commands; this is the table of contents (one line each)."""
-    from cli import db, demo, jobs, layers, network, roads, routing
+    from cli import backup, db, demo, jobs, layers, network, roads, routing, tokens
 
-    for command in (db.db, demo.demo, demo.serve, jobs.jobs, jobs.worker,
-                    network.tokens, network.export, network.network,
+    for command in (db.db, backup.backup, backup.restore, demo.demo, demo.serve,
+                    jobs.jobs, jobs.worker, tokens.tokens, network.export, network.network,
                     layers.layers, routing.route,
                     roads.extract_roads, roads.evaluate_roads, roads.roads):
         main.add_command(command)

@@ -1,4 +1,4 @@
-"""``ugvmap`` commands for road networks: import, export, validate, API tokens.
+"""``ugvmap`` commands for road networks: import, export, validate, delete.
 
 Registered in :mod:`cli.main`. Bad input (unreadable file, unknown network, bad name) is a
 :class:`~app.errors.UserError` from the code below, shown as one line by the CLI root.
@@ -49,24 +49,6 @@ def ingest_network(file: Path, network: str, replace: bool, queued: bool) -> Non
                f"{summary.duplicates_dropped} duplicates dropped)")
 
 
-@click.group("tokens")
-def tokens() -> None:
-    """API tokens for editing (stored hashed; shown once)."""
-
-
-@tokens.command("create")
-@click.option("--role", type=click.Choice(["viewer", "editor", "admin"]), required=True)
-@click.option("--name", required=True, help="Who or what uses the token (shown in history).")
-def tokens_create(role: str, name: str) -> None:
-    """Create a token and print it once; only its hash is stored."""
-    from app.db.session import session_scope
-    from app.network.tokens import create_token
-
-    with session_scope() as session:
-        token = create_token(session, name, role)
-    click.echo(token)
-
-
 @click.group("export")
 def export() -> None:
     """Write stored data to files."""
@@ -109,3 +91,20 @@ def validate(name: str) -> None:
     if not report.ok:
         raise UserError(report.lines()[-1])
     click.echo(report.lines()[-1])
+
+
+@network.command("delete")
+@click.argument("name")
+@click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
+def delete(name: str, yes: bool) -> None:
+    """Delete network NAME with its segments, nodes and edit history (asks first)."""
+    from app.db.session import session_scope
+    from app.network.deletion import delete_network
+
+    if not yes:
+        click.confirm(f"Delete network {name!r} with all its segments, nodes and edit history?",
+                      abort=True)
+    with session_scope() as session:
+        gone = delete_network(session, name)
+    click.echo(f"deleted network {gone.name}: {gone.segments} segments, {gone.nodes} nodes, "
+               f"{gone.edits} history entries")

@@ -101,13 +101,14 @@ def test_good_edit_bumps_version_writes_history_and_reverts(client, segment) -> 
     assert [(e["version_from"], e["version_to"]) for e in edits] == [(1, 2), (2, 3)]
     assert edits[0]["old"]["speed_limit_kph"] == 50.0 and edits[0]["old"]["attrs"] == {}
     assert edits[0]["new"]["name"] == "Main St"
-    r = client.post(f"{url}/{fid}/revert", params={"to": 1}, headers=bearer("editor"))
+    r = client.post(f"{url}/{fid}/revert", params={"to": 1},
+                    headers={**bearer("editor"), "If-Match": '"3"'})
     assert r.status_code == 200, r.text
     props = _state(client, url, fid)
     assert props["version"] == 4 and props["speed_limit_kph"] == 50 and props["attrs"] == {}
     assert client.get(f"{url}/{fid}/history").json()["edits"][-1]["action"] == "revert"
     assert client.post(f"{url}/{fid}/revert", params={"to": 9},
-                       headers=bearer("editor")).status_code == 422
+                       headers={**bearer("editor"), "If-Match": '"4"'}).status_code == 422
 
 
 def test_geometry_edit_must_keep_its_nodes(client, segment) -> None:

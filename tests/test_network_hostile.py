@@ -101,7 +101,7 @@ def test_bodies_that_are_not_patches(client, net) -> None:
              ('{"name": "x"}', "text/plain", 415), ("[" * 100_000, "application/json", 400),
              ('{"properties": "x"}', "application/json", 422),
              ('{"geometry": {"type": "Point", "coordinates": [0, 0]}}', "application/json", 422),
-             ('{"speed_limit_kph": NaN}', "application/json", 422),
+             ('{"speed_limit_kph": NaN}', "application/json", 400),  # NaN is not JSON
              ('{"lanes_forward": 1e400}', "application/json", 422)]
     for body, content_type, status in cases:
         r = client.patch(f"{items}/{fid}", content=body,

@@ -70,10 +70,12 @@ def test_split_then_merge_keeps_topology(client) -> None:
     # Merging through a junction (degree 4) would break the topology.
     junction_pair = [fid, _neighbour_at_junction(net.network_id, fid)]
     r = client.post(f"/collections/{net.network}-segments/merge",
-                    json={"segments": junction_pair}, headers=bearer("admin"))
+                    json={"segments": junction_pair},
+                    headers={**bearer("admin"), "If-Match": '"2", "1"'})
     assert r.status_code == 422
     r = client.post(f"/collections/{net.network}-segments/merge",
-                    json={"segments": [fid, second["id"]]}, headers=bearer("admin"))
+                    json={"segments": [fid, second["id"]]},
+                    headers={**bearer("admin"), "If-Match": '"2", "1"'})
     assert r.status_code == 200, r.text
     merged = r.json()
     assert merged["id"] == fid
@@ -108,7 +110,7 @@ def test_merge_of_opposite_digitised_one_ways(client) -> None:
     items = client.get(f"/collections/{name}-segments/items").json()["features"]
     ids = sorted(f["id"] for f in items)
     r = client.post(f"/collections/{name}-segments/merge", json={"segments": ids},
-                    headers=bearer("admin"))
+                    headers={**bearer("admin"), "If-Match": '"1", "1"'})
     assert r.status_code == 200, r.text
     props = r.json()["properties"]
     assert r.json()["geometry"]["coordinates"] == [[5.0, 5.0], [5.001, 5.0], [5.002, 5.0]]
@@ -126,5 +128,43 @@ def test_merge_refuses_different_attributes(client) -> None:
     ids = sorted(f["id"] for f in
                  client.get(f"/collections/{name}-segments/items").json()["features"])
     r = client.post(f"/collections/{name}-segments/merge", json={"segments": ids},
-                    headers=bearer("admin"))
+                    headers={**bearer("admin"), "If-Match": '"1", "1"'})
     assert r.status_code == 422 and set(r.json()["errors"]) == {"name"}
+
+
+def test_every_write_needs_a_current_if_match(client) -> None:
+    """PATCH, revert, split and merge: 428 without ``If-Match``, 412 with a stale one, and
+    nothing changes either way (revert and merge used to go through without it)."""
+    name = f"ifm-{uuid.uuid4().hex[:8]}"
+    with session_scope() as s:
+        write_network(s, name, [RoadLine([(7.0, 5.0), (7.001, 5.0)]),
+                                RoadLine([(7.001, 5.0), (7.002, 5.0)])])
+    items = f"/collections/{name}-segments/items"
+    a, b = sorted(f["id"] for f in client.get(items).json()["features"])
+    admin = bearer("admin")
+    r = client.patch(f"{items}/{a}", json={"name": "x"}, headers={**admin, "If-Match": '"1"'})
+    assert r.status_code == 200  # a is now at version 2, b at 1
+    writes = {
+        "patch": lambda h: client.patch(f"{items}/{a}", json={"name": "y"}, headers=h),
+        "revert": lambda h: client.post(f"{items}/{a}/revert", params={"to": 1}, headers=h),
+        "split": lambda h: client.post(f"{items}/{a}/split", json={"fraction": 0.5},
+                                       headers=h),
+        "merge": lambda h: client.post(f"/collections/{name}-segments/merge",
+                                       json={"segments": [a, b]}, headers=h),
+    }
+    stale = {"patch": '"1"', "revert": '"1"', "split": '"1"', "merge": '"2", "2"'}
+    for action, write in writes.items():
+        r = write(admin)
+        assert (r.status_code, r.json()["code"]) == (428, "PreconditionRequired"), action
+        r = write({**admin, "If-Match": stale[action]})
+        assert (r.status_code, r.json()["code"]) == (412, "PreconditionFailed"), action
+    r = writes["merge"]({**admin, "If-Match": '"2"'})  # one ETag for two segments
+    assert r.status_code == 412
+    versions = {f["id"]: f["properties"]["version"]
+                for f in client.get(items).json()["features"]}
+    assert versions == {a: 2, b: 1}
+    assert len(client.get(f"{items}/{a}/history").json()["edits"]) == 1
+    r = writes["revert"]({**admin, "If-Match": '"2"'})
+    assert r.status_code == 200 and r.json()["properties"]["version"] == 3
+    r = writes["merge"]({**admin, "If-Match": '"3", "1"'})
+    assert r.status_code == 200, r.text

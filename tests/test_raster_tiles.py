@@ -16,6 +16,7 @@ from rasterio.transform import from_origin
 from sqlalchemy import text
 
 from app.db.session import get_engine
+from app.tiles.store import resolve
 from ingest.raster.job import ingest_raster
 from tests.raster_synth import (
     TMS,
@@ -291,6 +292,7 @@ def test_low_zoom_tiles_come_from_the_layer_overview(client, tmp_path) -> None:
         uris = list(conn.execute(text(
             "SELECT uri FROM raster_sources s JOIN layers l ON l.id = s.layer_id "
             "WHERE l.slug = :s ORDER BY s.ingested_at, s.id"), {"s": name}).scalars())
+    overview, uris = resolve(overview), [resolve(u) for u in uris]
     zoom = overview_zoom(overview)
     assert 0 < zoom <= info["maxzoom"] - 5
     assert len(list(Path(overview).parent.glob("overview-*.tif"))) == 1  # old one replaced

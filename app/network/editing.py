@@ -34,15 +34,23 @@ def unprocessable(errors: dict[str, str]) -> InvalidValueError:
                              errors=errors)
 
 
-def parse_if_match(header: str | None) -> int:
-    """``"3"`` / ``W/"3"`` / ``3`` -> 3; missing -> 428; anything else matches nothing -> 412."""
+def parse_if_match(header: str | None, count: int = 1) -> list[int]:
+    """The versions an ``If-Match`` header names: ``"3"`` / ``W/"3"`` / ``3`` -> [3]; a write
+    on ``count`` features (merge) names each one's ETag, comma-separated, in the order of the
+    request. Missing -> 428; anything else matches nothing -> 412."""
     if header is None or not header.strip():
         raise PreconditionRequiredError(
-            "If-Match with the feature's ETag (its version) is required")
-    value = header.strip().removeprefix("W/").strip('"')
-    if not value.isascii() or not value.isdigit() or len(value) > 9:
-        raise PreconditionFailedError("If-Match must be the ETag of the current version")
-    return int(value)
+            "If-Match with the feature's ETag (its version) is required" if count == 1 else
+            f"If-Match with the ETags of the {count} segments, in order, is required")
+    versions = []
+    for tag in header.split(","):
+        value = tag.strip().removeprefix("W/").strip('"')
+        if not value.isascii() or not value.isdigit() or len(value) > 9:
+            raise PreconditionFailedError("If-Match must be the ETag of the current version")
+        versions.append(int(value))
+    if len(versions) != count:
+        raise PreconditionFailedError(f"If-Match must name {count} ETag(s), one per segment")
+    return versions
 
 
 def split_body(body: Any) -> tuple[dict[str, Any], dict[str, Any] | None]:
@@ -89,11 +97,11 @@ def _node_coords(session: Session, node_id: int) -> list[float]:
 
 
 def lock_segment(session: Session, c: colls.Collection, fid: int,
-                 expected: int | None) -> dict[str, Any]:
+                 expected: int) -> dict[str, Any]:
     """Lock the segment row; 404 if absent, 412 if its version is not ``expected``."""
     feature = colls.get_item(session, c, fid, for_update=True)
     current = feature["properties"]["version"]
-    if expected is not None and current != expected:
+    if current != expected:
         raise PreconditionFailedError(f"the segment is at version {current}, not {expected}; "
                                       "reload it and apply your change again",
                                       headers={"ETag": f'"{current}"'})
@@ -184,7 +192,7 @@ def history(session: Session, c: colls.Collection, fid: int) -> list[dict[str, A
 
 
 def revert_segment(session: Session, c: colls.Collection, fid: int, to_version: int,
-                   expected: int | None, principal: Principal) -> dict[str, Any]:
+                   expected: int, principal: Principal) -> dict[str, Any]:
     """Restore the attributes (and geometry) the segment had at ``to_version``, as a new
     version: history only grows, so a revert can itself be reverted."""
     feature = lock_segment(session, c, fid, expected)

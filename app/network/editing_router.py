@@ -19,35 +19,39 @@ from app.db.session import session_scope
 from app.errors import (
     InvalidParameterValueError,
     MethodNotAllowedError,
-    PayloadTooLargeError,
     UnsupportedMediaTypeError,
 )
 from app.network import collections as colls
 from app.network import editing, topology_edits
 from app.network.features import GEOJSON, etag, parse_fid
 from app.network.tokens import Principal, SessionDep, read_access, require_role
+from app.params import Int
 
 router = APIRouter(tags=["Editing"])
 
 EditorDep = Annotated[Principal, Depends(require_role("editor", "admin"))]
 AdminDep = Annotated[Principal, Depends(require_role("admin"))]
 PATCH_TYPES = ("application/merge-patch+json", "application/json")
-MAX_BODY = 1_000_000
+Version = Annotated[int, Int("to", low=1, high=2**31 - 1)]
+
+
+def _not_json(constant: str) -> Any:
+    raise ValueError(f"{constant} is not a JSON number")
 
 
 async def json_body(request: Request, accepted: tuple[str, ...] = PATCH_TYPES) -> Any:
-    """The parsed JSON body, refused early when it has the wrong type (415), is too big (413) or is
-    not JSON (400), so edit logic only sees a parsed value."""
+    """The parsed JSON body, refused early when it has the wrong type (415) or is not JSON (400),
+    so edit logic only sees a parsed value. ``NaN`` and ``Infinity``, which Python's parser
+    takes but JSON (RFC 8259) does not have, are refused too. Size: the app's body limit
+    stops an oversized body while it is read (413, :mod:`app.main`)."""
     content_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if content_type not in accepted:
         raise UnsupportedMediaTypeError(f"Content-Type must be one of: {', '.join(accepted)}")
     raw = await request.body()
-    if len(raw) > MAX_BODY:
-        raise PayloadTooLargeError(f"the body must be under {MAX_BODY} bytes")
     try:
-        return json.loads(raw)
-    except (ValueError, RecursionError):
-        raise InvalidParameterValueError("the body is not valid JSON") from None
+        return json.loads(raw, parse_constant=_not_json)
+    except (ValueError, RecursionError) as exc:
+        raise InvalidParameterValueError(f"the body is not valid JSON ({exc})"[:200]) from None
 
 
 def _segments(session: Session, collection_id: str) -> colls.Collection:
@@ -80,7 +84,7 @@ async def _in_session(work: Callable[[Session], dict[str, Any]]) -> JSONResponse
 async def patch_item(collection_id: str, fid: str, request: Request,
                      principal: EditorDep) -> JSONResponse:
     """Edit a segment's attributes or geometry (editor; ``If-Match`` required)."""
-    expected = editing.parse_if_match(request.headers.get("if-match"))
+    (expected,) = editing.parse_if_match(request.headers.get("if-match"))
     body = await json_body(request)
     return await _in_session(lambda s: editing.patch_segment(
         s, _segments(s, collection_id), parse_fid(fid), expected, body, principal))
@@ -96,24 +100,20 @@ def item_history(collection_id: str, fid: str,
 
 
 @router.post("/collections/{collection_id}/items/{fid}/revert")
-async def revert_item(collection_id: str, fid: str, request: Request,
+async def revert_item(collection_id: str, fid: str, to: Version, request: Request,
                       principal: EditorDep) -> JSONResponse:
-    """Restore a segment to an earlier version, as a new version (editor; ``If-Match`` optional
-    because the target is already named)."""
-    to = request.query_params.get("to", "")
-    if not to.isascii() or not to.isdigit() or len(to) > 9:
-        raise InvalidParameterValueError("to must be a version number")
-    if_match = request.headers.get("if-match")
-    expected = editing.parse_if_match(if_match) if if_match else None
+    """Restore a segment to an earlier version, as a new version (editor; ``If-Match``
+    required: reverting over an edit the client has not seen would silently undo it)."""
+    (expected,) = editing.parse_if_match(request.headers.get("if-match"))
     return await _in_session(lambda s: editing.revert_segment(
-        s, _segments(s, collection_id), parse_fid(fid), int(to), expected, principal))
+        s, _segments(s, collection_id), parse_fid(fid), to, expected, principal))
 
 
 @router.post("/collections/{collection_id}/items/{fid}/split")
 async def split_item(collection_id: str, fid: str, request: Request,
                      principal: AdminDep) -> JSONResponse:
     """Split a segment at a fraction or point into two, adding a node (admin; ``If-Match``)."""
-    expected = editing.parse_if_match(request.headers.get("if-match"))
+    (expected,) = editing.parse_if_match(request.headers.get("if-match"))
     body = await json_body(request, ("application/json",))
     return await _in_session(lambda s: topology_edits.split_segment(
         s, _segments(s, collection_id), parse_fid(fid), expected, body, principal))
@@ -122,7 +122,9 @@ async def split_item(collection_id: str, fid: str, request: Request,
 @router.post("/collections/{collection_id}/merge")
 async def merge_items(collection_id: str, request: Request,
                       principal: AdminDep) -> JSONResponse:
-    """Merge two segments that meet at a node only they share (admin)."""
+    """Merge two segments that meet at a node only they share (admin; ``If-Match`` names both
+    segments' ETags in the order of ``segments``, e.g. ``"3", "5"``)."""
+    expected = editing.parse_if_match(request.headers.get("if-match"), count=2)
     body = await json_body(request, ("application/json",))
     return await _in_session(lambda s: topology_edits.merge_segments(
-        s, _segments(s, collection_id), body, principal))
+        s, _segments(s, collection_id), body, expected, principal))

@@ -46,6 +46,9 @@ CHECKS: dict[str, str] = {
                   FROM road_nodes n WHERE n.network_id = :n) d
          WHERE kind <> CASE WHEN degree >= 3 THEN 'junction'
                             WHEN degree = 1 THEN 'endpoint' ELSE 'node' END""",
+    "coordinates outside lon -180..180, lat -90..90": """
+        SELECT id FROM road_segments WHERE network_id = :n
+           AND NOT geom @ ST_MakeEnvelope(-180, -90, 180, 90, 4326)""",
     "node without segments": """
         SELECT n.id FROM road_nodes n WHERE n.network_id = :n AND NOT EXISTS (
             SELECT 1 FROM road_segments s WHERE s.source_node = n.id OR s.target_node = n.id)""",

@@ -78,7 +78,7 @@ class TileCache:
 
 
 def _invalidate(note: dict) -> None:
-    bbox = tuple(note["bbox"]) if note.get("bbox") else None
+    bbox = tuple(note["bbox"]) if note.get("bbox") else None  # None (e.g. deleted): every tile
     _cache.invalidate(int(note["network_id"]), int(note["version"]), bbox)
 
 

@@ -26,6 +26,7 @@ from app.grid import TILE_SIZE, parse_tile, pixel_size_m
 from app.network.collections import network_row
 from app.network.tile_cache import Bounds, shared_cache
 from app.network.tokens import SessionDep, read_access
+from app.params import NetworkName
 from app.settings import get_settings
 
 router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)])
@@ -114,7 +115,7 @@ def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
 
 @router.get("/networks/{name}/tiles/{z}/{x}/{y}.mvt", response_class=Response,
             responses={200: {"content": {MVT: {}}}})
-def network_tile(name: str, z: str, x: str, y: str, session: SessionDep) -> Response:
+def network_tile(name: NetworkName, z: str, x: str, y: str, session: SessionDep) -> Response:
     """One Mapbox vector tile of the network (cached per worker until the network changes)."""
     zi, xi, yi = parse_tile(z, x, y)
     network = network_row(session, name)

@@ -14,33 +14,33 @@ from sqlalchemy.orm import Session
 from app.network import collections as colls
 from app.network.editing import lock_segment, log_edit, unprocessable, write_change
 from app.network.tokens import Principal
+from app.params import parse_number, parse_position
 
 # Attributes that must agree before two segments can become one.
 MERGE_MUST_MATCH = ("lanes_forward", "lanes_backward", "speed_limit_kph", "oneway",
                     "road_class", "is_junction", "name", "surface", "width_m")
 FLIPPED_ONEWAY = {"forward": "backward", "backward": "forward", "none": "none"}
+MIN_PART_M = 0.01
 
 
 def _fraction(session: Session, feature: dict[str, Any], body: Any) -> float:
+    """The split position as a fraction of the length, strictly inside the segment and at least
+    :data:`MIN_PART_M` from either end (a sliver would be a degenerate line, not a segment)."""
     if not isinstance(body, dict) or len(body.keys() & {"fraction", "point"}) != 1:
         raise unprocessable({"body": 'give exactly one of "fraction" (0..1) or "point" '
                                      "([lon, lat])"})
     if "fraction" in body:
-        value = body["fraction"]
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise unprocessable({"fraction": "must be a number between 0 and 1"})
-        fraction = float(value)
+        fraction = parse_number(body["fraction"], "fraction", low=0, high=1)
     else:
-        point = body["point"]
-        if not (isinstance(point, list) and len(point) == 2 and all(
-                isinstance(v, int | float) and not isinstance(v, bool) for v in point)):
-            raise unprocessable({"point": "must be [lon, lat]"})
+        lon, lat = parse_position(body["point"], "point")
         fraction = session.execute(text(
             "SELECT ST_LineLocatePoint(geom, ST_SetSRID(ST_MakePoint(:x, :y), 4326)) "
             "FROM road_segments WHERE id = :id"),
-            {"x": point[0], "y": point[1], "id": feature["id"]}).scalar_one()
-    if not 0 < fraction < 1:
-        raise unprocessable({"fraction": "the split point must lie strictly inside the segment"})
+            {"x": lon, "y": lat, "id": feature["id"]}).scalar_one()
+    length = feature["properties"]["length_m"]
+    if min(fraction, 1 - fraction) * length < MIN_PART_M:
+        raise unprocessable({"fraction": f"the split point must lie inside the segment, at "
+                                         f"least {MIN_PART_M} m from either end"})
     return fraction
 
 
@@ -89,16 +89,18 @@ def _flipped(props: dict[str, Any]) -> dict[str, Any]:
             "source_node": props["target_node"], "target_node": props["source_node"]}
 
 
-def merge_segments(session: Session, c: colls.Collection, body: Any,
+def merge_segments(session: Session, c: colls.Collection, body: Any, expected: list[int],
                    principal: Principal) -> dict[str, Any]:
     """Merge two segments meeting at a node that no other segment uses; the first keeps its
-    id and orientation, the second and the shared node are deleted."""
+    id and orientation, the second and the shared node are deleted. ``expected`` holds the
+    versions the client saw, in the order of ``segments`` (412 if either moved on)."""
     ids = body.get("segments") if isinstance(body, dict) else None
     if not (isinstance(ids, list) and len(ids) == 2 and all(
             isinstance(i, int) and not isinstance(i, bool) and 0 < i < 2**63 for i in ids)
             and ids[0] != ids[1]):
         raise unprocessable({"segments": "must be two different segment ids"})
-    locked = {i: lock_segment(session, c, i, None) for i in sorted(ids)}
+    versions = dict(zip(ids, expected, strict=True))
+    locked = {i: lock_segment(session, c, i, versions[i]) for i in sorted(ids)}
     a, b = locked[ids[0]], locked[ids[1]]
     pa, pb = a["properties"], b["properties"]
     shared = {pa["source_node"], pa["target_node"]} & {pb["source_node"], pb["target_node"]}

@@ -122,6 +122,10 @@ class GraphRegistry:
 
     def _apply(self, note: dict) -> None:
         net_id, version, box = note["network_id"], note["version"], note.get("bbox")
+        if note.get("deleted"):  # ugvmap network delete: nothing left to route on
+            with self._update, self._changed:
+                self._graphs.pop(net_id, None)
+            return
         # Under the update lock: a first load in progress finishes (and publishes) before this
         # note is judged, so a change committed during that load is patched, not dropped.
         with self._update:

@@ -12,6 +12,8 @@ from typing import Any
 
 from sqlalchemy import Connection, text
 
+from app.tiles.store import resolve
+
 LAYER_COLUMNS = (
     "l.id, l.slug, l.title, l.kind, l.minzoom, l.maxzoom, l.resolution_m, l.attribution, "
     "l.version, l.created_at, l.updated_at, l.overview_uri, "
@@ -23,6 +25,8 @@ LAYER_COLUMNS = (
 #: under higher, then older under newer, so a re-survey covers what it replaces. The one
 #: definition, used by tiles, the layer overview, ``GET /layers/{slug}`` and ``layers show``.
 PAINT_ORDER = "s.priority, s.ingested_at, s.id"
+# Store references are relative to the raster store (app.tiles.store); every reader here
+# returns them resolved, so callers open files without knowing where the store is.
 
 
 @dataclass(frozen=True)
@@ -54,9 +58,9 @@ def tile_sources(conn: Connection, slug: str,
     ).all()
     if not rows:
         return None
-    sources = [TileSource(r[3], r[4]) for r in rows if r[3] is not None]
+    sources = [TileSource(resolve(r[3]), r[4]) for r in rows if r[3] is not None]
     return TileQuery(layer_id=rows[0][0], version=rows[0][1], sources=sources,
-                     overview_uri=rows[0][2])
+                     overview_uri=rows[0][2] and resolve(rows[0][2]))
 
 
 def list_layers(conn: Connection) -> list[dict[str, Any]]:
@@ -82,7 +86,7 @@ def get_layer(conn: Connection, slug: str) -> dict[str, Any] | None:
         " s.dtype, s.resolution_m, s.meta->>'georef' AS georef, (s.meta->>'zoom')::int AS zoom "
         f"FROM raster_sources s WHERE s.layer_id = :id ORDER BY {PAINT_ORDER}"),
         {"id": layer["id"]})
-    layer["sources"] = [dict(s._mapping) for s in sources]
+    layer["sources"] = [{**s._mapping, "uri": resolve(s.uri)} for s in sources]
     return layer
 
 
@@ -95,4 +99,4 @@ def delete_layer(conn: Connection, slug: str) -> list[str] | None:
     uris: list[str] = list(conn.execute(
         text("SELECT uri FROM raster_sources WHERE layer_id = :id"), {"id": row.id}).scalars())
     conn.execute(text("DELETE FROM layers WHERE id = :id"), {"id": row.id})
-    return uris + ([row.overview_uri] if row.overview_uri else [])
+    return [resolve(u) for u in uris + ([row.overview_uri] if row.overview_uri else [])]

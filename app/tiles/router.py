@@ -15,6 +15,7 @@ from fastapi import APIRouter, Request, Response
 from app.db.session import get_engine
 from app.errors import InvalidParameterValueError, LayerNotFoundError
 from app.grid import parse_tile, tile_bounds
+from app.params import LayerSlug
 from app.tiles import catalog
 from app.tiles.cache import tile_cache
 from app.tiles.catalog import TileSource
@@ -79,7 +80,7 @@ def layers(request: Request) -> dict[str, Any]:
 
 
 @router.get("/layers/{slug}", name="layer")
-def layer(slug: str, request: Request) -> dict[str, Any]:
+def layer(slug: LayerSlug, request: Request) -> dict[str, Any]:
     """One layer with its sources (paint order: last is on top)."""
     with get_engine().connect() as conn:
         found = catalog.get_layer(conn, slug)
@@ -94,7 +95,7 @@ def layer(slug: str, request: Request) -> dict[str, Any]:
 
 
 @router.get("/layers/{slug}/tilejson.json", name="tilejson")
-def tilejson(slug: str, request: Request, format: str = "png") -> dict[str, Any]:
+def tilejson(slug: LayerSlug, request: Request, format: str = "png") -> dict[str, Any]:
     """TileJSON 3.0.0 for the layer's XYZ tiles."""
     fmt = _format(format)
     with get_engine().connect() as conn:
@@ -120,7 +121,7 @@ def tilejson(slug: str, request: Request, format: str = "png") -> dict[str, Any]
 
 @router.get("/tiles/{slug}/{z}/{x}/{tile}", response_model=None,
             responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}}})
-def tile(slug: str, z: str, x: str, tile: str, request: Request) -> Response:
+def tile(slug: LayerSlug, z: str, x: str, tile: str, request: Request) -> Response:
     """One XYZ tile (256 px, or 512 px with ``@2x``) composed from all sources meeting it."""
     match = TILE_RE.match(tile)
     if not match:

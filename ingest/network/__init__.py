@@ -10,6 +10,7 @@ from pathlib import Path
 
 from sqlalchemy.orm import Session
 
+from ingest.network.coordinates import check_lonlat_lines
 from ingest.network.file_reader import NetworkFileError, read_geojson, read_ogr
 from ingest.network.model import FeatureLike, ImportSummary, NodePoint, RoadAttributes, RoadLine
 from ingest.network.writer import (
@@ -50,6 +51,7 @@ def import_network(session: Session, path: Path, network: str, *, replace: bool 
             lines, points, topological = read_ogr(path)
         if not lines:
             raise NoLinesError("no road lines found")
+        check_lonlat_lines(lines, path.name)
     except NoLinesError as exc:
         raise NetworkFileError(f"{path.name}: {exc}") from exc
     return write_network(session, network, lines, replace=replace,

@@ -33,6 +33,7 @@ from app.db.session import get_engine, session_scope
 from app.grid import ground_resolution_m, tile_bounds
 from app.settings import get_settings
 from app.tiles.catalog import tile_sources
+from app.tiles.store import deleting_files, relative, remove_files, resolve
 from ingest.raster.cog import measure_cog, write_cog
 from ingest.raster.overview import build_overview
 from ingest.raster.sources import Source, SourceError, inspect
@@ -107,7 +108,7 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
         "  version = layers.version + 1, updated_at = now(), overview_uri = :overview "
         "RETURNING id, version"),
         {"slug": layer, "title": title or layer, "given_title": title, "kind": kind,
-         "overview": str(overview)},
+         "overview": relative(overview)},
     ).one()
     layer_id, version = int(row[0]), int(row[1])
     for src in written:
@@ -116,7 +117,7 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
             " height, band_count, dtype, resolution_m, meta) VALUES (:layer_id, :name, :uri,"
             " ST_Multi(ST_SetSRID(ST_GeomFromWKB(:wkb), 3857)), :priority, :width, :height,"
             " :bands, :dtype, :res, CAST(:meta AS jsonb))"),
-            {"layer_id": layer_id, "name": src.name, "uri": src.uri,
+            {"layer_id": layer_id, "name": src.name, "uri": relative(src.uri),
              "wkb": src.footprint_wkb, "priority": priority, "width": src.width,
              "height": src.height, "bands": src.band_count, "dtype": src.dtype,
              "res": src.resolution_m, "meta": json.dumps(src.meta)})
@@ -132,7 +133,7 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
         "   WHERE s.layer_id = l.id) "
         "WHERE l.id = :id"), {"id": layer_id})
     render_overview(session.connection(), layer_id, layer, overview)
-    return version, old_overview
+    return version, old_overview and resolve(old_overview)
 
 
 def render_overview(conn: Connection, layer_id: int, layer: str, dst: Path) -> None:
@@ -176,13 +177,16 @@ def sweep_leftovers(layer_dir: Path, database_url: str | None = None) -> list[Pa
     """
     if not layer_dir.is_dir():
         return []
-    with get_engine(database_url).connect() as conn:
-        known: set[str] = set(conn.execute(text(
-            "SELECT uri FROM raster_sources UNION SELECT overview_uri FROM layers "
-            "WHERE overview_uri IS NOT NULL")).scalars())
-    stale = [p for p in layer_dir.iterdir() if p.is_file() and str(p) not in known]
-    for path in stale:
-        path.unlink(missing_ok=True)
+    engine = get_engine(database_url)
+    with deleting_files(engine):  # a backup's snapshot may still name a file unreferenced now
+        with engine.connect() as conn:
+            known: set[str] = set(conn.execute(text(
+                "SELECT uri FROM raster_sources UNION SELECT overview_uri FROM layers "
+                "WHERE overview_uri IS NOT NULL")).scalars())
+        stale = [p for p in layer_dir.iterdir()
+                 if p.is_file() and relative(p) not in known and str(p) not in known]
+        for path in stale:
+            path.unlink(missing_ok=True)
     return stale
 
 
@@ -230,5 +234,5 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
                     Path(uri).unlink()
             raise
     if replaced:
-        Path(replaced).unlink(missing_ok=True)
+        remove_files(get_engine(database_url), [replaced])
     return IngestReport(layer=layer, version=version, sources=written)

@@ -2,11 +2,16 @@
 
 Layers: ``segments`` (planner attributes) at every zoom, simplified to about a pixel below
 zoom 14 so low-zoom tiles stay small; ``nodes`` (kind, traffic light) from zoom 12.
+
+HTTP caching follows :mod:`app.tiles.versioned`: ``?v=<network_token>`` (the network's current
+version) makes a tile immutable; without it, or with an older token, ``no-cache`` as before.
 """
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends
+from typing import Any
+
+from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 from sqlalchemy import text
 from sqlalchemy.orm import Session
@@ -17,6 +22,7 @@ from app.network.collections import network_row
 from app.network.tile_cache import Bounds, shared_cache
 from app.network.tokens import SessionDep, read_access
 from app.settings import get_settings
+from app.tiles.versioned import cache_headers, not_modified, version_token
 
 router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)])
 
@@ -50,6 +56,12 @@ SELECT COALESCE((SELECT ST_AsMVT(segments, 'segments', {EXTENT}, 'geom', 'id')
 """
 
 
+def network_token(network: Any) -> str:
+    """The version token of the network's tile URLs (a :func:`network_row` row): what a
+    network TileJSON appends as ``?v=``."""
+    return version_token("network", network.id, network.version, network.created_at)
+
+
 def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
     """Lon/lat bounds of the tile plus its buffer: what an edit must meet to change it."""
     row = session.execute(text(
@@ -61,12 +73,19 @@ def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
 
 @router.get("/networks/{name}/tiles/{z}/{x}/{y}.mvt", response_class=Response,
             responses={200: {"content": {MVT: {}}}})
-def network_tile(name: str, z: str, x: str, y: str, session: SessionDep) -> Response:
-    """One Mapbox vector tile of the network (cached per worker until the network changes)."""
+def network_tile(name: str, z: str, x: str, y: str, session: SessionDep,
+                 request: Request) -> Response:
+    """One Mapbox vector tile of the network (cached per worker until the network changes;
+    immutable for HTTP caches with the network's current ``?v=`` token)."""
     zi, xi, yi = parse_tile(z, x, y)
     network = network_row(session, name)
     if network is None:
         raise NotFoundError(f"network {name[:100]!r} not found")
+    headers = cache_headers(request, network_token(network), "no-cache",
+                            public=get_settings().network_read_role is None)
+    unchanged = not_modified(request, headers)
+    if unchanged is not None:
+        return unchanged
     cache = shared_cache(get_settings().database_url)
     key = (network.id, zi, xi, yi)
     tile = cache.get(key, network.version)
@@ -78,5 +97,4 @@ def network_tile(name: str, z: str, x: str, y: str, session: SessionDep) -> Resp
             "z": zi, "x": xi, "y": yi, "network_id": network.id,
             "tolerance": tolerance}).scalar_one())
         cache.put(key, network.version, tile_bounds(session, zi, xi, yi), tile)
-    return Response(tile, media_type=MVT, headers={"X-Tile-Cache": status,
-                                                   "Cache-Control": "no-cache"})
+    return Response(tile, media_type=MVT, headers={**headers, "X-Tile-Cache": status})

@@ -8,9 +8,12 @@ overview written at ingest is rendered from the same query, so it paints like th
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy import Connection, text
+
+from app.tiles.versioned import version_token
 
 LAYER_COLUMNS = (
     "l.id, l.slug, l.title, l.kind, l.minzoom, l.maxzoom, l.resolution_m, l.attribution, "
@@ -38,15 +41,27 @@ class TileQuery:
     meeting the tile, in paint order."""
     layer_id: int
     version: int
+    created_at: datetime
     sources: list[TileSource]
     overview_uri: str | None
+
+    @property
+    def token(self) -> str:
+        """The version token of tile URLs (:mod:`app.tiles.versioned`)."""
+        return layer_token(self.layer_id, self.version, self.created_at)
+
+
+def layer_token(layer_id: int, version: int, created_at: datetime) -> str:
+    """The version token naming this version of a raster layer."""
+    return version_token("layer", layer_id, version, created_at)
 
 
 def tile_sources(conn: Connection, slug: str,
                  bbox: tuple[float, float, float, float]) -> TileQuery | None:
     """The layer's version and the sources meeting ``bbox`` (EPSG:3857), bottom first."""
     rows = conn.execute(text(
-        "SELECT l.id, l.version, l.overview_uri, s.uri, s.meta->'display_range' FROM layers l "
+        "SELECT l.id, l.version, l.created_at, l.overview_uri, s.uri, s.meta->'display_range' "
+        "FROM layers l "
         "LEFT JOIN raster_sources s ON s.layer_id = l.id "
         " AND ST_Intersects(s.footprint, ST_MakeEnvelope(:x0, :y0, :x1, :y1, 3857)) "
         f"WHERE l.slug = :slug ORDER BY {PAINT_ORDER}"),
@@ -54,9 +69,9 @@ def tile_sources(conn: Connection, slug: str,
     ).all()
     if not rows:
         return None
-    sources = [TileSource(r[3], r[4]) for r in rows if r[3] is not None]
-    return TileQuery(layer_id=rows[0][0], version=rows[0][1], sources=sources,
-                     overview_uri=rows[0][2])
+    sources = [TileSource(r[4], r[5]) for r in rows if r[4] is not None]
+    return TileQuery(layer_id=rows[0][0], version=rows[0][1], created_at=rows[0][2],
+                     sources=sources, overview_uri=rows[0][3])
 
 
 def list_layers(conn: Connection) -> list[dict[str, Any]]:

@@ -1,8 +1,10 @@
 """HTTP routes: ``/tiles/{slug}/{z}/{x}/{y}[@2x].{png,jpg,webp}``, ``/layers``, TileJSON.
 
-Caching: the ETag is the layer id and version (every ingest bumps the version; a deleted and
-re-created layer gets a new id), so a client revalidates cheaply and gets 304 without any
-pixel being read, and the ETag changes as soon as the layer does.
+Caching (:mod:`app.tiles.versioned`): the TileJSON's tile URLs carry the layer's version
+token (``?v=``); a tile asked for with the current token is immutable for a year, any other
+request gets ``max-age=60``. The strong ETag is that token (every ingest bumps the version; a
+deleted and re-created layer gets a new one), so a client revalidates cheaply and gets 304
+without any pixel being read, and the ETag changes as soon as the layer does.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from app.tiles.catalog import TileSource
 from app.tiles.encode import MEDIA_TYPES, encode
 from app.tiles.mosaic import render
 from app.tiles.readers import overview_zoom
+from app.tiles.versioned import cache_headers, not_modified, versioned
 
 router = APIRouter(tags=["raster layers"])
 TILE_RE = re.compile(r"^(?P<y>[^@.]*)(?P<scale>@2x)?\.(?P<fmt>[A-Za-z0-9]+)$")
@@ -53,21 +56,18 @@ def _layer_json(layer: dict[str, Any], request: Request) -> dict[str, Any]:
         "links": {
             "self": str(request.url_for("layer", slug=slug)),
             "tilejson": str(request.url_for("tilejson", slug=slug)),
-            "tiles": _tile_template(request, slug, "png"),
+            "tiles": versioned(_tile_template(request, slug, "png"), _token(layer)),
         },
     }
+
+
+def _token(layer: dict[str, Any]) -> str:
+    return catalog.layer_token(layer["id"], layer["version"], layer["created_at"])
 
 
 def _tile_template(request: Request, slug: str, fmt: str) -> str:
     base = str(request.base_url).rstrip("/")
     return f"{base}/tiles/{slug}/{{z}}/{{x}}/{{y}}.{fmt}"
-
-
-def _matches(if_none_match: str | None, etag: str) -> bool:
-    if not if_none_match:
-        return False
-    tags = {t.strip().removeprefix("W/") for t in if_none_match.split(",")}
-    return etag in tags or "*" in tags
 
 
 @router.get("/layers")
@@ -94,8 +94,10 @@ def layer(slug: str, request: Request) -> dict[str, Any]:
 
 
 @router.get("/layers/{slug}/tilejson.json", name="tilejson")
-def tilejson(slug: str, request: Request, format: str = "png") -> dict[str, Any]:
-    """TileJSON 3.0.0 for the layer's XYZ tiles."""
+def tilejson(slug: str, request: Request, response: Response,
+             format: str = "png") -> dict[str, Any]:
+    """TileJSON 3.0.0 for the layer's XYZ tiles, whose URLs name the layer's current version
+    (so they may be cached forever); the TileJSON itself is revalidated on every use."""
     fmt = _format(format)
     with get_engine().connect() as conn:
         found = catalog.layer_row(conn, slug)
@@ -103,6 +105,7 @@ def tilejson(slug: str, request: Request, format: str = "png") -> dict[str, Any]
         raise _no_layer(slug)
     bounds = found["bounds"] or [-180.0, -85.0511, 180.0, 85.0511]
     center_zoom = max(found["minzoom"], min(found["maxzoom"], found["minzoom"] + 2))
+    response.headers["Cache-Control"] = "no-cache"
     return {
         "tilejson": "3.0.0",
         "name": found["title"],
@@ -110,7 +113,7 @@ def tilejson(slug: str, request: Request, format: str = "png") -> dict[str, Any]
         "version": f"1.0.{found['version']}",
         "attribution": found["attribution"] or "",
         "scheme": "xyz",
-        "tiles": [_tile_template(request, slug, fmt)],
+        "tiles": [versioned(_tile_template(request, slug, fmt), _token(found))],
         "minzoom": found["minzoom"],
         "maxzoom": found["maxzoom"],
         "bounds": bounds,
@@ -133,10 +136,10 @@ def tile(slug: str, z: str, x: str, tile: str, request: Request) -> Response:
         query = catalog.tile_sources(conn, slug, bbox)
     if query is None:
         raise _no_layer(slug)
-    etag = f'"{query.layer_id}.{query.version}"'
-    headers = {"ETag": etag, "Cache-Control": CACHE_CONTROL}
-    if _matches(request.headers.get("if-none-match"), etag):
-        return Response(status_code=304, headers=headers)
+    headers = cache_headers(request, query.token, CACHE_CONTROL)
+    unchanged = not_modified(request, headers)
+    if unchanged is not None:
+        return unchanged
     size = 512 if match["scale"] else 256
     key = (query.layer_id, query.version, zi, xi, yi, fmt, size)
     body = tile_cache().get(key)

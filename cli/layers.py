@@ -93,14 +93,14 @@ def layers_show(slug: str) -> None:
 @layers.command("delete")
 @click.argument("slug")
 def layers_delete(slug: str) -> None:
-    """Delete a layer, its catalogue rows and its COG files."""
+    """Delete a layer, its catalogue rows and its COGs (files or objects) in the raster store."""
     from app.db.session import get_engine
     from app.tiles.catalog import delete_layer
+    from app.tiles.store import open_store
 
     with get_engine().begin() as conn:
         uris = delete_layer(conn, slug)
     if uris is None:
         raise UserError(f"no raster layer {slug!r}")
-    for uri in uris:
-        Path(uri).unlink(missing_ok=True)
+    open_store().delete(uris)
     click.echo(f"deleted layer {slug} ({len(uris)} files)")

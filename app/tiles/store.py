@@ -1,0 +1,280 @@
+"""The raster store (``UGVMAP_RASTER_STORE``): where source and overview COGs live.
+
+A local directory (the default) or an S3 prefix, ``s3://bucket/prefix``. Both have one
+interface, used by ingest (write, sweep, delete) and by tiles (read):
+
+- ``ref(key)``: what the catalogue records for the object ``key`` (``layer/<uuid>.tif``);
+- ``resolve(ref)``: the GDAL path to open for a catalogue value. It accepts a store-relative
+  key as well as an absolute path or ``s3://`` URI (rows written before a store moved), so
+  "store root + relative key" and full URIs both work;
+- ``put(local, key)``: make a finished local file the object ``key``, atomically: a local
+  rename, or an S3 upload (multipart above 8 MB) that only exists once complete;
+- ``delete(refs)``, ``refs_under(layer)`` (what a sweep compares with the catalogue) and
+  ``staging(layer)`` (where COGs are written before ``put``).
+
+S3: uploads and deletes go through boto3 (its transfer manager does the multipart upload with
+retries and aborts it on failure, so a failed upload leaves no part behind); reads go through
+GDAL's ``/vsis3/`` (COG range reads are GDAL's job). Both take credentials and endpoint from
+the usual AWS_* variables; ``AWS_ENDPOINT_URL`` (boto3's) and ``AWS_S3_ENDPOINT`` +
+``AWS_HTTPS`` (GDAL's) are each derived from the other, and ``AWS_VIRTUAL_HOSTING=FALSE``
+gives path-style addressing to both (MinIO, moto, Ceph).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from abc import ABC, abstractmethod
+from collections.abc import Iterable, Iterator
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from app.errors import UserError
+from app.settings import get_settings
+
+#: Set around each /vsis3/ open (thread-local, via ``rasterio.Env``), not process-wide: they
+#: would change how *local* inputs open (no sidecar files, no world files).
+REMOTE_OPEN_OPTIONS = {
+    # Our COGs have no sidecars: don't LIST the "directory" on every open.
+    "GDAL_DISABLE_READDIR_ON_OPEN": "EMPTY_DIR",
+    "CPL_VSIL_CURL_ALLOWED_EXTENSIONS": ".tif",
+    # One GET brings the COG header and every IFD (a few kB; ours fit in 32 kB).
+    "GDAL_INGESTED_BYTES_AT_OPEN": "32768",
+    # Per open handle (handles stay open, readers.MAX_OPEN_PER_THREAD of them per thread).
+    "VSI_CACHE": "TRUE",
+    "VSI_CACHE_SIZE": str(2 << 20),
+}
+#: HTTP-only options, set process-wide (unless already set) once a remote store is opened.
+#: Objects are immutable (every write is a new name), so GDAL's per-process caches of file
+#: sizes/existence (HEAD results) and of downloaded blocks can never serve stale bytes.
+HTTP_OPTIONS = {
+    # HTTP/2 (GDAL's default over TLS) multiplexed; plain http stays keep-alive HTTP/1.1.
+    "GDAL_HTTP_MULTIPLEX": "YES",
+    "GDAL_HTTP_MERGE_CONSECUTIVE_RANGES": "YES",
+    "CPL_VSIL_CURL_CACHE_SIZE": str(128 << 20),  # shared block cache (default 16 MB)
+    "CPL_VSIL_CURL_USE_HEAD": "NO",  # the first ranged GET tells the size: one round trip
+    "GDAL_HTTP_MAX_RETRY": "3",
+    "GDAL_HTTP_RETRY_DELAY": "0.5",
+}
+MULTIPART_THRESHOLD = 8 << 20
+MULTIPART_CHUNK = 16 << 20
+
+
+class StoreError(UserError):
+    """The raster store is misconfigured or unreachable; the message says how."""
+
+
+class RasterStore(ABC):
+    """Where COGs live; see the module docstring for the contract."""
+
+    root: str
+    remote: bool = False
+
+    @abstractmethod
+    def ref(self, key: str) -> str:
+        """What the catalogue records for object ``key``."""
+
+    @abstractmethod
+    def resolve(self, ref: str) -> str:
+        """The GDAL path of a catalogue value (relative key, absolute path or URI)."""
+
+    @abstractmethod
+    def put(self, local: Path, key: str) -> None:
+        """Make the finished file ``local`` the object ``key`` (it is consumed)."""
+
+    @abstractmethod
+    def delete(self, refs: Iterable[str]) -> None:
+        """Remove these objects; missing ones are fine."""
+
+    @abstractmethod
+    def refs_under(self, layer: str) -> list[str]:
+        """Every object under ``layer/``, as catalogue values, temporary files included."""
+
+    @abstractmethod
+    def staging(self, layer: str) -> contextlib.AbstractContextManager[Path]:
+        """A local directory to write ``layer``'s COGs in before :meth:`put`."""
+
+
+def _is_absolute(ref: str) -> bool:
+    return ref.startswith("/") or "://" in ref
+
+
+class LocalStore(RasterStore):
+    """A directory; COGs are written in place and renamed when complete."""
+
+    def __init__(self, root: Path) -> None:
+        self.path = root.resolve()
+        self.root = str(self.path)
+
+    def ref(self, key: str) -> str:
+        """The absolute path (what rows held before the store could be remote)."""
+        return str(self.path / key)
+
+    def resolve(self, ref: str) -> str:
+        """Absolute paths and URIs as they are (``s3://`` as GDAL's /vsis3/); keys under root."""
+        if ref.startswith("s3://"):
+            return "/vsis3/" + ref.removeprefix("s3://")
+        return ref if _is_absolute(ref) else str(self.path / ref)
+
+    def put(self, local: Path, key: str) -> None:
+        """Rename into place (a no-op when written there already)."""
+        dst = self.path / key
+        if local.resolve() != dst:
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(local, dst)
+
+    def delete(self, refs: Iterable[str]) -> None:
+        """Unlink each file."""
+        for ref in refs:
+            Path(self.resolve(ref)).unlink(missing_ok=True)
+
+    def refs_under(self, layer: str) -> list[str]:
+        """The files in the layer's folder."""
+        folder = self.path / layer
+        return [str(p) for p in folder.iterdir() if p.is_file()] if folder.is_dir() else []
+
+    @contextlib.contextmanager
+    def staging(self, layer: str) -> Iterator[Path]:
+        """The layer's own folder: files are written under temporary names, then renamed."""
+        folder = self.path / layer
+        folder.mkdir(parents=True, exist_ok=True)
+        yield folder
+
+
+class S3Store(RasterStore):
+    """An S3 bucket and prefix: COGs are written locally, then uploaded."""
+
+    remote = True
+
+    def __init__(self, uri: str) -> None:
+        parts = urlsplit(uri)
+        if not parts.netloc:
+            raise StoreError(f"UGVMAP_RASTER_STORE={uri!r}: expected s3://bucket[/prefix]")
+        self.bucket = parts.netloc
+        prefix = parts.path.strip("/")
+        self.prefix = f"{prefix}/" if prefix else ""
+        self.root = f"s3://{self.bucket}/{self.prefix}"
+        configure_gdal_http()
+        self.client = s3_client()
+
+    def key_of(self, ref: str) -> str | None:
+        """The object key of a catalogue value in this bucket, or None for anything else."""
+        if ref.startswith("s3://"):
+            bucket, _, key = ref.removeprefix("s3://").partition("/")
+            return key if bucket == self.bucket else None
+        return None if _is_absolute(ref) else self.prefix + ref
+
+    def ref(self, key: str) -> str:
+        """The object's full ``s3://`` URI."""
+        return f"{self.root}{key}"
+
+    def resolve(self, ref: str) -> str:
+        """``/vsis3/bucket/key`` for a URI or a key; local paths as they are."""
+        if ref.startswith("s3://"):
+            return "/vsis3/" + ref.removeprefix("s3://")
+        return ref if _is_absolute(ref) else f"/vsis3/{self.bucket}/{self.prefix}{ref}"
+
+    @contextlib.contextmanager
+    def _errors(self, doing: str) -> Iterator[None]:
+        """S3 failures (no bucket, no credentials, endpoint down) as one clear line."""
+        from boto3.exceptions import Boto3Error
+        from botocore.exceptions import BotoCoreError, ClientError
+
+        try:
+            yield
+        except (ClientError, BotoCoreError, Boto3Error) as exc:
+            raise StoreError(f"raster store {self.root}: {doing} failed ({exc})") from exc
+
+    def put(self, local: Path, key: str) -> None:
+        """Upload (multipart above 8 MB; an incomplete upload is aborted, never visible)."""
+        from boto3.s3.transfer import TransferConfig
+
+        config = TransferConfig(multipart_threshold=MULTIPART_THRESHOLD,
+                                multipart_chunksize=MULTIPART_CHUNK)
+        try:
+            with self._errors(f"uploading {key}"):
+                self.client.upload_file(str(local), self.bucket, self.prefix + key,
+                                        Config=config)
+        finally:
+            local.unlink(missing_ok=True)
+
+    def delete(self, refs: Iterable[str]) -> None:
+        """Batch-delete the objects of this bucket among ``refs``."""
+        keys = [k for k in (self.key_of(r) for r in refs) if k]
+        with self._errors("deleting"):
+            for i in range(0, len(keys), 1000):
+                self.client.delete_objects(Bucket=self.bucket, Delete={
+                    "Objects": [{"Key": k} for k in keys[i:i + 1000]], "Quiet": True})
+
+    def refs_under(self, layer: str) -> list[str]:
+        """Every object under ``prefix/layer/``."""
+        with self._errors("listing"):
+            pages = self.client.get_paginator("list_objects_v2").paginate(
+                Bucket=self.bucket, Prefix=f"{self.prefix}{layer}/")
+            return [f"s3://{self.bucket}/{o['Key']}" for page in pages
+                    for o in page.get("Contents", [])]
+
+    @contextlib.contextmanager
+    def staging(self, layer: str) -> Iterator[Path]:
+        """A temporary local directory (``TMPDIR``), removed afterwards."""
+        folder = Path(tempfile.mkdtemp(prefix=f"ugvmap-{layer}-"))
+        try:
+            yield folder
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _truthy(name: str, default: bool) -> bool:
+    value = os.environ.get(name)
+    return default if value is None else value.strip().upper() not in ("NO", "FALSE", "0", "OFF")
+
+
+def configure_gdal_http() -> None:
+    """Process-wide GDAL settings for a remote store (only those the user has not set).
+
+    ``AWS_ENDPOINT_URL`` (what boto3 and the AWS CLI read) becomes GDAL's
+    ``AWS_S3_ENDPOINT`` + ``AWS_HTTPS``, so one variable configures both.
+    """
+    for key, value in HTTP_OPTIONS.items():
+        os.environ.setdefault(key, value)
+    endpoint = os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL")
+    if endpoint and "AWS_S3_ENDPOINT" not in os.environ:
+        parts = urlsplit(endpoint)
+        os.environ["AWS_S3_ENDPOINT"] = parts.netloc + parts.path.rstrip("/")
+        os.environ.setdefault("AWS_HTTPS", "NO" if parts.scheme == "http" else "YES")
+
+
+def s3_client() -> Any:
+    """A boto3 S3 client on the endpoint, region and addressing style of the AWS_* variables."""
+    import boto3
+    from botocore.config import Config
+
+    endpoint = os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL")
+    if not endpoint and os.environ.get("AWS_S3_ENDPOINT"):
+        scheme = "https" if _truthy("AWS_HTTPS", True) else "http"
+        endpoint = f"{scheme}://{os.environ['AWS_S3_ENDPOINT']}"
+    style = "auto" if _truthy("AWS_VIRTUAL_HOSTING", True) else "path"
+    region = os.environ.get("AWS_REGION") or os.environ.get("AWS_DEFAULT_REGION")
+    return boto3.client("s3", endpoint_url=endpoint, region_name=region,
+                        config=Config(s3={"addressing_style": style},
+                                      retries={"max_attempts": 5, "mode": "standard"}))
+
+
+@lru_cache(maxsize=4)
+def _open(root: str) -> RasterStore:
+    if root.startswith("s3://"):
+        return S3Store(root)
+    if "://" in root or root.startswith("/vsi"):
+        raise StoreError(f"UGVMAP_RASTER_STORE={root!r}: a directory or s3://bucket/prefix")
+    return LocalStore(Path(root))
+
+
+def open_store(root: str | Path | RasterStore | None = None) -> RasterStore:
+    """The store at ``root`` (default: ``UGVMAP_RASTER_STORE``), one instance per root."""
+    if isinstance(root, RasterStore):
+        return root
+    return _open(str(root) if root is not None else get_settings().raster_store_uri)

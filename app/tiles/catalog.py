@@ -101,6 +101,13 @@ def get_layer(conn: Connection, slug: str) -> dict[str, Any] | None:
     return layer
 
 
+def source_uri(conn: Connection, slug: str, source_id: int) -> str | None:
+    """The stored COG of one of the layer's sources, or None."""
+    return conn.execute(text(
+        "SELECT s.uri FROM raster_sources s JOIN layers l ON l.id = s.layer_id "
+        "WHERE l.slug = :slug AND s.id = :id"), {"slug": slug, "id": source_id}).scalar()
+
+
 def delete_layer(conn: Connection, slug: str) -> list[str] | None:
     """Delete a layer and its source rows; return the files to remove after commit."""
     row = conn.execute(text("SELECT id, overview_uri FROM layers WHERE slug = :slug FOR UPDATE"),

@@ -10,12 +10,14 @@ without any pixel being read, and the ETag changes as soon as the layer does.
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any
 
 from fastapi import APIRouter, Request, Response
+from fastapi.responses import FileResponse, RedirectResponse
 
 from app.db.session import get_engine
-from app.errors import InvalidParameterValueError, LayerNotFoundError
+from app.errors import InvalidParameterValueError, LayerNotFoundError, NotFoundError
 from app.grid import parse_tile, tile_bounds
 from app.tiles import catalog
 from app.tiles.cache import tile_cache
@@ -23,6 +25,7 @@ from app.tiles.catalog import TileSource
 from app.tiles.encode import MEDIA_TYPES, encode
 from app.tiles.mosaic import render
 from app.tiles.readers import overview_zoom
+from app.tiles.store import open_store
 from app.tiles.versioned import cache_headers, not_modified, versioned
 
 router = APIRouter(tags=["raster layers"])
@@ -89,8 +92,33 @@ def layer(slug: str, request: Request) -> dict[str, Any]:
     # Store paths are server internals: not part of the HTTP contract.
     body["sources"] = [
         {**{k: v for k, v in s.items() if k not in ("ingested_at", "uri")},
-         "ingested_at": s["ingested_at"].isoformat()} for s in found["sources"]]
+         "ingested_at": s["ingested_at"].isoformat(),
+         "links": {"cog": str(request.url_for("source_cog", slug=slug,
+                                              source_id=str(s["id"])))}}
+        for s in found["sources"]]
     return body
+
+
+@router.get("/layers/{slug}/sources/{source_id}.tif", name="source_cog", response_model=None,
+            responses={200: {"content": {"image/tiff": {}}}, 307: {}})
+def source_cog(slug: str, source_id: str) -> Response:
+    """The source's COG exactly as stored: with HTTP ranges from a directory store (GDAL and
+    QGIS read it in place over /vsicurl/), or a redirect to a presigned URL on S3."""
+    if not source_id.isascii() or not source_id.isdigit():
+        raise InvalidParameterValueError(f"source id {source_id[:20]!r} must be an integer")
+    with get_engine().connect() as conn:
+        uri = catalog.source_uri(conn, slug, int(source_id))
+    if uri is None:
+        raise NotFoundError(f"layer {slug[:100]!r} has no source {source_id}")
+    store = open_store()
+    url = store.presign(uri)
+    if url is not None:
+        return RedirectResponse(url, status_code=307)
+    path = Path(store.resolve(uri))
+    if not path.is_file():
+        raise NotFoundError(f"the COG of source {source_id} is missing from the store")
+    return FileResponse(path, media_type="image/tiff", filename=f"{slug}-{source_id}.tif",
+                        headers={"Cache-Control": "no-cache"})
 
 
 @router.get("/layers/{slug}/tilejson.json", name="tilejson")

@@ -86,6 +86,11 @@ class RasterStore(ABC):
     def put(self, local: Path, key: str) -> None:
         """Make the finished file ``local`` the object ``key`` (it is consumed)."""
 
+    def presign(self, ref: str, expires_s: int = 3600) -> str | None:
+        """A time-limited URL a client can download ``ref`` from directly, if the store has
+        one (S3), else None (the app serves the file)."""
+        return None
+
     @abstractmethod
     def delete(self, refs: Iterable[str]) -> None:
         """Remove these objects; missing ones are fine."""
@@ -201,6 +206,16 @@ class S3Store(RasterStore):
                                         Config=config)
         finally:
             local.unlink(missing_ok=True)
+
+    def presign(self, ref: str, expires_s: int = 3600) -> str | None:
+        """A presigned GET URL (ranges work on it, so GDAL's /vsicurl/ reads it in place)."""
+        key = self.key_of(ref)
+        if key is None:
+            return None
+        with self._errors("presigning"):
+            url: str = self.client.generate_presigned_url(
+                "get_object", Params={"Bucket": self.bucket, "Key": key}, ExpiresIn=expires_s)
+        return url
 
     def delete(self, refs: Iterable[str]) -> None:
         """Batch-delete the objects of this bucket among ``refs``."""

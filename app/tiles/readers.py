@@ -17,7 +17,7 @@ import rasterio
 from rasterio.errors import RasterioIOError
 from rasterio.io import DatasetReader
 
-from app.tiles.store import REMOTE_OPEN_OPTIONS, open_store
+from app.tiles.store import REMOTE_OPEN_OPTIONS, configure_gdal_http, open_store
 
 MAX_OPEN_PER_THREAD = 64
 _local = threading.local()
@@ -41,9 +41,11 @@ def open_dataset(uri: str) -> DatasetReader:
 
 
 def open_raster(path: str) -> DatasetReader:
-    """``rasterio.open``, with the remote-open options for object-store paths."""
+    """``rasterio.open``, with the remote-open options for object-store paths (and the HTTP
+    ones, even when the configured store is local but the catalogue names S3 objects)."""
     if not path.startswith("/vsi"):
         return rasterio.open(path)
+    configure_gdal_http()
     with rasterio.Env(**REMOTE_OPEN_OPTIONS):
         return rasterio.open(path)
 

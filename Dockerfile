@@ -5,6 +5,17 @@ WORKDIR /web
 COPY app/web/package.json app/web/package-lock.json ./
 RUN npm ci --omit=dev
 
+# The front cache (docker-compose service `front-cache`): Debian's nginx with the shipped config.
+FROM debian:bookworm-slim AS front-cache
+RUN apt-get update && apt-get install -y --no-install-recommends nginx \
+    && rm -rf /var/lib/apt/lists/* /etc/nginx/sites-enabled/* \
+    && mkdir -p /var/cache/ugvmap && chown www-data:www-data /var/cache/ugvmap
+COPY app/frontcache/nginx.conf /etc/nginx/nginx.conf
+COPY app/frontcache/cache-policy.conf /etc/nginx/ugvmap-cache.conf
+EXPOSE 8080
+CMD ["nginx", "-g", "daemon off;"]
+
+# The app (the default, last stage).
 FROM python:3.11-slim-bookworm
 WORKDIR /srv/ugvmap
 COPY pyproject.toml README.md alembic.ini ./

@@ -3,6 +3,7 @@
 One command (from the repo root)::
 
     .venv/bin/python bench/tiles.py [--workers 1] [--duration 15] [--skip-ingest]
+                                    [--skip-tiles] [--skip-cache] [--skip-s3]
 
 1. **Tiles.** A real-texture test image (the valid part of the shared ``RGB.byte.tif``,
    mirror-tiled to ``--size`` px, 0.3 m/px, EPSG:32618, as in
@@ -13,7 +14,17 @@ One command (from the repo root)::
    switched off with ``UGVMAP_TILE_CACHE_MB=0``). TiTiler runs
    from its own venv, ``bench/.venv-titiler``, created on first use (never a project
    dependency).
-2. **Ingest.** A 28000 x 7000 RGB mosaic is ingested by ``ugvmap ingest raster`` (validation,
+2. **Front cache.** The same native-zoom tiles through the shipped nginx front cache
+   (``app/frontcache``, versioned URLs from the TileJSON, every tile fetched once first so all
+   are HITs) against the *same* nginx serving those PNGs as static files from disk: same wrk
+   connections (``-t1 -c8``, keep-alive), same nginx worker, one after the other.
+3. **Object storage.** The test image ingested into a local S3-compatible server (moto's
+   standalone server, in this process, over HTTP) and served through GDAL's /vsis3/, against
+   the same image on local disk, both with the tile cache off and GDAL's block caches (8 MB)
+   and, for S3, the downloaded-range cache (4 MB) far below the working set, so most tiles
+   read through to the store. moto is a single Python process: a real S3 or MinIO answers
+   faster, so this ratio is a floor.
+4. **Ingest.** A 28000 x 7000 RGB mosaic is ingested by ``ugvmap ingest raster`` (validation,
    VRT, COG, footprint, catalogue) and converted by a bare GDAL COG-driver call with the same
    target grid and creation options; wall time and peak RSS of each process.
 
@@ -24,12 +35,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import random
 import re
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 from pathlib import Path
@@ -161,13 +174,14 @@ def stop(proc: subprocess.Popen) -> None:
         proc.kill()
 
 
-def wrk(base: str, paths: list[str], duration: int, workers: int) -> dict[str, float]:
+def wrk(base: str, paths: list[str], duration: int, workers: int = 1) -> dict[str, float]:
     """Tiles per second and latency from wrk cycling through ``paths``, after a warm-up run."""
     OUT.mkdir(parents=True, exist_ok=True)
     tile_list, script = OUT / "tiles.txt", OUT / "cycle.lua"
     tile_list.write_text("\n".join(paths) + "\n")
     script.write_text(LUA)
-    # One uvicorn worker takes all keep-alive connections; several workers need new ones.
+    # One uvicorn worker takes all keep-alive connections; several workers need new ones
+    # (nginx runs are given workers=1: keep-alive, as browsers do).
     extra = ["-H", "Connection: close"] if workers > 1 else []
     env = {**os.environ, "TILE_LIST": str(tile_list)}
     subprocess.run(["wrk", "-t1", "-c8", "-d3s", "--timeout", "10s", "-s", str(script), *extra,
@@ -198,51 +212,143 @@ def tile_paths(cog: Path, zoom: int) -> list[tuple[int, int]]:
     return tiles
 
 
-def bench_tiles(args: argparse.Namespace, url: str, store: Path) -> None:
-    """Tiles per second, ugvmap vs TiTiler on the same COG, at native and native-3 zooms."""
+def bench_layer(args: argparse.Namespace, url: str, store: Path) -> tuple[Path, Path, int]:
+    """The test image ingested as layer ``bench``: (image, its COG, native zoom)."""
     from ingest.raster.job import ingest_raster
 
     image = write_test_image(OUT / f"texture_{args.size}.tif", args.size, args.size)
     os.environ["DATABASE_URL"] = url
     report = ingest_raster([image], "bench", database_url=url, store=store)
-    cog = Path(report.sources[0].uri)
-    native = report.sources[0].zoom
+    return image, Path(report.sources[0].uri), report.sources[0].zoom
+
+
+def ugvmap_server(url: str, store: str, workers: int,
+                  **env: str) -> tuple[subprocess.Popen, str]:
+    """``ugvmap serve`` on a free port (tile cache off unless ``env`` says otherwise)."""
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    cmd = [sys.executable, "-m", "cli", "serve", "--port", str(port), "--workers", str(workers)]
+    env = {"DATABASE_URL": url, "UGVMAP_RASTER_STORE": store, "UGVMAP_LOG_LEVEL": "WARNING",
+           "UGVMAP_TILE_CACHE_MB": "0", **env}
+    return start(cmd, env, f"{base}/healthz"), base
+
+
+def report_line(name: str, r: dict[str, float]) -> None:
+    """One result line of a wrk run."""
+    print(f"  {name:22s}: {r['tiles_per_s']:8.1f} tiles/s  p50 {r['p50_ms']:6.1f} ms  "
+          f"p99 {r['p99_ms']:6.1f} ms  errors {r['errors']}", flush=True)
+
+
+def bench_tiles(args: argparse.Namespace, url: str, store: Path, cog: Path, native: int) -> None:
+    """Tiles per second, ugvmap vs TiTiler on the same COG, at native and native-3 zooms."""
     titiler_python = ensure_titiler()
     results: dict[tuple[str, int], dict] = {}
     for zoom in (native, native - 3):
         tiles = tile_paths(cog, zoom)
         for name in ("ugvmap", "titiler"):
-            port = free_port()
-            base = f"http://127.0.0.1:{port}"
             if name == "ugvmap":
-                cmd = [sys.executable, "-m", "cli", "serve", "--port", str(port),
-                       "--workers", str(args.workers)]
-                env = {"DATABASE_URL": url, "UGVMAP_RASTER_STORE": str(store),
-                       "UGVMAP_LOG_LEVEL": "WARNING", "UGVMAP_TILE_CACHE_MB": "0"}
+                proc, base = ugvmap_server(url, str(store), args.workers)
                 paths = [f"/tiles/bench/{zoom}/{x}/{y}.png" for x, y in tiles]
-                probe = f"{base}/healthz"
             else:
-                cmd = [str(titiler_python), "-m", "uvicorn", "titiler.application.main:app",
-                       "--host", "127.0.0.1", "--port", str(port), "--workers",
-                       str(args.workers), "--no-access-log", "--log-level", "warning"]
-                env = {}
+                port = free_port()
+                base = f"http://127.0.0.1:{port}"
+                proc = start([str(titiler_python), "-m", "uvicorn",
+                              "titiler.application.main:app", "--host", "127.0.0.1", "--port",
+                              str(port), "--workers", str(args.workers), "--no-access-log",
+                              "--log-level", "warning"], {}, f"{base}/healthz")
                 paths = [f"/cog/tiles/WebMercatorQuad/{zoom}/{x}/{y}.png?url=file://{cog}"
                          for x, y in tiles]
-                probe = f"{base}/healthz"
-            proc = start(cmd, env, probe)
             try:
                 results[(name, zoom)] = wrk(base, paths, args.duration, args.workers)
             finally:
                 stop(proc)
-            r = results[(name, zoom)]
-            print(f"  {name:8s} z{zoom} ({len(tiles)} distinct tiles): "
-                  f"{r['tiles_per_s']:7.1f} tiles/s  p50 {r['p50_ms']:6.1f} ms  "
-                  f"p99 {r['p99_ms']:6.1f} ms  errors {r['errors']}", flush=True)
+            report_line(f"{name} z{zoom} ({len(tiles)} tiles)", results[(name, zoom)])
         ratio = results[("ugvmap", zoom)]["tiles_per_s"] / results[("titiler", zoom)][
             "tiles_per_s"]
         kind = "native" if zoom == native else "overview"
         print(f"RATIO tiles/s ugvmap/titiler at z{zoom} ({kind}), {args.workers} worker(s): "
               f"{ratio:.2f}x (target >= 1.5)", flush=True)
+
+
+def bench_front_cache(args: argparse.Namespace, url: str, store: Path, cog: Path,
+                      native: int) -> None:
+    """Tiles/s through the nginx front cache (all HITs) vs the same nginx serving the same
+    PNGs as static files."""
+    from app.frontcache.nginx import FrontCache
+
+    tiles = tile_paths(cog, native)
+    app, _ = ugvmap_server(url, str(store), args.workers, UGVMAP_TILE_CACHE_MB="64")
+    app_addr = app.args[app.args.index("--port") + 1]
+    try:
+        with tempfile.TemporaryDirectory() as work:
+            static = Path(work) / "static"
+            static_port = free_port()
+            extra = (f"    server {{\n        listen 127.0.0.1:{static_port};\n"
+                     f"        root {static};\n    }}\n")
+            with FrontCache(Path(work) / "nginx", "127.0.0.1", free_port(),
+                            f"127.0.0.1:{app_addr}", extra_servers=extra) as front:
+                template = httpx.get(f"{front.url}/layers/bench/tilejson.json").json()["tiles"][0]
+                cached: list[str] = []
+                with httpx.Client(timeout=30) as http:
+                    for x, y in tiles:  # fill the cache, keep each body as a static file
+                        tile = template.format(z=native, x=x, y=y)
+                        resp = http.get(tile)
+                        resp.raise_for_status()
+                        dst = static / str(native) / str(x) / f"{y}.png"
+                        dst.parent.mkdir(parents=True, exist_ok=True)
+                        dst.write_bytes(resp.content)
+                        cached.append(tile.removeprefix(front.url))
+                    hits = sum(http.get(front.url + p).headers["x-cache-status"] == "HIT"
+                               for p in cached)
+                print(f"  {len(tiles)} distinct tiles at z{native}, {hits} HITs on a second "
+                      "pass", flush=True)
+                through = wrk(front.url, cached, args.duration)
+                report_line("nginx cache (HIT)", through)
+                direct = wrk(f"http://127.0.0.1:{static_port}",
+                             [f"/{native}/{x}/{y}.png" for x, y in tiles], args.duration)
+                report_line("nginx static files", direct)
+    finally:
+        stop(app)
+    print(f"RATIO tiles/s nginx front cache / nginx static files: "
+          f"{through['tiles_per_s'] / direct['tiles_per_s']:.2f}x (target >= 0.5)", flush=True)
+
+
+def bench_s3(args: argparse.Namespace, url: str, store: Path, image: Path, cog: Path,
+             native: int) -> None:
+    """Tiles/s with the COG on a local S3 server (GDAL /vsis3/) vs on local disk."""
+    from moto.server import ThreadedMotoServer
+
+    from app.tiles.store import s3_client
+    from ingest.raster.job import ingest_raster
+
+    logging.getLogger("werkzeug").setLevel(logging.WARNING)  # moto's per-request lines
+    port = free_port()
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
+    server.start()
+    os.environ.update({"AWS_ACCESS_KEY_ID": "bench", "AWS_SECRET_ACCESS_KEY": "bench",
+                       "AWS_REGION": "us-east-1", "AWS_VIRTUAL_HOSTING": "FALSE",
+                       "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}"})
+    try:
+        s3_client().create_bucket(Bucket="ugvmap-bench")
+        s3_uri = "s3://ugvmap-bench/rasters"
+        ingest_raster([image], "bench-s3", database_url=url, store=s3_uri)
+        tiles = tile_paths(cog, native)
+        small_caches = {"GDAL_CACHEMAX": "8", "CPL_VSIL_CURL_CACHE_SIZE": str(4 << 20)}
+        results = {}
+        for name, layer, where in (("local disk", "bench", str(store)),
+                                   ("S3 (moto, /vsis3/)", "bench-s3", s3_uri)):
+            proc, base = ugvmap_server(url, where, args.workers, **small_caches)
+            try:
+                results[name] = wrk(base, [f"/tiles/{layer}/{native}/{x}/{y}.png"
+                                           for x, y in tiles], args.duration, args.workers)
+            finally:
+                stop(proc)
+            report_line(name, results[name])
+    finally:
+        server.stop()
+    ratio = results["S3 (moto, /vsis3/)"]["tiles_per_s"] / results["local disk"]["tiles_per_s"]
+    print(f"RATIO tiles/s S3 / local disk at z{native}, {args.workers} worker(s): "
+          f"{ratio:.2f}x", flush=True)
 
 
 def timed_child(code: str, env: dict[str, str]) -> tuple[float, float]:
@@ -286,7 +392,9 @@ def main() -> None:
     parser.add_argument("--duration", type=int, default=15, help="seconds per wrk run")
     parser.add_argument("--size", type=int, default=6000, help="tile test image side, px")
     parser.add_argument("--mosaic", type=int, nargs=2, default=(28000, 7000))
-    parser.add_argument("--skip-tiles", action="store_true")
+    parser.add_argument("--skip-tiles", action="store_true", help="no ugvmap vs TiTiler run")
+    parser.add_argument("--skip-cache", action="store_true", help="no front-cache run")
+    parser.add_argument("--skip-s3", action="store_true", help="no object-storage run")
     parser.add_argument("--skip-ingest", action="store_true")
     args = parser.parse_args()
     if shutil.which("wrk") is None:
@@ -297,9 +405,19 @@ def main() -> None:
     print(json.dumps({"cpus": os.cpu_count(), "workers": args.workers,
                       "rasterio": rasterio.__version__, "gdal": rasterio.__gdal_version__}))
     try:
+        if not (args.skip_tiles and args.skip_cache and args.skip_s3):
+            image, cog, native = bench_layer(args, url, store)
         if not args.skip_tiles:
             print("tile throughput (PNG 256 px, uncached, same COG):", flush=True)
-            bench_tiles(args, url, store)
+            bench_tiles(args, url, store, cog, native)
+        if not args.skip_cache:
+            print("front cache (versioned tiles through nginx vs nginx static files):",
+                  flush=True)
+            bench_front_cache(args, url, store, cog, native)
+        if not args.skip_s3:
+            print("object storage (tiles from S3 via /vsis3/ vs local disk, tile cache off):",
+                  flush=True)
+            bench_s3(args, url, store, image, cog, native)
         if not args.skip_ingest:
             print("ingest of an RGB mosaic (JPEG COG, web-mercator grid):", flush=True)
             bench_ingest(args, url, store)

@@ -25,19 +25,35 @@ def demo(shared_data: Path) -> None:
 @click.option("--host", default="127.0.0.1", show_default=True)
 @click.option("--port", default=8000, show_default=True, type=int)
 @click.option("--workers", default=1, show_default=True, type=int)
-def serve(host: str, port: int, workers: int) -> None:
+@click.option("--front-cache", is_flag=True,
+              help="Put nginx (a disk cache of versioned tiles) on --port, the app behind it.")
+@click.option("--app-port", type=int, help="With --front-cache: the app's own port "
+              "(default: --port + 1, on 127.0.0.1).")
+@click.option("--cache-size", default="1g", show_default=True,
+              help="With --front-cache: nginx's max_size for the tile cache.")
+def serve(host: str, port: int, workers: int, front_cache: bool, app_port: int | None,
+          cache_size: str) -> None:
     """Serve the web map, tiles, features and routes over HTTP."""
     import uvicorn
 
     from app.logs import logging_config
 
     settings = get_settings()
-    uvicorn.run(
-        "app.main:create_app",
-        factory=True,
-        host=host,
-        port=port,
-        workers=workers,
-        log_config=logging_config(settings.log_level),
-        access_log=False,
-    )
+
+    def run(app_host: str, app_port: int) -> None:
+        uvicorn.run("app.main:create_app", factory=True, host=app_host, port=app_port,
+                    workers=workers, log_config=logging_config(settings.log_level),
+                    access_log=False)
+
+    if not front_cache:
+        run(host, port)
+        return
+    from app.frontcache.nginx import FrontCache
+
+    behind = app_port or port + 1
+    workdir = settings.data_dir / "front-cache"
+    with FrontCache(workdir, host, port, f"127.0.0.1:{behind}", max_size=cache_size,
+                    workers=workers):
+        click.echo(f"front cache (nginx) on http://{host}:{port} -> app on "
+                   f"127.0.0.1:{behind}; cache and config in {workdir}", err=True)
+        run("127.0.0.1", behind)

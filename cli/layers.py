@@ -104,7 +104,7 @@ def layers_show(slug: str) -> None:
 @layers.command("delete")
 @click.argument("slug")
 def layers_delete(slug: str) -> None:
-    """Delete a layer, its catalogue rows and its COG files."""
+    """Delete a layer, its catalogue rows and its COGs (files or objects) in the raster store."""
     from app.db.session import get_engine
     from app.tiles.catalog import delete_layer
     from app.tiles.store import remove_files
@@ -115,3 +115,19 @@ def layers_delete(slug: str) -> None:
         raise UserError(f"no raster layer {slug!r}")
     remove_files(get_engine(), uris)
     click.echo(f"deleted layer {slug} ({len(uris)} files)")
+
+
+@layers.command("export")
+@click.argument("slug")
+@click.option("--out", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="The Cloud-Optimized GeoTIFF to write (EPSG:3857, the layer's finest zoom).")
+def layers_export(slug: str, out: Path) -> None:
+    """Write layer SLUG as one COG: its sources mosaicked in paint order by GDAL."""
+    from ingest.raster.export import export_layer
+
+    if out.suffix.lower() not in (".tif", ".tiff"):
+        raise UserError(f"--out {out}: a COG is a .tif file")
+    if not out.parent.is_dir():
+        raise UserError(f"--out {out}: no such directory {out.parent}")
+    zoom = export_layer(slug, out)
+    click.echo(f"layer {slug} -> {out} (z{zoom}, {out.stat().st_size / 1e6:.1f} MB)")

@@ -5,8 +5,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+# nginx: the front cache (`ugvmap serve --front-cache`, its test and bench/tiles.py run their
+# own nginx with a generated config, never the system service).
 APT_PACKAGES=(postgresql-15 postgresql-15-postgis-3 postgresql-15-pgrouting gdal-bin wrk osmium-tool
-              nodejs chromium chromium-driver fonts-liberation)
+              nginx nodejs chromium chromium-driver fonts-liberation)
 # Debian ships npm apart from nodejs; other nodejs builds (e.g. NodeSource) bundle it and
 # conflict with Debian's npm package, so only ask for it when there is no npm command.
 command -v npm >/dev/null || APT_PACKAGES+=(npm)
@@ -26,6 +28,13 @@ if ((${#missing[@]})); then
         if [[ ! -e /etc/postgresql-common/createcluster.conf ]]; then
             mkdir -p /etc/postgresql-common
             echo "create_main_cluster = false" > /etc/postgresql-common/createcluster.conf
+        fi
+        # Nor a system nginx (or any other service): we run our own, on our own ports. Where no
+        # policy says otherwise, deny service starts for the duration of the install.
+        if [[ ! -e /usr/sbin/policy-rc.d ]]; then
+            printf '#!/bin/sh\nexit 101\n' > /usr/sbin/policy-rc.d
+            chmod +x /usr/sbin/policy-rc.d
+            trap 'rm -f /usr/sbin/policy-rc.d' EXIT
         fi
         export DEBIAN_FRONTEND=noninteractive
         apt-get update -qq

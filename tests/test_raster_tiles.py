@@ -209,7 +209,7 @@ def test_layers_and_tilejson(client, tmp_path) -> None:
     assert listed[name]["title"] == "Synthetic" and listed[name]["kind"] == "ipm-mosaic"
     tj = client.get(f"/layers/{name}/tilejson.json?format=webp").json()
     assert tj["tilejson"] == "3.0.0"
-    assert tj["tiles"][0].endswith(f"/tiles/{name}/{{z}}/{{x}}/{{y}}.webp")
+    assert f"/tiles/{name}/{{z}}/{{x}}/{{y}}.webp?v=" in tj["tiles"][0]
     w, s, e, n = tj["bounds"]
     assert w < tj["center"][0] < e and s < tj["center"][1] < n
     assert tj["minzoom"] <= tj["center"][2] <= tj["maxzoom"]

@@ -59,12 +59,13 @@ def list_collections(session: Session) -> list[Collection]:
 
 
 def network_row(session: Session, name: str) -> Any:
-    """(id, title, version) of a network, or None; names that cannot exist (not a slug, e.g.
-    with NUL bytes PostgreSQL would reject) are not even looked up."""
+    """(id, title, version, created_at) of a network, or None; names that cannot exist (not a
+    slug, e.g. with NUL bytes PostgreSQL would reject) are not even looked up."""
     if not re.fullmatch(SLUG_RE.strip("^$"), name):
         return None
-    return session.execute(text("SELECT id, title, version FROM networks WHERE name = :n"),
-                           {"n": name}).first()
+    return session.execute(
+        text("SELECT id, title, version, created_at FROM networks WHERE name = :n"),
+        {"n": name}).first()
 
 
 def resolve(session: Session, collection_id: str) -> Collection:

@@ -12,11 +12,16 @@ holds depends on the zoom, so that a low-zoom tile of a country-sized network st
   z8-9. Read from ``road_overview`` (migration ``0003_netscale``: main roads pre-merged per
   class and 20 km cell, kept current by a trigger in each edit's transaction), so a z6 tile of
   a country reads a few dozen rows, not every main-road segment.
+
+HTTP caching follows :mod:`app.tiles.versioned`: ``?v=<network_token>`` (the network's current
+version) makes a tile immutable; without it, or with an older token, ``no-cache`` as before.
 """
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends
+from typing import Any
+
+from fastapi import APIRouter, Depends, Request
 from fastapi.responses import Response
 from sqlalchemy import text
 from sqlalchemy.orm import Session
@@ -28,6 +33,7 @@ from app.network.tile_cache import Bounds, shared_cache
 from app.network.tokens import SessionDep, read_access
 from app.params import NetworkName
 from app.settings import get_settings
+from app.tiles.versioned import cache_headers, not_modified, version_token
 
 router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)])
 
@@ -104,6 +110,12 @@ def shown_classes(z: int) -> list[str] | None:
     return next((list(classes) for below, classes in CLASSES_BELOW if z < below), None)
 
 
+def network_token(network: Any) -> str:
+    """The version token of the network's tile URLs (a :func:`network_row` row): what a
+    network TileJSON appends as ``?v=``."""
+    return version_token("network", network.id, network.version, network.created_at)
+
+
 def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
     """Lon/lat bounds of the tile plus its buffer: what an edit must meet to change it."""
     row = session.execute(text(
@@ -115,12 +127,19 @@ def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
 
 @router.get("/networks/{name}/tiles/{z}/{x}/{y}.mvt", response_class=Response,
             responses={200: {"content": {MVT: {}}}})
-def network_tile(name: NetworkName, z: str, x: str, y: str, session: SessionDep) -> Response:
-    """One Mapbox vector tile of the network (cached per worker until the network changes)."""
+def network_tile(name: NetworkName, z: str, x: str, y: str, session: SessionDep,
+                 request: Request) -> Response:
+    """One Mapbox vector tile of the network (cached per worker until the network changes;
+    immutable for HTTP caches with the network's current ``?v=`` token)."""
     zi, xi, yi = parse_tile(z, x, y)
     network = network_row(session, name)
     if network is None:
         raise NotFoundError(f"network {name[:100]!r} not found")
+    headers = cache_headers(request, network_token(network), "no-cache",
+                            public=get_settings().network_read_role is None)
+    unchanged = not_modified(request, headers)
+    if unchanged is not None:
+        return unchanged
     cache = shared_cache(get_settings().database_url)
     key = (network.id, zi, xi, yi)
     tile = cache.get(key, network.version)
@@ -131,5 +150,4 @@ def network_tile(name: NetworkName, z: str, x: str, y: str, session: SessionDep)
                                      {**zoom_params(zi), "x": xi, "y": yi,
                                       "network_id": network.id}).scalar_one())
         cache.put(key, network.version, tile_bounds(session, zi, xi, yi), tile)
-    return Response(tile, media_type=MVT, headers={"X-Tile-Cache": status,
-                                                   "Cache-Control": "no-cache"})
+    return Response(tile, media_type=MVT, headers={**headers, "X-Tile-Cache": status})

@@ -8,11 +8,12 @@ overview written at ingest is rendered from the same query, so it paints like th
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy import Connection, text
 
-from app.tiles.store import resolve
+from app.tiles.versioned import version_token
 
 LAYER_COLUMNS = (
     "l.id, l.slug, l.title, l.kind, l.minzoom, l.maxzoom, l.resolution_m, l.attribution, "
@@ -25,8 +26,9 @@ LAYER_COLUMNS = (
 #: under higher, then older under newer, so a re-survey covers what it replaces. The one
 #: definition, used by tiles, the layer overview, ``GET /layers/{slug}`` and ``layers show``.
 PAINT_ORDER = "s.priority, s.ingested_at, s.id"
-# Store references are relative to the raster store (app.tiles.store); every reader here
-# returns them resolved, so callers open files without knowing where the store is.
+# Store references are relative to the raster store (app.tiles.store) and are returned as
+# stored: whoever opens a file resolves it (``open_store().resolve``), so the catalogue never
+# hands out server paths and a restored database works with any store location.
 
 
 @dataclass(frozen=True)
@@ -42,15 +44,27 @@ class TileQuery:
     meeting the tile, in paint order."""
     layer_id: int
     version: int
+    created_at: datetime
     sources: list[TileSource]
     overview_uri: str | None
+
+    @property
+    def token(self) -> str:
+        """The version token of tile URLs (:mod:`app.tiles.versioned`)."""
+        return layer_token(self.layer_id, self.version, self.created_at)
+
+
+def layer_token(layer_id: int, version: int, created_at: datetime) -> str:
+    """The version token naming this version of a raster layer."""
+    return version_token("layer", layer_id, version, created_at)
 
 
 def tile_sources(conn: Connection, slug: str,
                  bbox: tuple[float, float, float, float]) -> TileQuery | None:
     """The layer's version and the sources meeting ``bbox`` (EPSG:3857), bottom first."""
     rows = conn.execute(text(
-        "SELECT l.id, l.version, l.overview_uri, s.uri, s.meta->'display_range' FROM layers l "
+        "SELECT l.id, l.version, l.created_at, l.overview_uri, s.uri, s.meta->'display_range' "
+        "FROM layers l "
         "LEFT JOIN raster_sources s ON s.layer_id = l.id "
         " AND ST_Intersects(s.footprint, ST_MakeEnvelope(:x0, :y0, :x1, :y1, 3857)) "
         f"WHERE l.slug = :slug ORDER BY {PAINT_ORDER}"),
@@ -58,9 +72,9 @@ def tile_sources(conn: Connection, slug: str,
     ).all()
     if not rows:
         return None
-    sources = [TileSource(resolve(r[3]), r[4]) for r in rows if r[3] is not None]
-    return TileQuery(layer_id=rows[0][0], version=rows[0][1], sources=sources,
-                     overview_uri=rows[0][2] and resolve(rows[0][2]))
+    sources = [TileSource(r[4], r[5]) for r in rows if r[4] is not None]
+    return TileQuery(layer_id=rows[0][0], version=rows[0][1], created_at=rows[0][2],
+                     sources=sources, overview_uri=rows[0][3])
 
 
 def list_layers(conn: Connection) -> list[dict[str, Any]]:
@@ -86,8 +100,15 @@ def get_layer(conn: Connection, slug: str) -> dict[str, Any] | None:
         " s.dtype, s.resolution_m, s.meta->>'georef' AS georef, (s.meta->>'zoom')::int AS zoom "
         f"FROM raster_sources s WHERE s.layer_id = :id ORDER BY {PAINT_ORDER}"),
         {"id": layer["id"]})
-    layer["sources"] = [{**s._mapping, "uri": resolve(s.uri)} for s in sources]
+    layer["sources"] = [dict(s._mapping) for s in sources]
     return layer
+
+
+def source_uri(conn: Connection, slug: str, source_id: int) -> str | None:
+    """The stored COG of one of the layer's sources, or None."""
+    return conn.execute(text(
+        "SELECT s.uri FROM raster_sources s JOIN layers l ON l.id = s.layer_id "
+        "WHERE l.slug = :slug AND s.id = :id"), {"slug": slug, "id": source_id}).scalar()
 
 
 def delete_layer(conn: Connection, slug: str) -> list[str] | None:
@@ -99,4 +120,4 @@ def delete_layer(conn: Connection, slug: str) -> list[str] | None:
     uris: list[str] = list(conn.execute(
         text("SELECT uri FROM raster_sources WHERE layer_id = :id"), {"id": row.id}).scalars())
     conn.execute(text("DELETE FROM layers WHERE id = :id"), {"id": row.id})
-    return [resolve(u) for u in uris + ([row.overview_uri] if row.overview_uri else [])]
+    return uris + ([row.overview_uri] if row.overview_uri else [])

@@ -1,19 +1,23 @@
 """HTTP routes: ``/tiles/{slug}/{z}/{x}/{y}[@2x].{png,jpg,webp}``, ``/layers``, TileJSON.
 
-Caching: the ETag is the layer id and version (every ingest bumps the version; a deleted and
-re-created layer gets a new id), so a client revalidates cheaply and gets 304 without any
-pixel being read, and the ETag changes as soon as the layer does.
+Caching (:mod:`app.tiles.versioned`): the TileJSON's tile URLs carry the layer's version
+token (``?v=``); a tile asked for with the current token is immutable for a year, any other
+request gets ``max-age=60``. The strong ETag is that token (every ingest bumps the version; a
+deleted and re-created layer gets a new one), so a client revalidates cheaply and gets 304
+without any pixel being read, and the ETag changes as soon as the layer does.
 """
 
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any
 
 from fastapi import APIRouter, Request, Response
+from fastapi.responses import FileResponse, RedirectResponse
 
 from app.db.session import get_engine
-from app.errors import InvalidParameterValueError, LayerNotFoundError
+from app.errors import InvalidParameterValueError, LayerNotFoundError, NotFoundError
 from app.grid import parse_tile, tile_bounds
 from app.params import LayerSlug
 from app.tiles import catalog
@@ -22,6 +26,8 @@ from app.tiles.catalog import TileSource
 from app.tiles.encode import MEDIA_TYPES, encode
 from app.tiles.mosaic import render
 from app.tiles.readers import overview_zoom
+from app.tiles.store import open_store
+from app.tiles.versioned import cache_headers, not_modified, versioned
 
 router = APIRouter(tags=["raster layers"])
 TILE_RE = re.compile(r"^(?P<y>[^@.]*)(?P<scale>@2x)?\.(?P<fmt>[A-Za-z0-9]+)$")
@@ -54,21 +60,18 @@ def _layer_json(layer: dict[str, Any], request: Request) -> dict[str, Any]:
         "links": {
             "self": str(request.url_for("layer", slug=slug)),
             "tilejson": str(request.url_for("tilejson", slug=slug)),
-            "tiles": _tile_template(request, slug, "png"),
+            "tiles": versioned(_tile_template(request, slug, "png"), _token(layer)),
         },
     }
+
+
+def _token(layer: dict[str, Any]) -> str:
+    return catalog.layer_token(layer["id"], layer["version"], layer["created_at"])
 
 
 def _tile_template(request: Request, slug: str, fmt: str) -> str:
     base = str(request.base_url).rstrip("/")
     return f"{base}/tiles/{slug}/{{z}}/{{x}}/{{y}}.{fmt}"
-
-
-def _matches(if_none_match: str | None, etag: str) -> bool:
-    if not if_none_match:
-        return False
-    tags = {t.strip().removeprefix("W/") for t in if_none_match.split(",")}
-    return etag in tags or "*" in tags
 
 
 @router.get("/layers")
@@ -90,13 +93,40 @@ def layer(slug: LayerSlug, request: Request) -> dict[str, Any]:
     # Store paths are server internals: not part of the HTTP contract.
     body["sources"] = [
         {**{k: v for k, v in s.items() if k not in ("ingested_at", "uri")},
-         "ingested_at": s["ingested_at"].isoformat()} for s in found["sources"]]
+         "ingested_at": s["ingested_at"].isoformat(),
+         "links": {"cog": str(request.url_for("source_cog", slug=slug,
+                                              source_id=str(s["id"])))}}
+        for s in found["sources"]]
     return body
 
 
+@router.get("/layers/{slug}/sources/{source_id}.tif", name="source_cog", response_model=None,
+            responses={200: {"content": {"image/tiff": {}}}, 307: {}})
+def source_cog(slug: LayerSlug, source_id: str) -> Response:
+    """The source's COG exactly as stored: with HTTP ranges from a directory store (GDAL and
+    QGIS read it in place over /vsicurl/), or a redirect to a presigned URL on S3."""
+    if not source_id.isascii() or not source_id.isdigit():
+        raise InvalidParameterValueError(f"source id {source_id[:20]!r} must be an integer")
+    with get_engine().connect() as conn:
+        uri = catalog.source_uri(conn, slug, int(source_id))
+    if uri is None:
+        raise NotFoundError(f"layer {slug[:100]!r} has no source {source_id}")
+    store = open_store()
+    url = store.presign(uri)
+    if url is not None:
+        return RedirectResponse(url, status_code=307)
+    path = Path(store.resolve(uri))
+    if not path.is_file():
+        raise NotFoundError(f"the COG of source {source_id} is missing from the store")
+    return FileResponse(path, media_type="image/tiff", filename=f"{slug}-{source_id}.tif",
+                        headers={"Cache-Control": "no-cache"})
+
+
 @router.get("/layers/{slug}/tilejson.json", name="tilejson")
-def tilejson(slug: LayerSlug, request: Request, format: str = "png") -> dict[str, Any]:
-    """TileJSON 3.0.0 for the layer's XYZ tiles."""
+def tilejson(slug: LayerSlug, request: Request, response: Response,
+             format: str = "png") -> dict[str, Any]:
+    """TileJSON 3.0.0 for the layer's XYZ tiles, whose URLs name the layer's current version
+    (so they may be cached forever); the TileJSON itself is revalidated on every use."""
     fmt = _format(format)
     with get_engine().connect() as conn:
         found = catalog.layer_row(conn, slug)
@@ -104,6 +134,7 @@ def tilejson(slug: LayerSlug, request: Request, format: str = "png") -> dict[str
         raise _no_layer(slug)
     bounds = found["bounds"] or [-180.0, -85.0511, 180.0, 85.0511]
     center_zoom = max(found["minzoom"], min(found["maxzoom"], found["minzoom"] + 2))
+    response.headers["Cache-Control"] = "no-cache"
     return {
         "tilejson": "3.0.0",
         "name": found["title"],
@@ -111,7 +142,7 @@ def tilejson(slug: LayerSlug, request: Request, format: str = "png") -> dict[str
         "version": f"1.0.{found['version']}",
         "attribution": found["attribution"] or "",
         "scheme": "xyz",
-        "tiles": [_tile_template(request, slug, fmt)],
+        "tiles": [versioned(_tile_template(request, slug, fmt), _token(found))],
         "minzoom": found["minzoom"],
         "maxzoom": found["maxzoom"],
         "bounds": bounds,
@@ -134,10 +165,10 @@ def tile(slug: LayerSlug, z: str, x: str, tile: str, request: Request) -> Respon
         query = catalog.tile_sources(conn, slug, bbox)
     if query is None:
         raise _no_layer(slug)
-    etag = f'"{query.layer_id}.{query.version}"'
-    headers = {"ETag": etag, "Cache-Control": CACHE_CONTROL}
-    if _matches(request.headers.get("if-none-match"), etag):
-        return Response(status_code=304, headers=headers)
+    headers = cache_headers(request, query.token, CACHE_CONTROL)
+    unchanged = not_modified(request, headers)
+    if unchanged is not None:
+        return unchanged
     size = 512 if match["scale"] else 256
     key = (query.layer_id, query.version, zi, xi, yi, fmt, size)
     body = tile_cache().get(key)

@@ -35,7 +35,7 @@ from app.jobs.kinds import RasterParams
 from app.jobs.lease import Lease, worker_name
 from app.jobs.queue import NAMESPACE, defer
 from app.jobs.rows import lock_running, record_progress, succeed_in
-from app.settings import get_settings
+from app.tiles.store import RasterStore, open_store, remove_files
 from ingest.raster.gcps import gcp_writer, inspect_with_gcps, read_gcps
 from ingest.raster.job import (
     WrittenSource,
@@ -59,9 +59,10 @@ def _reader(params: RasterParams) -> tuple[Callable[[Path], Source],
     return (lambda p: inspect(p, crs=params.crs)), None
 
 
-def job_folder(layer: str, job_id: int) -> Path:
-    """Where the job's COGs are written, and stay once registered."""
-    return Path(get_settings().raster_store_uri) / layer / f"job-{job_id}"
+def job_prefix(layer: str, job_id: int) -> str:
+    """The store folder (key prefix) the job's COGs are written to, and stay in once
+    registered."""
+    return f"{layer}/job-{job_id}"
 
 
 def _to_json(written: WrittenSource) -> dict[str, Any]:
@@ -107,16 +108,17 @@ def write_part(job_id: int, part: int) -> None:
         return  # the part is done (a duplicate delivery) or the job ended
     source, params = row.source, RasterParams.model_validate(row.params)
     check, to_cog = _reader(params)
-    with Lease(get_engine(), job_id):
+    store, prefix = open_store(), job_prefix(params.layer, job_id)
+    with Lease(get_engine(), job_id), store.staging(prefix) as staging:
         try:
-            written = write_source(check(Path(source)), job_folder(params.layer, job_id), to_cog)
+            written = write_source(check(Path(source)), store, staging, prefix, to_cog)
         except BaseException:
             with get_engine().begin() as conn:
                 conn.execute(text("UPDATE ingest_job_parts SET status = 'failed', "
                                   "updated_at = now() WHERE job_id = :id AND part = :part"),
                              {"id": job_id, "part": part})
             raise
-    with _discard_unless_kept(written.uri) as keep, session_scope() as session:
+    with _discard_unless_kept(store, written.uri) as keep, session_scope() as session:
         if not lock_running(session.connection(), job_id):
             return  # the job failed meanwhile: this COG will never be registered
         marked = session.connection().execute(text(
@@ -137,8 +139,8 @@ def write_part(job_id: int, part: int) -> None:
 
 
 @contextlib.contextmanager
-def _discard_unless_kept(uri: str) -> Iterator[Callable[[], None]]:
-    """Delete the file ``uri`` when the block ends, unless ``keep()`` was called in it and the
+def _discard_unless_kept(store: RasterStore, uri: str) -> Iterator[Callable[[], None]]:
+    """Delete the object ``uri`` when the block ends, unless ``keep()`` was called in it and the
     block's transaction committed (a rolled-back mark keeps nothing)."""
     kept = []
     try:
@@ -148,7 +150,7 @@ def _discard_unless_kept(uri: str) -> Iterator[Callable[[], None]]:
         raise
     finally:
         if not kept:
-            Path(uri).unlink(missing_ok=True)
+            store.delete([uri])
 
 
 def finish(job_id: int) -> None:
@@ -159,30 +161,30 @@ def finish(job_id: int) -> None:
     if row.status != "running":
         return
     params = RasterParams.model_validate(row.params)
-    store = Path(get_settings().raster_store_uri)
-    overview = store / params.layer / f"overview-{uuid.uuid4().hex}.tif"
+    store = open_store()
     record_progress(job_id, 0.99, "registering the layer")
-    with Lease(get_engine(), job_id), layer_lock(params.layer):
-        sweep_leftovers(store / params.layer)
+    with Lease(get_engine(), job_id), layer_lock(params.layer), \
+            store.staging(params.layer) as staging:
+        sweep_leftovers(store, params.layer)
+        overview = staging / f"overview-{uuid.uuid4().hex}.tif"
         try:
             with session_scope() as session:
                 written = [_from_json(r) for r in session.scalars(text(
                     "SELECT result FROM ingest_job_parts WHERE job_id = :id ORDER BY part"),
                     {"id": job_id})]
                 version, replaced = register(session, written, params.layer, params.title,
-                                             params.kind, params.priority, overview)
+                                             params.kind, params.priority, overview, store)
                 succeed_in(session.connection(), job_id,
                            f"layer {params.layer} at version {version}")
         except BaseException:
             overview.unlink(missing_ok=True)
+            with contextlib.suppress(Exception):  # the original error matters more
+                store.delete([store.ref(f"{params.layer}/{overview.name}")])
             raise
     if replaced:
-        Path(replaced).unlink(missing_ok=True)
-    kept = {w.uri for w in written}
-    folder = job_folder(params.layer, job_id)
-    for leftover in folder.iterdir() if folder.is_dir() else ():  # files of killed attempts
-        if str(leftover) not in kept:
-            leftover.unlink(missing_ok=True)
+        remove_files(get_engine(), [replaced], store)
+    kept = {w.uri for w in written}  # the rest of the job's folder: files of killed attempts
+    store.delete([r for r in store.refs_under(job_prefix(params.layer, job_id)) if r not in kept])
 
 
 def discard(job_id: int) -> None:
@@ -192,5 +194,4 @@ def discard(job_id: int) -> None:
             "SELECT p.result->>'uri' FROM ingest_job_parts p JOIN ingest_jobs j ON j.id = p.job_id"
             " WHERE p.job_id = :id AND j.status = 'failed' AND p.result IS NOT NULL"),
             {"id": job_id}).scalars())
-    for uri in uris:
-        Path(uri).unlink(missing_ok=True)
+    open_store().delete(uris)

@@ -3,12 +3,15 @@
 Order matters for atomicity:
 
 1. every input is validated first (nothing written if any is bad);
-2. each COG is written under a temporary name and renamed when complete;
+2. each COG is written under a temporary name and renamed when complete, then put into the
+   raster store (:mod:`app.tiles.store`: in place for a directory, an upload for S3 that
+   exists only once complete);
 3. all catalogue rows (layer upsert, sources, new bounds/zooms, ``version + 1``) are
-   committed in one transaction, only after every file exists;
-4. if anything fails after step 2, the files this job wrote are deleted again.
+   committed in one transaction, only after every object exists (the layer overview is
+   rendered and stored inside that transaction, before the commit);
+4. if anything fails after step 2, the objects this job stored are deleted again.
 
-A job killed between 2 and 3 leaves at most unregistered files, which are never served
+A job killed between 2 and 3 leaves at most unregistered objects, which are never served
 (tiles are only read from sources the catalogue lists) and which the next ingest into the
 layer deletes (jobs on one layer are serialised by an advisory lock, so that is safe).
 """
@@ -31,9 +34,8 @@ from tqdm import tqdm
 from app.db.models import LAYER_KINDS, SLUG_RE
 from app.db.session import get_engine, session_scope
 from app.grid import ground_resolution_m, tile_bounds
-from app.settings import get_settings
 from app.tiles.catalog import tile_sources
-from app.tiles.store import deleting_files, relative, remove_files, resolve
+from app.tiles.store import RasterStore, deleting_files, open_store, remove_files
 from ingest.raster.cog import measure_cog, write_cog
 from ingest.raster.overview import build_overview
 from ingest.raster.sources import Source, SourceError, inspect
@@ -64,11 +66,14 @@ class IngestReport:
     sources: list[WrittenSource]
 
 
-def write_source(source: Source, folder: Path,
-                 to_cog: Callable[[Source, Path], None] | None = None) -> WrittenSource:
-    """Write one validated source as a COG in the store ``folder`` and measure what the
-    catalogue needs."""
-    dst = folder / f"{uuid.uuid4().hex}.tif"
+def write_source(source: Source, store: RasterStore, staging: Path, layer: str,
+                 to_cog: Callable[[Source, Path], None] | None = None,
+                 stored: list[str] | None = None) -> WrittenSource:
+    """Write one validated source as a COG in ``staging``, measure what the catalogue needs,
+    then put it into the store (its catalogue value is appended to ``stored`` first, so a
+    caller can clean up after a failure at any point)."""
+    key = f"{layer}/{uuid.uuid4().hex}.tif"
+    dst = staging / key.rpartition("/")[2]
     if to_cog is None:
         write_cog(source.cog_input(), dst, source.dtype, len(source.bands))
     else:
@@ -83,9 +88,13 @@ def write_source(source: Source, folder: Path,
                 "bounds_4326": list(source.bounds_4326)}
         if cog.display_range:
             meta["display_range"] = cog.display_range
-        return WrittenSource(name=source.name, uri=str(dst), footprint_wkb=cog.footprint.wkb,
-                             width=cog.width, height=cog.height, band_count=cog.band_count,
-                             dtype=cog.dtype, zoom=cog.zoom, minzoom=cog.minzoom,
+        if stored is not None:
+            stored.append(store.ref(key))
+        store.put(dst, key)
+        return WrittenSource(name=source.name, uri=store.ref(key),
+                             footprint_wkb=cog.footprint.wkb, width=cog.width,
+                             height=cog.height, band_count=cog.band_count, dtype=cog.dtype,
+                             zoom=cog.zoom, minzoom=cog.minzoom,
                              resolution_m=ground_resolution_m(cog.zoom, lat), meta=meta)
     except BaseException:
         dst.unlink(missing_ok=True)
@@ -93,11 +102,13 @@ def write_source(source: Source, folder: Path,
 
 
 def register(session: Session, written: Sequence[WrittenSource], layer: str,
-             title: str | None, kind: str, priority: int,
-             overview: Path) -> tuple[int, str | None]:
-    """Upsert the layer, insert its new sources, render its new overview into ``overview``
-    and point the layer at it, in the caller's transaction (so the layer changes at once, on
-    commit); return the new version and the replaced overview file (to delete)."""
+             title: str | None, kind: str, priority: int, overview: Path,
+             store: RasterStore) -> tuple[int, str | None]:
+    """Upsert the layer, insert its new sources, render its new overview into the local file
+    ``overview``, put it into the store as ``layer/<name>`` and point the layer at it, in the
+    caller's transaction (so the layer changes at once, on commit; a queued job commits its
+    own success with it); return the new version and the replaced overview (to delete)."""
+    overview_ref = store.ref(f"{layer}/{overview.name}")
     old_overview = session.execute(
         text("SELECT overview_uri FROM layers WHERE slug = :slug FOR UPDATE"),
         {"slug": layer}).scalar()
@@ -108,7 +119,7 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
         "  version = layers.version + 1, updated_at = now(), overview_uri = :overview "
         "RETURNING id, version"),
         {"slug": layer, "title": title or layer, "given_title": title, "kind": kind,
-         "overview": relative(overview)},
+         "overview": overview_ref},
     ).one()
     layer_id, version = int(row[0]), int(row[1])
     for src in written:
@@ -117,7 +128,7 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
             " height, band_count, dtype, resolution_m, meta) VALUES (:layer_id, :name, :uri,"
             " ST_Multi(ST_SetSRID(ST_GeomFromWKB(:wkb), 3857)), :priority, :width, :height,"
             " :bands, :dtype, :res, CAST(:meta AS jsonb))"),
-            {"layer_id": layer_id, "name": src.name, "uri": relative(src.uri),
+            {"layer_id": layer_id, "name": src.name, "uri": src.uri,
              "wkb": src.footprint_wkb, "priority": priority, "width": src.width,
              "height": src.height, "bands": src.band_count, "dtype": src.dtype,
              "res": src.resolution_m, "meta": json.dumps(src.meta)})
@@ -133,7 +144,8 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
         "   WHERE s.layer_id = l.id) "
         "WHERE l.id = :id"), {"id": layer_id})
     render_overview(session.connection(), layer_id, layer, overview)
-    return version, old_overview and resolve(old_overview)
+    store.put(overview, f"{layer}/{overview.name}")
+    return version, old_overview
 
 
 def render_overview(conn: Connection, layer_id: int, layer: str, dst: Path) -> None:
@@ -168,25 +180,27 @@ def layer_lock(layer: str, database_url: str | None = None) -> Iterator[None]:
             conn.commit()
 
 
-def sweep_leftovers(layer_dir: Path, database_url: str | None = None) -> list[Path]:
-    """Delete files in a layer's store folder that the catalogue does not reference.
+def sweep_leftovers(store: RasterStore, layer: str,
+                    database_url: str | None = None) -> list[str]:
+    """Delete objects under the layer's prefix in the store that the catalogue does not
+    reference.
 
     Called under :func:`layer_lock`, so no other job is writing there: anything
     unreferenced (temporary files, or finished COGs of a job killed before its commit) is a
     leftover of a dead job and is never served.
     """
-    if not layer_dir.is_dir():
+    present = store.refs_under(layer)
+    if not present:
         return []
     engine = get_engine(database_url)
     with deleting_files(engine):  # a backup's snapshot may still name a file unreferenced now
         with engine.connect() as conn:
-            known: set[str] = set(conn.execute(text(
+            refs: list[str] = list(conn.execute(text(
                 "SELECT uri FROM raster_sources UNION SELECT overview_uri FROM layers "
                 "WHERE overview_uri IS NOT NULL")).scalars())
-        stale = [p for p in layer_dir.iterdir()
-                 if p.is_file() and relative(p) not in known and str(p) not in known]
-        for path in stale:
-            path.unlink(missing_ok=True)
+        known = {store.resolve(ref) for ref in refs}
+        stale = [ref for ref in present if store.resolve(ref) not in known]
+        store.delete(stale)
     return stale
 
 
@@ -195,7 +209,7 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
                   inspect_source: Callable[[Path], Source] | None = None,
                   to_cog: Callable[[Source, Path], None] | None = None,
                   database_url: str | None = None,
-                  store: Path | None = None,
+                  store: RasterStore | Path | str | None = None,
                   on_progress: Callable[[float, str], None] | None = None) -> IngestReport:
     """Ingest ``paths`` into layer ``layer``; raise :class:`SourceError` on bad input.
 
@@ -206,33 +220,32 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
         raise SourceError(f"layer slug {layer!r} must match {SLUG_RE}")
     if kind not in LAYER_KINDS:
         raise SourceError(f"--kind must be one of {', '.join(LAYER_KINDS)}")
-    store = store or Path(get_settings().raster_store_uri)
+    raster_store = open_store(store)
     check = inspect_source or (lambda p: inspect(p, crs=crs))
     sources = [check(Path(p)) for p in paths]
     written: list[WrittenSource] = []
     created: list[str] = []
     bar = tqdm([*sources, None], desc=f"ingest {layer}", unit="step",
                disable=not sys.stderr.isatty())
-    with layer_lock(layer, database_url):
-        sweep_leftovers(store / layer, database_url)
+    with layer_lock(layer, database_url), raster_store.staging(layer) as staging:
+        sweep_leftovers(raster_store, layer, database_url)
         try:
             for done, source in enumerate(bar):
                 bar.set_postfix_str(source.name if source else "layer overview")
                 if on_progress:
                     on_progress(done / len(bar), source.name if source else "layer overview")
                 if source is not None:
-                    written.append(write_source(source, store / layer, to_cog))
-                    created.append(written[-1].uri)
-            overview = store / layer / f"overview-{uuid.uuid4().hex}.tif"
-            created.append(str(overview))
+                    written.append(write_source(source, raster_store, staging, layer, to_cog,
+                                                created))
+            overview = staging / f"overview-{uuid.uuid4().hex}.tif"
+            created.append(raster_store.ref(f"{layer}/{overview.name}"))
             with session_scope(database_url) as session:
                 version, replaced = register(session, written, layer, title, kind, priority,
-                                             overview)
+                                             overview, raster_store)
         except BaseException:
-            for uri in created:
-                with contextlib.suppress(FileNotFoundError):
-                    Path(uri).unlink()
+            with contextlib.suppress(Exception):  # the original error matters more
+                raster_store.delete(created)
             raise
     if replaced:
-        remove_files(get_engine(database_url), [replaced])
+        remove_files(get_engine(database_url), [replaced], raster_store)
     return IngestReport(layer=layer, version=version, sources=written)

@@ -30,6 +30,7 @@ from shapely.geometry.base import BaseGeometry
 from sqlalchemy.orm import Session
 
 from app.tiles.catalog import get_layer
+from app.tiles.store import open_store
 from ingest.network import ImportSummary, RoadAttributes, RoadLine, write_network
 from ingest.roads import RoadsInputError
 from ingest.roads.classify import NOT_ROAD, ROAD
@@ -58,7 +59,8 @@ def layer_source_paths(session: Session, slug: str) -> list[str]:
     layer = get_layer(session.connection(), slug)
     if layer is None:
         raise RoadsInputError(f"no raster layer {slug!r} (see `ugvmap layers list`)")
-    return [source["uri"] for source in reversed(layer["sources"])]
+    store = open_store()
+    return [store.resolve(source["uri"]) for source in reversed(layer["sources"])]
 
 
 def merge_sources(paths: Sequence[str], dst: Path) -> None:

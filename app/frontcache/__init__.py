@@ -1,0 +1,1 @@
+"""The HTTP front cache: nginx keeping versioned tiles on disk in front of the app."""

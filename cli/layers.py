@@ -11,6 +11,7 @@ from typing import Any
 import click
 
 from app.errors import UserError
+from app.tiles.store import resolve
 from cli.jobs import absolute, enqueue_job, queue_option
 
 
@@ -60,7 +61,7 @@ def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, k
             click.echo(accuracy.table())
     for src in report.sources:
         click.echo(f"{src.name}: {src.width}x{src.height} px at z{src.zoom} "
-                   f"({src.resolution_m:.3f} m/px) -> {src.uri}")
+                   f"({src.resolution_m:.3f} m/px) -> {resolve(src.uri)}")
     click.echo(f"layer {report.layer} at version {report.version}")
 
 
@@ -98,7 +99,7 @@ def layers_show(slug: str) -> None:
     for src in layer["sources"]:
         click.echo(f"  source {src['id']}: {src['name']} z{src['zoom']} {src['width']}x"
                    f"{src['height']} priority={src['priority']} georef={src['georef']} "
-                   f"ingested {src['ingested_at']:%Y-%m-%d %H:%M:%S} {src['uri']}")
+                   f"ingested {src['ingested_at']:%Y-%m-%d %H:%M:%S} {resolve(src['uri'])}")
 
 
 @layers.command("delete")

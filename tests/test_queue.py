@@ -23,6 +23,7 @@ from app.db.scratch import scratch_database
 from app.db.session import get_engine, session_scope
 from app.jobs.queue import enqueue
 from app.jobs.rows import start_queued
+from app.tiles.store import open_store
 from cli.main import main
 from ingest.queue import raster, tasks
 from ingest.queue.worker import make_worker_app
@@ -183,7 +184,7 @@ def test_fan_out_registers_the_layer_exactly_once(database_url: str, tmp_path: P
     tasks.raster_finish(job_id)
     assert layer_state(slug) == (1, 3)
     assert scalar("SELECT status FROM ingest_jobs WHERE id = :id", id=job_id) == "succeeded"
-    assert {str(p) for p in raster.job_folder(slug, job_id).iterdir()} == registered_uris(slug)
+    assert set(open_store().refs_under(raster.job_prefix(slug, job_id))) == registered_uris(slug)
 
 
 def test_a_bad_source_fails_the_queued_job_and_writes_nothing(database_url: str,
@@ -200,7 +201,7 @@ def test_a_bad_source_fails_the_queued_job_and_writes_nothing(database_url: str,
     row = one("SELECT status, error FROM ingest_jobs WHERE id = :id", id=job_id)
     assert row.status == "failed" and "bogus.tif" in row.error
     assert scalar("SELECT count(*) FROM ingest_job_parts WHERE job_id = :id", id=job_id) == 0
-    assert not raster.job_folder(slug, job_id).exists()
+    assert open_store().refs_under(raster.job_prefix(slug, job_id)) == []
     assert start_queued(job_id) is None  # a late delivery of the same job does nothing
 
 
@@ -278,4 +279,4 @@ def test_queued_ingest_survives_a_worker_killed_mid_task(database_url: str,
     assert part.attempts == 2 and part.worker.endswith(f":{b.pid}")
     assert "its worker died; queued again" in log
     # the killed attempt's half-written file is gone; only the registered COGs remain
-    assert {str(p) for p in raster.job_folder(slug, job_id).iterdir()} == registered_uris(slug)
+    assert set(open_store().refs_under(raster.job_prefix(slug, job_id))) == registered_uris(slug)

@@ -17,6 +17,7 @@ from sqlalchemy import text
 
 from app.db.session import get_engine
 from app.settings import get_settings
+from app.tiles.catalog import delete_layer
 from app.tiles.store import StoreError, open_store, s3_client
 from cli.main import main
 from ingest.raster.cog import write_cog
@@ -35,6 +36,13 @@ def s3_store(s3_endpoint: str, database_url: str) -> Iterator[str]:
     try:
         yield os.environ["UGVMAP_RASTER_STORE"]
     finally:
+        # The catalogue holds keys relative to the configured store: layers left behind would
+        # point into the local store once the setting is restored.
+        with get_engine().begin() as conn:
+            refs = [ref for (slug,) in conn.execute(text(
+                "SELECT slug FROM layers WHERE slug LIKE 's3-%'"))
+                for ref in delete_layer(conn, slug) or []]
+        open_store().delete(refs)
         os.environ["UGVMAP_RASTER_STORE"] = previous
         get_settings.cache_clear()
 
@@ -54,7 +62,7 @@ def test_ingest_into_and_serve_tiles_from_s3(client, s3_store: str, tmp_path: Pa
     ingest_raster([image], local, store=tmp_path / "local-store")
 
     stored = _objects(s3_store, remote)
-    assert len(stored) == 2 and all(r.startswith(f"{s3_store}/{remote}/") for r in stored)
+    assert len(stored) == 2 and all(r.startswith(f"{remote}/") for r in stored)
     with get_engine().connect() as conn:
         uris = set(conn.execute(text(
             "SELECT s.uri FROM raster_sources s JOIN layers l ON l.id = s.layer_id "
@@ -121,7 +129,7 @@ def test_killed_jobs_objects_are_swept_and_delete_removes_the_layer(s3_store: st
     image, _ = synthetic_utm(tmp_path / "a.tif", width=300, height=300)
     ingest_raster([image], name)
     stored = _objects(s3_store, name)
-    assert len(stored) == 2 and f"s3://{store.bucket}/{orphan}" not in stored
+    assert len(stored) == 2 and orphan.removeprefix(store.prefix) not in stored
 
     result = CliRunner().invoke(main, ["layers", "delete", name])
     assert result.exit_code == 0, result.output

@@ -3,9 +3,10 @@
 A local directory (the default) or an S3 prefix, ``s3://bucket/prefix``. Both have one
 interface, used by ingest (write, sweep, delete), tiles (read) and backups:
 
-- ``ref(key)``: what the catalogue records for the object ``key`` (``layer/<uuid>.tif``): the
-  key itself, relative to the store, so a backup restored on another machine or into another
-  store finds its COGs there (migration ``0007_store_uris`` made older absolute paths relative);
+- ``ref(key)``: what the catalogue records for the object ``key`` (``layer/<uuid>.tif``): in
+  the configured store the key itself, so a backup restored on another machine or into
+  another store finds its COGs there (migration ``0007_store_uris`` made older absolute paths
+  relative);
 - ``resolve(ref)``: the GDAL path to open for a catalogue value: the store root joined to a
   relative key, or an absolute path / ``s3://`` URI as it is (rows registered outside the
   store). Resolving is a string join on every tile, never a filesystem call;
@@ -78,9 +79,15 @@ class RasterStore(ABC):
     root: str
     remote: bool = False
 
-    @abstractmethod
     def ref(self, key: str) -> str:
-        """What the catalogue records for object ``key``."""
+        """What the catalogue records for object ``key``: the key itself in the configured
+        store (so the catalogue moves with a backup to any store), the full location in any
+        other (e.g. a test's or benchmark's own store), which would otherwise be lost."""
+        return key if self.root == open_store().root else self.location(key)
+
+    @abstractmethod
+    def location(self, key: str) -> str:
+        """The object's absolute path or URI."""
 
     @abstractmethod
     def resolve(self, ref: str) -> str:
@@ -120,9 +127,9 @@ class LocalStore(RasterStore):
         self.path = root.resolve()
         self.root = str(self.path)
 
-    def ref(self, key: str) -> str:
-        """The key: store-relative."""
-        return key
+    def location(self, key: str) -> str:
+        """The file's absolute path."""
+        return f"{self.root}/{key}"
 
     def resolve(self, ref: str) -> str:
         """Absolute paths and URIs as they are (``s3://`` as GDAL's /vsis3/); keys under root."""
@@ -179,9 +186,9 @@ class S3Store(RasterStore):
             return key if bucket == self.bucket else None
         return None if is_absolute(ref) else self.prefix + ref
 
-    def ref(self, key: str) -> str:
-        """The key: relative to the bucket's prefix."""
-        return key
+    def location(self, key: str) -> str:
+        """The object's ``s3://`` URI."""
+        return f"{self.root}{key}"
 
     def resolve(self, ref: str) -> str:
         """``/vsis3/bucket/key`` for a URI or a key; local paths as they are."""

@@ -21,6 +21,7 @@ from typing import Any, ClassVar
 from fastapi import Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException
 
 
@@ -151,6 +152,26 @@ class NoRouteError(ApiError):
     """The points are in parts of the network that do not connect (in allowed directions)."""
 
     status, code = 422, "NoRoute"
+
+
+class ErrorBody(BaseModel):
+    """The body of every error answer, as the API document declares it."""
+
+    code: str = Field(description="The fault's class, e.g. InvalidParameterValue")
+    message: str = Field(description="What went wrong, in words")
+    errors: dict[str, str] | None = Field(None, description="One message per field (422)")
+
+
+def responses(*classes: type[ApiError]) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses`` for the errors an operation can answer with, keyed by status,
+    each listing the codes it may carry: the API document says what the handlers do."""
+    table: dict[int | str, dict[str, Any]] = {}
+    for cls in classes:
+        entry = table.setdefault(cls.status, {"model": ErrorBody, "description": ""})
+        summary = (cls.__doc__ or "").strip().splitlines()[0]
+        entry["description"] = "; ".join(filter(None, (entry["description"],
+                                                        f"`{cls.code}`: {summary}")))
+    return table
 
 
 def _body(code: str, message: str, errors: dict[str, str] | None = None) -> dict[str, Any]:

@@ -15,11 +15,13 @@ from sqlalchemy.exc import InterfaceError, OperationalError
 from starlette.exceptions import HTTPException
 
 from app import errors
+from app.api import document, landing, middleware
 from app.health.router import router as health_router
 from app.jobs.router import router as jobs_router
 from app.logs import RequestLogMiddleware
 from app.network.router import include_network
 from app.routing.router import include_routing
+from app.settings import get_settings
 from app.tiles.router import router as tiles_router
 from app.web.router import include_web
 
@@ -41,12 +43,17 @@ def create_app() -> FastAPI:
         version="0.1.0",
         description="Map tiles, road network and routes for unmanned ground vehicles.",
         exception_handlers=EXCEPTION_HANDLERS,
+        # app.api.document serves the API document as OpenAPI 3.0, and /docs on it.
+        openapi_url=None, docs_url=None, redoc_url=None,
     )
+    app.include_router(landing.router)
+    app.include_router(document.router)
     app.include_router(health_router)
     app.include_router(jobs_router)
     include_network(app)
     app.include_router(tiles_router)
     include_routing(app)
     include_web(app)
+    middleware.install(app, get_settings())
     app.add_middleware(RequestLogMiddleware)
     return app

@@ -29,6 +29,11 @@ class Settings(BaseSettings):
     db_connect_timeout_s: int = 3
     # Least token role needed to read networks (features, tiles, history); unset: public.
     network_read_role: Literal["viewer", "editor", "admin"] | None = None
+    # Web pages (origins) allowed to call the API from a browser, comma-separated: reads
+    # (GET/HEAD without a token) from any page by default; writes and requests carrying a
+    # token only from the pages listed (none by default).
+    cors_read_origins: str = "*"
+    cors_write_origins: str = ""
 
     @property
     def embedded(self) -> bool:
@@ -43,6 +48,16 @@ class Settings(BaseSettings):
         return f"postgresql+psycopg://postgres@127.0.0.1:{self.pg_port}/{self.pg_database}"
 
     @property
+    def cors_read_origin_list(self) -> list[str]:
+        """Origins that may read, ``["*"]`` for any."""
+        return _origins(self.cors_read_origins)
+
+    @property
+    def cors_write_origin_list(self) -> list[str]:
+        """Origins that may write or send a token (never ``*``: credentials need names)."""
+        return [o for o in _origins(self.cors_write_origins) if o != "*"]
+
+    @property
     def pg_data_dir(self) -> Path:
         """The embedded cluster's data directory (absolute: pg_ctl runs elsewhere)."""
         return (self.data_dir / "postgres").resolve()
@@ -51,6 +66,12 @@ class Settings(BaseSettings):
     def raster_store_uri(self) -> str:
         """Where COGs are written: a directory by default, any GDAL-writable prefix if set."""
         return self.raster_store or str((self.data_dir / "rasters").resolve())
+
+
+def _origins(value: str) -> list[str]:
+    """``"https://a.example, https://b.example"`` -> a list without trailing slashes (a
+    browser's Origin header never has one)."""
+    return [o.strip().rstrip("/") for o in value.replace(" ", ",").split(",") if o.strip()]
 
 
 def normalize_url(url: str) -> str:

@@ -15,6 +15,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
+from app import errors
 from app.db.session import session_scope
 from app.errors import (
     InvalidParameterValueError,
@@ -23,10 +24,15 @@ from app.errors import (
     UnsupportedMediaTypeError,
 )
 from app.network import collections as colls
-from app.network import editing, topology_edits
-from app.network.features import GEOJSON, etag, parse_fid
+from app.network import editing, schemas, topology_edits
+from app.network.features import GEOJSON, READ_ERRORS, GeoJSONResponse, etag, parse_fid
 from app.network.tokens import Principal, SessionDep, read_access, require_role
 
+# Every write: token checks, unknown collection or feature, a nodes collection (405), a
+# rule broken (422), a lost database.
+WRITE_ERRORS = (errors.UnauthorizedError, errors.ForbiddenError, errors.NotFoundError,
+                errors.MethodNotAllowedError, errors.InvalidValueError,
+                errors.DatabaseUnavailableError)
 router = APIRouter(tags=["Editing"])
 
 EditorDep = Annotated[Principal, Depends(require_role("editor", "admin"))]
@@ -63,6 +69,23 @@ def feature_response(feature: dict[str, Any]) -> JSONResponse:
                         headers={"ETag": etag(feature["properties"]["version"])})
 
 
+def _body_doc(schema: dict[str, Any], media_types: tuple[str, ...],
+              *params: dict[str, Any]) -> dict[str, Any]:
+    """API document of an edit: its JSON body, header/query parameters and bearer token."""
+    return {"requestBody": {"required": True,
+                            "content": {t: {"schema": schema} for t in media_types}},
+            "parameters": list(params), "security": [{"bearer": []}]}
+
+
+IF_MATCH = {"name": "If-Match", "in": "header", "required": True,
+            "description": "The feature's ETag (its version), so edits cannot overwrite "
+                           "each other", "schema": {"type": "string"}}
+FEATURE_200 = {200: {"content": {GEOJSON: {"schema": {"$ref": "#/components/schemas/Feature"}}}}}
+BODY_ERRORS = (errors.InvalidParameterValueError, errors.PayloadTooLargeError,
+               errors.UnsupportedMediaTypeError)
+PRECONDITIONS = (errors.PreconditionFailedError, errors.PreconditionRequiredError)
+
+
 async def _in_session(work: Callable[[Session], dict[str, Any]]) -> JSONResponse:
     """Run blocking DB work in the thread pool, in one transaction; answer with its result."""
 
@@ -76,7 +99,10 @@ async def _in_session(work: Callable[[Session], dict[str, Any]]) -> JSONResponse
     return JSONResponse(result, media_type=GEOJSON)
 
 
-@router.patch("/collections/{collection_id}/items/{fid}")
+@router.patch("/collections/{collection_id}/items/{fid}", response_class=GeoJSONResponse,
+              openapi_extra=_body_doc(schemas.openapi_patch_body(), PATCH_TYPES, IF_MATCH),
+              responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS,
+                                                           *PRECONDITIONS)})
 async def patch_item(collection_id: str, fid: str, request: Request,
                      principal: EditorDep) -> JSONResponse:
     """Edit a segment's attributes or geometry (editor; ``If-Match`` required)."""
@@ -87,7 +113,9 @@ async def patch_item(collection_id: str, fid: str, request: Request,
 
 
 @router.get("/collections/{collection_id}/items/{fid}/history",
-            dependencies=[Depends(read_access)])
+            dependencies=[Depends(read_access)],
+            responses=errors.responses(*READ_ERRORS, errors.NotFoundError,
+                                       errors.MethodNotAllowedError))
 def item_history(collection_id: str, fid: str,
                  session: SessionDep) -> dict[str, Any]:
     """A segment's edit history."""
@@ -95,7 +123,15 @@ def item_history(collection_id: str, fid: str,
     return {"id": parse_fid(fid), "edits": editing.history(session, c, parse_fid(fid))}
 
 
-@router.post("/collections/{collection_id}/items/{fid}/revert")
+@router.post("/collections/{collection_id}/items/{fid}/revert", response_class=GeoJSONResponse,
+             openapi_extra={"security": [{"bearer": []}], "parameters": [
+                 {"name": "to", "in": "query", "required": True,
+                  "schema": {"type": "integer", "minimum": 1},
+                  "description": "The version to restore"},
+                 {**IF_MATCH, "required": False}]},
+             responses={**FEATURE_200, **errors.responses(
+                 *WRITE_ERRORS, errors.InvalidParameterValueError,
+                 errors.PreconditionFailedError)})
 async def revert_item(collection_id: str, fid: str, request: Request,
                       principal: EditorDep) -> JSONResponse:
     """Restore a segment to an earlier version, as a new version (editor; ``If-Match`` optional
@@ -109,7 +145,11 @@ async def revert_item(collection_id: str, fid: str, request: Request,
         s, _segments(s, collection_id), parse_fid(fid), int(to), expected, principal))
 
 
-@router.post("/collections/{collection_id}/items/{fid}/split")
+@router.post("/collections/{collection_id}/items/{fid}/split", response_class=GeoJSONResponse,
+             openapi_extra=_body_doc(schemas.SPLIT_BODY, ("application/json",), IF_MATCH),
+             responses={200: {"content": {GEOJSON: {"schema": {
+                 "$ref": "#/components/schemas/FeatureCollection"}}}},
+                 **errors.responses(*WRITE_ERRORS, *BODY_ERRORS, *PRECONDITIONS)})
 async def split_item(collection_id: str, fid: str, request: Request,
                      principal: AdminDep) -> JSONResponse:
     """Split a segment at a fraction or point into two, adding a node (admin; ``If-Match``)."""
@@ -119,7 +159,9 @@ async def split_item(collection_id: str, fid: str, request: Request,
         s, _segments(s, collection_id), parse_fid(fid), expected, body, principal))
 
 
-@router.post("/collections/{collection_id}/merge")
+@router.post("/collections/{collection_id}/merge", response_class=GeoJSONResponse,
+             openapi_extra=_body_doc(schemas.MERGE_BODY, ("application/json",)),
+             responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS)})
 async def merge_items(collection_id: str, request: Request,
                       principal: AdminDep) -> JSONResponse:
     """Merge two segments that meet at a node only they share (admin)."""

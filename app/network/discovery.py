@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 from fastapi import APIRouter, Depends, Request
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel
 from sqlalchemy import text
 from sqlalchemy.orm import Session
@@ -16,6 +16,7 @@ from app import errors
 from app.network import tilejson as tj
 from app.network.features import READ_ERRORS, base_url
 from app.network.properties import by_name
+from app.network.tiles import network_tile
 from app.network.tokens import SessionDep, read_access
 
 router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)],
@@ -30,7 +31,7 @@ SELECT n.id, n.name, n.title, n.description, n.version, n.updated_at,
   FROM networks n,
        LATERAL (SELECT ST_Extent(geom) AS e FROM road_segments s
                  WHERE s.network_id = n.id) b
- WHERE :name IS NULL OR n.name = :name
+ WHERE CAST(:name AS text) IS NULL OR n.name = CAST(:name AS text)
  ORDER BY n.name
 """
 
@@ -166,3 +167,9 @@ def network_tiles_metadata(name: str, session: SessionDep) -> JSONResponse:
     row = _one(session, name)
     return JSONResponse(tj.mbtiles_metadata(_info(row), _integer_ranges(session, row.id)),
                         headers=NO_CACHE)
+
+
+@router.get("/networks/{name}/tiles/{z}/{x}/{y}.pbf", include_in_schema=False)
+def network_tile_pbf(name: str, z: str, x: str, y: str, session: SessionDep) -> Response:
+    """The ``.mvt`` tile under the ``.pbf`` name GDAL's MVT driver asks for by default."""
+    return network_tile(name, z, x, y, session)

@@ -33,7 +33,7 @@ from app.network.tokens import SessionDep, read_access
 router = APIRouter(include_in_schema=False)
 ITEMS = "/collections/{collection_id}/items"
 ITEM = "/collections/{collection_id}/items/{fid}"
-KIND_SCHEMA = {"segments": "Segment", "nodes": "Node"}
+KIND_SCHEMA: dict[colls.Kind, str] = {"segments": "Segment", "nodes": "Node"}
 SECURITY = {"bearer": {"type": "http", "scheme": "bearer",
                        "description": "A token from `ugvmap tokens create --role ...`"}}
 

@@ -80,7 +80,8 @@ def _body_doc(schema: dict[str, Any], media_types: tuple[str, ...],
 IF_MATCH = {"name": "If-Match", "in": "header", "required": True,
             "description": "The feature's ETag (its version), so edits cannot overwrite "
                            "each other", "schema": {"type": "string"}}
-FEATURE_200 = {200: {"content": {GEOJSON: {"schema": {"$ref": "#/components/schemas/Feature"}}}}}
+FEATURE_200: dict[int | str, dict[str, Any]] = {
+    200: {"content": {GEOJSON: {"schema": {"$ref": "#/components/schemas/Feature"}}}}}
 BODY_ERRORS = (errors.InvalidParameterValueError, errors.PayloadTooLargeError,
                errors.UnsupportedMediaTypeError)
 PRECONDITIONS = (errors.PreconditionFailedError, errors.PreconditionRequiredError)

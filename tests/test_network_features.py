@@ -61,7 +61,8 @@ def test_bbox_and_nodes(client, grid) -> None:
     ("datetime=yesterday", 400), ("datetime=2020-01-02/2020-01-01", 400),
     ("datetime=2020-01-01/2020-01-02/2020-01-03", 400), ("lanes_forward=two", 400),
     ("is_junction=yes", 400), ("speed_limit_kph=nan", 400), ("name=a%00b", 400),
-    ("kind=junction", 400)])
+    ("kind=junction", 400), ("crs=EPSG:4326", 400),
+    ("crs=http://www.opengis.net/def/crs/OGC/1.3/CRS84", 200)])
 def test_bad_parameters(client, grid, query: str, status: int) -> None:
     r = client.get(f"/collections/{grid.network}-segments/items?{query}")
     assert r.status_code == status, r.text

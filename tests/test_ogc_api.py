@@ -5,6 +5,9 @@ and QGIS's own request sequence (from its OAPIF provider's source) replayed step
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 import uuid
 from urllib.parse import parse_qs, urlsplit
 
@@ -237,3 +240,66 @@ def test_qgis_request_sequence(client, grid) -> None:
     filtered = client.get(f"{collections_url}/{typename}/items",
                           params={"limit": page_size, "name": "Column 2"}).json()
     assert {f["properties"]["name"] for f in filtered["features"]} == {"Column 2"}
+
+
+def gdal_fetches(stderr: str) -> list[str]:
+    """The URLs GDAL fetched, from its CPL_DEBUG output."""
+    return [line.split("Fetch(", 1)[1].rstrip(")") for line in stderr.splitlines()
+            if "HTTP: Fetch(" in line]
+
+
+@pytest.mark.slow
+def test_gdal_36_where_filters_on_the_server_without_errors(live_server: str, grid,
+                                                            tmp_path) -> None:
+    """Debian's ogr2ogr (GDAL 3.6): the API document names the collection's filters, so
+    ``-where`` becomes ``?name=...`` instead of a full download, and nothing goes wrong on the
+    way (before: two 404s for /api and a Content-Type error on stderr). The describedby
+    schema types width_m as Real although every sampled value is null."""
+    out = tmp_path / "row1.geojson"
+    run = subprocess.run(
+        ["ogr2ogr", "--config", "CPL_DEBUG", "ON", "-f", "GeoJSON", str(out),
+         f"OAPIF:{live_server}", f"{grid.network}-segments", "-where", "name = 'Row 1'"],
+        capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert not [line for line in run.stderr.splitlines() if line.startswith("ERROR")]
+    features = json.loads(out.read_text())["features"]
+    assert sorted(f["properties"]["name"] for f in features) == ["Row 1", "Row 1"]
+    items = [u for u in gdal_fetches(run.stderr) if "/items" in u]
+    assert any("name=Row" in u for u in items), items
+    assert all(f"{live_server}/api" not in u for u in gdal_fetches(run.stderr))
+    info = subprocess.run(["ogrinfo", "-ro", "-so", f"OAPIF:{live_server}",
+                           f"{grid.network}-segments"], capture_output=True, text=True,
+                          timeout=60)
+    assert "width_m: Real" in info.stdout and "lanes_forward: Integer" in info.stdout
+    assert not info.stderr.strip()
+
+
+GDAL_312 = """
+import json, sys
+import pyogrio.raw as raw
+meta, fids, geom, fields = raw.read(sys.argv[1], layer=sys.argv[2], where=sys.argv[3] or None)
+print(json.dumps({"count": len(geom), "gdal": __import__("pyogrio").__gdal_version_string__,
+                  "types": dict(zip(meta["fields"], meta["dtypes"]))}))
+"""
+
+
+@pytest.mark.slow
+def test_newer_gdal_pages_by_the_documented_limit(live_server: str, grid) -> None:
+    """pyogrio's bundled GDAL (3.8+ reads the items path of the API document): pages of
+    min(max(1000, default), maximum) features, and ``-where`` runs on the server."""
+    def read(where: str) -> tuple[dict, list[str]]:
+        run = subprocess.run([sys.executable, "-c", GDAL_312, f"OAPIF:{live_server}",
+                              f"{grid.network}-segments", where],
+                             capture_output=True, text=True, timeout=120,
+                             env={**os.environ, "CPL_DEBUG": "ON"})
+        assert run.returncode == 0, run.stderr
+        return json.loads(run.stdout), gdal_fetches(run.stderr)
+
+    result, fetched = read("")
+    assert result["count"] == 12 and result["types"]["width_m"] == "float64"
+    pages = [u for u in fetched if "/items?" in u and "limit=20" not in u]
+    assert pages and all("limit=1000" in u for u in pages), fetched
+    assert f"{live_server}/openapi.json" in fetched
+    result, fetched = read("lanes_forward = 2 AND name = 'Column 0'")
+    assert result["count"] == 2
+    assert any("lanes_forward=2" in u and "name=Column" in u for u in fetched), fetched

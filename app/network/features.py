@@ -35,9 +35,15 @@ router = APIRouter(tags=["OGC API Features"], dependencies=[Depends(read_access)
 
 
 class GeoJSONResponse(JSONResponse):
-    """JSON served as ``application/geo+json``, as the GeoJSON conformance class requires."""
+    """JSON served as ``application/geo+json``, as the GeoJSON conformance class requires,
+    saying its CRS the way Part 2 clients (GDAL) look for it."""
 
     media_type = GEOJSON
+
+    def __init__(self, content: Any, status_code: int = 200,
+                 headers: dict[str, str] | None = None, **kw: Any) -> None:
+        super().__init__(content, status_code, {"Content-Crs": f"<{CRS84}>", **(headers or {})},
+                         **kw)
 
 
 class SchemaResponse(JSONResponse):
@@ -120,6 +126,9 @@ def describe(request: Request, session: Session, c: colls.Collection) -> dict[st
             link(base, "self", "application/json"),
             link(f"{base}/items", "items", GEOJSON, f"{c.kind} of {c.network}"),
             link(f"{base}/feature-schema", "describedby", schemas.SCHEMA_JSON,
+                 "JSON Schema of one GeoJSON item"),
+            # The same link as GDAL before 3.8 matches it (case-sensitively).
+            link(f"{base}/feature-schema", "describedBy", schemas.SCHEMA_JSON,
                  "JSON Schema of one GeoJSON item"),
             link(f"{base}/schema", f"{OGC_REL}schema", schemas.SCHEMA_JSON,
                  "Schema of the item properties"),

@@ -50,6 +50,12 @@ PARAMETERS: dict[str, dict[str, Any]] = {
         "description": "CRS of bbox; only CRS84 (lon/lat) is offered.",
         "schema": {"type": "string", "format": "uri", "enum": [CRS84]},
     },
+    "crs": {
+        "name": "crs", "in": "query", "required": False, "style": "form", "explode": False,
+        "description": "CRS of the returned coordinates (Part 2's parameter, which GDAL "
+                       "sends); only CRS84 (lon/lat) is offered.",
+        "schema": {"type": "string", "format": "uri", "enum": [CRS84]},
+    },
     "datetime": {
         "name": "datetime", "in": "query", "required": False, "style": "form", "explode": False,
         "description": "An RFC 3339 instant or interval (`start/end`, `..` or empty for an "
@@ -63,7 +69,7 @@ PARAMETERS: dict[str, dict[str, Any]] = {
         "schema": {"type": "string", "enum": ["json", "geojson"]},
     },
 }
-ITEM_PARAMS = ("limit", "offset", "bbox", "bbox-crs", "datetime", "f")
+ITEM_PARAMS = ("limit", "offset", "bbox", "bbox-crs", "crs", "datetime", "f")
 
 
 def parameter_ref(name: str) -> dict[str, str]:
@@ -163,8 +169,9 @@ def item_query(kind: Kind, query: dict[str, str]) -> ItemQuery:
     unknown = sorted(set(query) - set(ITEM_PARAMS) - set(queryable))
     if unknown:
         raise InvalidParameterValueError(f"unknown query parameter {unknown[0][:100]!r}")
-    if query.get("bbox-crs", CRS84) != CRS84:
-        raise InvalidParameterValueError(f"bbox-crs must be {CRS84}")
+    for name in ("bbox-crs", "crs"):
+        if query.get(name, CRS84) != CRS84:
+            raise InvalidParameterValueError(f"{name} must be {CRS84}")
     if query.get("f", "json") not in ("json", "geojson"):
         raise InvalidParameterValueError("f must be json or geojson")
     start, stop = parse_datetime(query.get("datetime"))

@@ -32,7 +32,6 @@ from app.network.tokens import SessionDep, read_access
 
 router = APIRouter(include_in_schema=False)
 ITEMS = "/collections/{collection_id}/items"
-ITEM = "/collections/{collection_id}/items/{fid}"
 KIND_SCHEMA: dict[colls.Kind, str] = {"segments": "Segment", "nodes": "Node"}
 SECURITY = {"bearer": {"type": "http", "scheme": "bearer",
                        "description": "A token from `ugvmap tokens create --role ...`"}}
@@ -48,6 +47,19 @@ def _replace_refs(node: Any, old: str, new: str) -> Any:
     return node
 
 
+def _errors_as_json(doc: dict[str, Any]) -> None:
+    """FastAPI files an error model under the route's own media type (GeoJSON, JSON Schema);
+    error bodies are always ``application/json``."""
+    for item in doc["paths"].values():
+        for op in item.values():
+            for status, response in op.get("responses", {}).items():
+                content = response.get("content", {})
+                if status[0] in "45" and len(content) == 1:
+                    (body,) = content.values()
+                    if body.get("schema", {}).get("$ref", "").endswith("/ErrorBody"):
+                        response["content"] = {"application/json": body}
+
+
 def static_document(app: FastAPI) -> dict[str, Any]:
     """Everything that does not depend on the data, built once per app."""
     cached: dict[str, Any] | None = getattr(app.state, "openapi_30", None)
@@ -58,6 +70,7 @@ def static_document(app: FastAPI) -> dict[str, Any]:
     # Request validation answers with our error body (422 InvalidValue), not FastAPI's.
     doc = _replace_refs(doc, "#/components/schemas/HTTPValidationError",
                         "#/components/schemas/ErrorBody")
+    _errors_as_json(doc)
     found = doc["components"]["schemas"]
     for unused in ("HTTPValidationError", "ValidationError"):
         found.pop(unused, None)
@@ -86,15 +99,13 @@ def _literal(operation: dict[str, Any], collection: colls.Collection, *,
 
 
 def with_collections(doc: dict[str, Any], found: list[colls.Collection]) -> dict[str, Any]:
-    """The document plus a literal items and item path for each collection."""
+    """The document plus a literal items path for each collection."""
     paths = dict(doc["paths"])
     for c in found:
         name = KIND_SCHEMA[c.kind]
         filters = [ogc_params.filter_parameter(p) for p in properties.queryables(c.kind)]
         paths[f"/collections/{c.id}/items"] = {"get": _literal(
             doc["paths"][ITEMS]["get"], c, extra=filters, schema=f"{name}FeatureCollection")}
-        paths[f"/collections/{c.id}/items/{{fid}}"] = {"get": _literal(
-            doc["paths"][ITEM]["get"], c, extra=[], schema=f"{name}Feature")}
     return {**doc, "paths": paths}
 
 

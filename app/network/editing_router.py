@@ -107,10 +107,14 @@ async def _in_session(work: Callable[[Session], dict[str, Any]]) -> JSONResponse
 async def patch_item(collection_id: str, fid: str, request: Request,
                      principal: EditorDep) -> JSONResponse:
     """Edit a segment's attributes or geometry (editor; ``If-Match`` required)."""
-    expected = editing.parse_if_match(request.headers.get("if-match"))
+    if_match = request.headers.get("if-match")
     body = await json_body(request)
+    # Arguments run left to right: an unknown or read-only target (404/405) is said before
+    # the precondition (428/412), which RFC 9110 evaluates only for a request that could
+    # otherwise succeed.
     return await _in_session(lambda s: editing.patch_segment(
-        s, _segments(s, collection_id), parse_fid(fid), expected, body, principal))
+        s, _segments(s, collection_id), parse_fid(fid), editing.parse_if_match(if_match),
+        body, principal))
 
 
 @router.get("/collections/{collection_id}/items/{fid}/history",
@@ -141,9 +145,9 @@ async def revert_item(collection_id: str, fid: str, request: Request,
     if not to.isascii() or not to.isdigit() or len(to) > 9:
         raise InvalidParameterValueError("to must be a version number")
     if_match = request.headers.get("if-match")
-    expected = editing.parse_if_match(if_match) if if_match else None
     return await _in_session(lambda s: editing.revert_segment(
-        s, _segments(s, collection_id), parse_fid(fid), int(to), expected, principal))
+        s, _segments(s, collection_id), parse_fid(fid), int(to),
+        editing.parse_if_match(if_match) if if_match else None, principal))
 
 
 @router.post("/collections/{collection_id}/items/{fid}/split", response_class=GeoJSONResponse,
@@ -154,10 +158,11 @@ async def revert_item(collection_id: str, fid: str, request: Request,
 async def split_item(collection_id: str, fid: str, request: Request,
                      principal: AdminDep) -> JSONResponse:
     """Split a segment at a fraction or point into two, adding a node (admin; ``If-Match``)."""
-    expected = editing.parse_if_match(request.headers.get("if-match"))
+    if_match = request.headers.get("if-match")
     body = await json_body(request, ("application/json",))
     return await _in_session(lambda s: topology_edits.split_segment(
-        s, _segments(s, collection_id), parse_fid(fid), expected, body, principal))
+        s, _segments(s, collection_id), parse_fid(fid), editing.parse_if_match(if_match),
+        body, principal))
 
 
 @router.post("/collections/{collection_id}/merge", response_class=GeoJSONResponse,

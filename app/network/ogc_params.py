@@ -145,8 +145,8 @@ def _instant(text: str, end: bool) -> datetime:
 
 def parse_datetime(value: str | None) -> tuple[datetime | None, datetime | None]:
     """``instant`` or ``start/end`` (``..`` or empty = open) as (start, end); 400 when
-    malformed or reversed."""
-    if value is None:
+    malformed or reversed. An empty value constrains nothing."""
+    if not value:
         return None, None
     if "/" not in value:
         if value in OPEN:

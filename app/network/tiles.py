@@ -11,6 +11,7 @@ from fastapi.responses import Response
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
+from app import errors
 from app.errors import NotFoundError
 from app.grid import TILE_SIZE, parse_tile, pixel_size_m
 from app.network.collections import network_row
@@ -18,7 +19,11 @@ from app.network.tile_cache import Bounds, shared_cache
 from app.network.tokens import SessionDep, read_access
 from app.settings import get_settings
 
-router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)])
+router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)],
+                   responses=errors.responses(
+                       errors.InvalidParameterValueError, errors.NotFoundError,
+                       errors.TileOutOfRangeError, errors.UnauthorizedError,
+                       errors.ForbiddenError, errors.DatabaseUnavailableError))
 
 MVT = "application/vnd.mapbox-vector-tile"
 EXTENT = 4096

@@ -42,8 +42,8 @@ PARAMETERS: dict[str, dict[str, Any]] = {
         "description": "Only features that intersect the box minlon,minlat,maxlon,maxlat "
                        "(or the 6-number 3D form, whose heights are ignored); minlon > maxlon "
                        "crosses the antimeridian.",
-        "schema": {"type": "array", "minItems": 4, "maxItems": 6,
-                   "items": {"type": "number"}},
+        "schema": {"type": "array", "items": {"type": "number"},
+                   "oneOf": [{"minItems": 4, "maxItems": 4}, {"minItems": 6, "maxItems": 6}]},
     },
     "bbox-crs": {
         "name": "bbox-crs", "in": "query", "required": False, "style": "form", "explode": False,

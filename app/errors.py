@@ -21,8 +21,10 @@ from typing import Any, ClassVar
 from fastapi import Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException
 from starlette.middleware.body_limit import MAX_BODY_SIZE_SCOPE_KEY
+from starlette.routing import Match, Mount
 
 
 class UserError(ValueError):
@@ -159,6 +161,26 @@ def body_limit_message(limit: object) -> str:
     return f"the request body exceeds the limit of {limit} bytes"
 
 
+class ErrorBody(BaseModel):
+    """The body of every error answer, as the API document declares it."""
+
+    code: str = Field(description="The fault's class, e.g. InvalidParameterValue")
+    message: str = Field(description="What went wrong, in words")
+    errors: dict[str, str] | None = Field(None, description="One message per field (422)")
+
+
+def responses(*classes: type[ApiError]) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses`` for the errors an operation can answer with, keyed by status,
+    each listing the codes it may carry: the API document says what the handlers do."""
+    table: dict[int | str, dict[str, Any]] = {}
+    for cls in classes:
+        entry = table.setdefault(cls.status, {"model": ErrorBody, "description": ""})
+        summary = (cls.__doc__ or "").strip().splitlines()[0]
+        entry["description"] = "; ".join(filter(None, (entry["description"],
+                                                        f"`{cls.code}`: {summary}")))
+    return table
+
+
 def _body(code: str, message: str, errors: dict[str, str] | None = None) -> dict[str, Any]:
     body: dict[str, Any] = {"code": code, "message": message}
     if errors:
@@ -178,21 +200,39 @@ _BY_STATUS = {cls.status: cls for cls in (
     MethodNotAllowedError, PayloadTooLargeError, UnsupportedMediaTypeError)}
 
 
+def allowed_methods(request: Request) -> str:
+    """Every method some route fully answers on this path (HEAD wherever GET is). Starlette's
+    own ``Allow`` names only the first route that matched the path, while e.g. an item's GET
+    and PATCH live in different routers."""
+    routes = [r for r in request.app.router.routes if not isinstance(r, Mount)]
+    methods = {method for method in ("GET", "POST", "PUT", "PATCH", "DELETE")
+               if any(route.matches({**request.scope, "method": method})[0] == Match.FULL
+                      for route in routes)}
+    if "GET" in methods:
+        methods.add("HEAD")
+    return ", ".join(sorted(methods))
+
+
 def http_error(request: Request, exc: Exception) -> JSONResponse:
     """Starlette's own errors (no such path, wrong method, static file missing) get the same
-    body and code as ours, instead of ``{"detail"}``; headers such as ``Allow`` are kept."""
+    body and code as ours, instead of ``{"detail"}``; headers such as ``Allow`` are kept (and
+    for a wrong method, completed)."""
     assert isinstance(exc, HTTPException)
     cls = _BY_STATUS.get(exc.status_code)
     code = cls.code if cls else re.sub(r"\W", "", HTTPStatus(exc.status_code).phrase.title())
+    headers = dict(exc.headers or {})
     if exc.status_code == 404 and exc.detail == HTTPStatus.NOT_FOUND.phrase:
         message = f"no such path: {request.url.path[:200]}"
     elif exc.status_code == 405:
         message = f"{request.method} is not allowed on {request.url.path[:200]}"
+        # Static file mounts serve GET and HEAD only.
+        headers["Allow"] = allowed_methods(request) or headers.get("Allow") or "GET, HEAD"
     elif exc.status_code == 413:  # Starlette's body limit, tripped while the body was read
         message = body_limit_message(request.scope.get(MAX_BODY_SIZE_SCOPE_KEY))
     else:
         message = str(exc.detail)
-    return JSONResponse(_body(code, message), status_code=exc.status_code, headers=exc.headers)
+    return JSONResponse(_body(code, message), status_code=exc.status_code,
+                        headers=headers or None)
 
 
 def _field(loc: tuple[Any, ...]) -> str:

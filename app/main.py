@@ -16,6 +16,7 @@ from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp
 
 from app import errors
+from app.api import document, landing, middleware
 from app.body_limit import JsonPayloadTooLarge
 from app.health.router import router as health_router
 from app.jobs.router import router as jobs_router
@@ -57,12 +58,17 @@ def create_app() -> FastAPI:
         version="0.1.0",
         description="Map tiles, road network and routes for unmanned ground vehicles.",
         exception_handlers=EXCEPTION_HANDLERS,
+        # app.api.document serves the API document as OpenAPI 3.0, and /docs on it.
+        openapi_url=None, docs_url=None, redoc_url=None,
     )
+    app.include_router(landing.router)
+    app.include_router(document.router)
     app.include_router(health_router)
     app.include_router(jobs_router)
     include_network(app)
     app.include_router(tiles_router)
     include_routing(app)
     include_web(app)
+    middleware.install(app, get_settings())
     app.add_middleware(RequestLogMiddleware)
     return app

@@ -39,6 +39,11 @@ class Settings(BaseSettings):
     job_max_attempts: int = Field(default=3, ge=1)
     # Largest request body, counted while it is read (chunked bodies too): 413 beyond it.
     max_body_bytes: int = Field(default=1_000_000, ge=0)
+    # Web pages (origins) allowed to call the API from a browser, comma-separated: reads
+    # (GET/HEAD without a token) from any page by default; writes and requests carrying a
+    # token only from the pages listed (none by default).
+    cors_read_origins: str = "*"
+    cors_write_origins: str = ""
 
     @property
     def embedded(self) -> bool:
@@ -51,6 +56,16 @@ class Settings(BaseSettings):
         if self.database_url_override:
             return normalize_url(self.database_url_override)
         return f"postgresql+psycopg://postgres@127.0.0.1:{self.pg_port}/{self.pg_database}"
+
+    @property
+    def cors_read_origin_list(self) -> list[str]:
+        """Origins that may read, ``["*"]`` for any."""
+        return _origins(self.cors_read_origins)
+
+    @property
+    def cors_write_origin_list(self) -> list[str]:
+        """Origins that may write or send a token (never ``*``: credentials need names)."""
+        return [o for o in _origins(self.cors_write_origins) if o != "*"]
 
     @property
     def pg_data_dir(self) -> Path:
@@ -66,6 +81,12 @@ class Settings(BaseSettings):
     def jobs_role(self) -> str | None:
         """The least role that reads ``/jobs`` (None: public)."""
         return self.jobs_read_role or self.network_read_role
+
+
+def _origins(value: str) -> list[str]:
+    """``"https://a.example, https://b.example"`` -> a list without trailing slashes (a
+    browser's Origin header never has one)."""
+    return [o.strip().rstrip("/") for o in value.replace(" ", ",").split(",") if o.strip()]
 
 
 def normalize_url(url: str) -> str:

@@ -25,6 +25,9 @@ from app.settings import get_settings
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu",
+                  "--disable-background-networking"]
 
 
 @pytest.fixture(scope="session")
@@ -115,6 +118,20 @@ def live_server(database_url: str) -> Iterator[str]:
     with running_server({"DATABASE_URL": database_url,
                          "UGVMAP_RASTER_STORE": os.environ["UGVMAP_RASTER_STORE"]}) as base:
         yield base
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator:
+    """Debian's headless Chromium through Playwright (no browser download; WebGL on
+    SwiftShader with --disable-gpu)."""
+    if not CHROMIUM.exists():
+        pytest.skip("Debian chromium not installed (scripts/setup.sh installs it)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_FLAGS)
+        yield b
+        b.close()
 
 
 @pytest.fixture(scope="session")

@@ -73,6 +73,11 @@ def test_wrong_method_is_405_with_allow(client, names) -> None:
                  client.put(f"/tiles/{names['layer']}/1/0/0.png")):
         _problem(resp, 405, "MethodNotAllowed")
         assert "GET" in resp.headers["allow"]
+    # Allow names every method of the path, whichever router serves it (GET and PATCH of an
+    # item live in different routers).
+    item = client.put(f"/collections/{names['network']}-segments/items/1")
+    _problem(item, 405, "MethodNotAllowed")
+    assert item.headers["allow"] == "GET, HEAD, PATCH"
     # Ours (a nodes collection is read-only) answers the same code.
     _problem(client.patch(f"/collections/{names['network']}-nodes/items/1", json={},
                           headers={**bearer("editor"), "If-Match": '"1"'}), 405,

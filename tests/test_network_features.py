@@ -54,9 +54,15 @@ def test_bbox_and_nodes(client, grid) -> None:
 
 
 @pytest.mark.parametrize(("query", "status"), [
-    ("bbox=1,2,3", 400), ("bbox=a,b,c,d", 400), ("bbox=3,0,1,1", 400), ("limit=0", 400),
-    ("limit=x", 400), ("offset=-1", 400), ("colour=red", 400), ("bbox=nan,0,1,1", 400),
-    ("limit=999999999", 200), ("offset=99999999999999999999999", 400)])
+    ("bbox=1,2,3", 400), ("bbox=a,b,c,d", 400), ("bbox=0,3,1,1", 400), ("limit=0", 400),
+    ("limit=x", 400), ("limit=--5", 400), ("offset=-1", 400), ("colour=red", 400),
+    ("bbox=nan,0,1,1", 400), ("bbox=1,2,3,4,5", 400), ("limit=999999999", 200),
+    ("offset=99999999999999999999999", 400), ("bbox-crs=EPSG:4326", 400), ("f=html", 400),
+    ("datetime=yesterday", 400), ("datetime=2020-01-02/2020-01-01", 400),
+    ("datetime=2020-01-01/2020-01-02/2020-01-03", 400), ("lanes_forward=two", 400),
+    ("is_junction=yes", 400), ("speed_limit_kph=nan", 400), ("name=a%00b", 400),
+    ("kind=junction", 400), ("crs=EPSG:4326", 400),
+    ("crs=http://www.opengis.net/def/crs/OGC/1.3/CRS84", 200)])
 def test_bad_parameters(client, grid, query: str, status: int) -> None:
     r = client.get(f"/collections/{grid.network}-segments/items?{query}")
     assert r.status_code == status, r.text

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterator
-from pathlib import Path
 
 import cv2
 import httpx
@@ -25,8 +23,6 @@ from cli.main import main
 
 pytestmark = pytest.mark.slow
 
-CHROMIUM = Path("/usr/bin/chromium")
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking"]
 MAGENTA = (230, 20, 200)
 # The scene sits where no other test puts data (the session database is shared): network tests
 # use (10, 50). Latitude 50 keeps the metre figures below: 0.001 deg = 71.5 m east, 111 m north.
@@ -76,18 +72,6 @@ def world(live_server: str, tmp_path_factory: pytest.TempPathFactory) -> dict[st
     token = re.search(r"\S{20,}", cli("tokens", "create", "--role", "editor", "--name", "web"))
     assert token, "tokens create printed no token"
     return {"base": live_server, "token": token.group(0)}
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator:
-    if not CHROMIUM.exists():
-        pytest.skip("Debian chromium not installed (scripts/setup.sh installs it)")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
-        yield b
-        b.close()
 
 
 def open_map(browser, world, request, tmp_path, viewport=(1100, 750), fit=True, path="/"):

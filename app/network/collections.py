@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import re
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any, Literal
 
 from sqlalchemy import text
@@ -78,13 +79,26 @@ def resolve(session: Session, collection_id: str) -> Collection:
     raise NotFoundError(f"collection {collection_id[:100]!r} not found")
 
 
-def extent(session: Session, collection: Collection) -> list[float] | None:
-    """Bounding box of the collection's features (lon/lat), or None when it is empty."""
+@dataclass(frozen=True)
+class Extent:
+    """Where and (for segments) when a collection's features are: the lon/lat box and the
+    range of ``updated_at``, each None when there is nothing to bound."""
+
+    bbox: list[float] | None
+    updated: tuple[datetime, datetime] | None
+
+
+def extent(session: Session, collection: Collection) -> Extent:
+    """The collection's extent in one query."""
+    times = ("min(updated_at) AS t0, max(updated_at) AS t1" if collection.kind == "segments"
+             else "NULL::timestamptz AS t0, NULL::timestamptz AS t1")
     row = session.execute(text(
-        f"SELECT ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e) FROM "
-        f"(SELECT ST_Extent(geom) AS e FROM {collection.table} WHERE network_id = :n) q"),
+        f"SELECT ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e), t0, t1 FROM "
+        f"(SELECT ST_Extent(geom) AS e, {times} "
+        f"FROM {collection.table} WHERE network_id = :n) q"),
         {"n": collection.network_id}).one()
-    return None if row[0] is None else [float(v) for v in row]
+    bbox = None if row[0] is None else [float(v) for v in row[:4]]
+    return Extent(bbox, None if row[4] is None else (row[4], row[5]))
 
 
 def to_feature(row: Any) -> dict[str, Any]:
@@ -96,22 +110,51 @@ def to_feature(row: Any) -> dict[str, Any]:
     return {"type": "Feature", "id": fid, "geometry": json.loads(geometry), "properties": props}
 
 
-def _where(bbox: list[float] | None) -> str:
-    clause = "network_id = :network_id"
-    if bbox:
-        clause += " AND geom && ST_MakeEnvelope(:minx, :miny, :maxx, :maxy, 4326)"
-    return clause
+@dataclass(frozen=True)
+class ItemQuery:
+    """What a page of items is filtered by: a lon/lat box (``minx > maxx`` crosses the
+    antimeridian), an ``updated_at`` interval (segments only; None ends are open) and
+    equality on property columns (names from the property table, never from the client)."""
+
+    bbox: tuple[float, float, float, float] | None = None
+    updated_from: datetime | None = None
+    updated_to: datetime | None = None
+    equals: tuple[tuple[str, Any], ...] = ()
 
 
-def _bbox_params(bbox: list[float] | None) -> dict[str, float]:
-    return dict(zip(("minx", "miny", "maxx", "maxy"), bbox, strict=True)) if bbox else {}
+def _envelope(minx: str, maxx: str) -> str:
+    return f"ST_Intersects(geom, ST_MakeEnvelope({minx}, :miny, {maxx}, :maxy, 4326))"
 
 
-def query_items(session: Session, collection: Collection, *, bbox: list[float] | None,
+def _where(collection: Collection, query: ItemQuery) -> tuple[str, dict[str, Any]]:
+    """SQL condition and parameters; ``ST_Intersects`` so a line whose box meets the bbox
+    but whose shape does not is left out, as the standard's "intersects" asks."""
+    clauses = ["network_id = :network_id"]
+    params: dict[str, Any] = {"network_id": collection.network_id}
+    if query.bbox:
+        minx, miny, maxx, maxy = query.bbox
+        params.update(minx=minx, miny=miny, maxx=maxx, maxy=maxy)
+        if minx <= maxx:
+            clauses.append(_envelope(":minx", ":maxx"))
+        else:  # across the antimeridian: the part east of minx and the part west of maxx
+            clauses.append(f"({_envelope(':minx', '180')} OR {_envelope('-180', ':maxx')})")
+    if collection.kind == "segments":
+        if query.updated_from is not None:
+            clauses.append("updated_at >= :updated_from")
+            params["updated_from"] = query.updated_from
+        if query.updated_to is not None:
+            clauses.append("updated_at <= :updated_to")
+            params["updated_to"] = query.updated_to
+    for i, (column, value) in enumerate(query.equals):
+        clauses.append(f"{column} = :eq{i}")
+        params[f"eq{i}"] = value
+    return " AND ".join(clauses), params
+
+
+def query_items(session: Session, collection: Collection, query: ItemQuery, *,
                 limit: int, offset: int) -> tuple[int, list[dict[str, Any]]]:
     """(numberMatched, features) for one page, ordered by id so paging is stable."""
-    params = {"network_id": collection.network_id, **_bbox_params(bbox)}
-    where = _where(bbox)
+    where, params = _where(collection, query)
     matched: int = session.execute(text(f"SELECT count(*) FROM {collection.table} WHERE {where}"),
                               params).scalar_one()
     select = SEGMENT_SELECT if collection.kind == "segments" else NODE_SELECT

@@ -15,6 +15,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
+from app import errors
 from app.db.session import session_scope
 from app.errors import (
     InvalidParameterValueError,
@@ -22,11 +23,16 @@ from app.errors import (
     UnsupportedMediaTypeError,
 )
 from app.network import collections as colls
-from app.network import editing, topology_edits
-from app.network.features import GEOJSON, etag, parse_fid
+from app.network import editing, schemas, topology_edits
+from app.network.features import GEOJSON, READ_ERRORS, GeoJSONResponse, etag, parse_fid
 from app.network.tokens import Principal, SessionDep, read_access, require_role
 from app.params import Int
 
+# Every write: token checks, unknown collection or feature, a nodes collection (405), a
+# rule broken (422), a lost database.
+WRITE_ERRORS = (errors.UnauthorizedError, errors.ForbiddenError, errors.NotFoundError,
+                errors.MethodNotAllowedError, errors.InvalidValueError,
+                errors.DatabaseUnavailableError)
 router = APIRouter(tags=["Editing"])
 
 EditorDep = Annotated[Principal, Depends(require_role("editor", "admin"))]
@@ -67,6 +73,24 @@ def feature_response(feature: dict[str, Any]) -> JSONResponse:
                         headers={"ETag": etag(feature["properties"]["version"])})
 
 
+def _body_doc(schema: dict[str, Any], media_types: tuple[str, ...],
+              *params: dict[str, Any]) -> dict[str, Any]:
+    """API document of an edit: its JSON body, header/query parameters and bearer token."""
+    return {"requestBody": {"required": True,
+                            "content": {t: {"schema": schema} for t in media_types}},
+            "parameters": list(params), "security": [{"bearer": []}]}
+
+
+IF_MATCH = {"name": "If-Match", "in": "header", "required": True,
+            "description": "The feature's ETag (its version), so edits cannot overwrite "
+                           "each other", "schema": {"type": "string"}}
+FEATURE_200: dict[int | str, dict[str, Any]] = {
+    200: {"content": {GEOJSON: {"schema": {"$ref": "#/components/schemas/Feature"}}}}}
+BODY_ERRORS = (errors.InvalidParameterValueError, errors.PayloadTooLargeError,
+               errors.UnsupportedMediaTypeError)
+PRECONDITIONS = (errors.PreconditionFailedError, errors.PreconditionRequiredError)
+
+
 async def _in_session(work: Callable[[Session], dict[str, Any]]) -> JSONResponse:
     """Run blocking DB work in the thread pool, in one transaction; answer with its result."""
 
@@ -80,18 +104,27 @@ async def _in_session(work: Callable[[Session], dict[str, Any]]) -> JSONResponse
     return JSONResponse(result, media_type=GEOJSON)
 
 
-@router.patch("/collections/{collection_id}/items/{fid}")
+@router.patch("/collections/{collection_id}/items/{fid}", response_class=GeoJSONResponse,
+              openapi_extra=_body_doc(schemas.openapi_patch_body(), PATCH_TYPES, IF_MATCH),
+              responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS,
+                                                           *PRECONDITIONS)})
 async def patch_item(collection_id: str, fid: str, request: Request,
                      principal: EditorDep) -> JSONResponse:
     """Edit a segment's attributes or geometry (editor; ``If-Match`` required)."""
-    (expected,) = editing.parse_if_match(request.headers.get("if-match"))
+    if_match = request.headers.get("if-match")
     body = await json_body(request)
+    # Arguments run left to right: an unknown or read-only target (404/405) is said before
+    # the precondition (428/412), which RFC 9110 evaluates only for a request that could
+    # otherwise succeed.
     return await _in_session(lambda s: editing.patch_segment(
-        s, _segments(s, collection_id), parse_fid(fid), expected, body, principal))
+        s, _segments(s, collection_id), parse_fid(fid), editing.parse_if_match(if_match)[0],
+        body, principal))
 
 
 @router.get("/collections/{collection_id}/items/{fid}/history",
-            dependencies=[Depends(read_access)])
+            dependencies=[Depends(read_access)],
+            responses=errors.responses(*READ_ERRORS, errors.NotFoundError,
+                                       errors.MethodNotAllowedError))
 def item_history(collection_id: str, fid: str,
                  session: SessionDep) -> dict[str, Any]:
     """A segment's edit history."""
@@ -99,32 +132,47 @@ def item_history(collection_id: str, fid: str,
     return {"id": parse_fid(fid), "edits": editing.history(session, c, parse_fid(fid))}
 
 
-@router.post("/collections/{collection_id}/items/{fid}/revert")
+@router.post("/collections/{collection_id}/items/{fid}/revert", response_class=GeoJSONResponse,
+             openapi_extra={"security": [{"bearer": []}], "parameters": [IF_MATCH]},
+             responses={**FEATURE_200, **errors.responses(
+                 *WRITE_ERRORS, errors.InvalidParameterValueError, *PRECONDITIONS)})
 async def revert_item(collection_id: str, fid: str, to: Version, request: Request,
                       principal: EditorDep) -> JSONResponse:
     """Restore a segment to an earlier version, as a new version (editor; ``If-Match``
     required: reverting over an edit the client has not seen would silently undo it)."""
-    (expected,) = editing.parse_if_match(request.headers.get("if-match"))
+    if_match = request.headers.get("if-match")
     return await _in_session(lambda s: editing.revert_segment(
-        s, _segments(s, collection_id), parse_fid(fid), to, expected, principal))
+        s, _segments(s, collection_id), parse_fid(fid), to,
+        editing.parse_if_match(if_match)[0], principal))
 
 
-@router.post("/collections/{collection_id}/items/{fid}/split")
+@router.post("/collections/{collection_id}/items/{fid}/split", response_class=GeoJSONResponse,
+             openapi_extra=_body_doc(schemas.SPLIT_BODY, ("application/json",), IF_MATCH),
+             responses={200: {"content": {GEOJSON: {"schema": {
+                 "$ref": "#/components/schemas/FeatureCollection"}}}},
+                 **errors.responses(*WRITE_ERRORS, *BODY_ERRORS, *PRECONDITIONS)})
 async def split_item(collection_id: str, fid: str, request: Request,
                      principal: AdminDep) -> JSONResponse:
     """Split a segment at a fraction or point into two, adding a node (admin; ``If-Match``)."""
-    (expected,) = editing.parse_if_match(request.headers.get("if-match"))
+    if_match = request.headers.get("if-match")
     body = await json_body(request, ("application/json",))
     return await _in_session(lambda s: topology_edits.split_segment(
-        s, _segments(s, collection_id), parse_fid(fid), expected, body, principal))
+        s, _segments(s, collection_id), parse_fid(fid), editing.parse_if_match(if_match)[0],
+        body, principal))
 
 
-@router.post("/collections/{collection_id}/merge")
+@router.post("/collections/{collection_id}/merge", response_class=GeoJSONResponse,
+             openapi_extra=_body_doc(schemas.MERGE_BODY, ("application/json",), {
+                 **IF_MATCH, "description": "Both segments' ETags, in the order of `segments`, "
+                                            'e.g. `"3", "5"`'}),
+             responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS,
+                                                          *PRECONDITIONS)})
 async def merge_items(collection_id: str, request: Request,
                       principal: AdminDep) -> JSONResponse:
     """Merge two segments that meet at a node only they share (admin; ``If-Match`` names both
     segments' ETags in the order of ``segments``, e.g. ``"3", "5"``)."""
-    expected = editing.parse_if_match(request.headers.get("if-match"), count=2)
+    if_match = request.headers.get("if-match")
     body = await json_body(request, ("application/json",))
     return await _in_session(lambda s: topology_edits.merge_segments(
-        s, _segments(s, collection_id), body, expected, principal))
+        s, _segments(s, collection_id), body, editing.parse_if_match(if_match, count=2),
+        principal))

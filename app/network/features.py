@@ -1,34 +1,84 @@
 """OGC API - Features, Part 1 (core + GeoJSON) over the road networks, readable by GDAL's
-OAPIF driver and QGIS. Editing endpoints on the same items live in ``editing_router``.
+OAPIF driver and QGIS, with Part 3's queryables (as simple ``?name=value`` filters) and the
+schemas clients need to type attributes right. Editing endpoints on the same items live in
+``editing_router``; the landing page, conformance and API document in :mod:`app.api`.
 """
 
 from __future__ import annotations
 
-import math
-from typing import Any
+from datetime import UTC, datetime
+from typing import Any, Literal
 from urllib.parse import urlencode
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel
 from sqlalchemy.orm import Session
 
-from app.errors import InvalidParameterValueError, NotFoundError
+from app import errors
+from app.errors import NotFoundError
 from app.network import collections as colls
+from app.network import ogc_params, schemas
 from app.network.tokens import SessionDep, read_access
 
-router = APIRouter(tags=["OGC API Features"], dependencies=[Depends(read_access)])
-
 GEOJSON = "application/geo+json"
-CRS84 = "http://www.opengis.net/def/crs/OGC/1.3/CRS84"
-CONFORMANCE = [
-    "http://www.opengis.net/spec/ogcapi-features-1/1.0/conf/core",
-    "http://www.opengis.net/spec/ogcapi-features-1/1.0/conf/geojson",
-    "http://www.opengis.net/spec/ogcapi-features-1/1.0/conf/oas30",
-]
-DEFAULT_LIMIT = 10
-MAX_LIMIT = 10_000
-ITEM_PARAMS = {"bbox", "limit", "offset", "f", "bbox-crs"}
+CRS84 = ogc_params.CRS84
+GREGORIAN = "http://www.opengis.net/def/uom/ISO-8601/0/Gregorian"
+OGC_REL = "http://www.opengis.net/def/rel/ogc/1.0/"
 MAX_FID = 2**63 - 1
+# Every read may need a token (UGVMAP_NETWORK_READ_ROLE) and may find the database gone.
+READ_ERRORS = (errors.UnauthorizedError, errors.ForbiddenError,
+               errors.DatabaseUnavailableError)
+
+router = APIRouter(tags=["OGC API Features"], dependencies=[Depends(read_access)],
+                   responses=errors.responses(*READ_ERRORS))
+
+
+class GeoJSONResponse(JSONResponse):
+    """JSON served as ``application/geo+json``, as the GeoJSON conformance class requires,
+    saying its CRS the way Part 2 clients (GDAL) look for it."""
+
+    media_type = GEOJSON
+
+    def __init__(self, content: Any, status_code: int = 200,
+                 headers: dict[str, str] | None = None, **kw: Any) -> None:
+        super().__init__(content, status_code, {"Content-Crs": f"<{CRS84}>", **(headers or {})},
+                         **kw)
+
+
+class SchemaResponse(JSONResponse):
+    """A JSON Schema document, served as ``application/schema+json``."""
+
+    media_type = schemas.SCHEMA_JSON
+
+
+class Link(BaseModel):
+    """A web link (RFC 8288) as OGC API documents carry them."""
+
+    href: str
+    rel: str
+    type: str | None = None
+    title: str | None = None
+
+
+class CollectionInfo(BaseModel):
+    """One collection as ``/collections`` describes it."""
+
+    id: str
+    title: str
+    description: str
+    itemType: Literal["feature"]  # noqa: N815 (the standard's member names)
+    crs: list[str]
+    storageCrs: str  # noqa: N815
+    extent: dict[str, Any] | None = None
+    links: list[Link]
+
+
+class CollectionList(BaseModel):
+    """The ``/collections`` document."""
+
+    links: list[Link]
+    collections: list[CollectionInfo]
 
 
 def parse_fid(fid: str) -> int:
@@ -38,113 +88,108 @@ def parse_fid(fid: str) -> int:
     return int(fid)
 
 
-def _int_param(name: str, value: str | None, default: int, low: int) -> int:
-    if value is None:
-        return default
-    try:
-        number = int(value)
-    except ValueError:
-        raise InvalidParameterValueError(f"{name} must be an integer") from None
-    if number < low:
-        raise InvalidParameterValueError(f"{name} must be >= {low}")
-    return number
-
-
-def parse_bbox(value: str | None) -> list[float] | None:
-    """``minlon,minlat,maxlon,maxlat`` as four finite numbers, or None; anything else is a 400
-    rather than a query that silently matches nothing."""
-    if value is None:
-        return None
-    try:
-        box = [float(v) for v in value.split(",")]
-    except ValueError:
-        raise InvalidParameterValueError(
-            "bbox must be four numbers: minlon,minlat,maxlon,maxlat") from None
-    if len(box) != 4 or not all(math.isfinite(v) for v in box):
-        raise InvalidParameterValueError(
-            "bbox must be four finite numbers: minlon,minlat,maxlon,maxlat")
-    if box[0] > box[2] or box[1] > box[3]:
-        raise InvalidParameterValueError(
-            "bbox min must not exceed max (antimeridian boxes not supported)")
-    return box
-
-
-def _link(href: str, rel: str, type_: str, title: str | None = None) -> dict[str, str]:
-    link = {"href": href, "rel": rel, "type": type_}
+def link(href: str, rel: str, type_: str, title: str | None = None) -> dict[str, str]:
+    """A link object; ``title`` only when there is one."""
+    out = {"href": href, "rel": rel, "type": type_}
     if title:
-        link["title"] = title
-    return link
+        out["title"] = title
+    return out
 
 
-def _base(request: Request) -> str:
+def base_url(request: Request) -> str:
+    """The service's root URL as the client reached it, without the trailing slash."""
     return str(request.base_url).rstrip("/")
 
 
-def _describe(request: Request, session: Session, c: colls.Collection) -> dict[str, Any]:
-    base = f"{_base(request)}/collections/{c.id}"
-    box = colls.extent(session, c)
+def _extent(extent: colls.Extent) -> dict[str, Any] | None:
+    out: dict[str, Any] = {}
+    if extent.bbox:
+        out["spatial"] = {"bbox": [extent.bbox], "crs": CRS84}
+    if extent.updated:
+        out["temporal"] = {"interval": [[t.isoformat() for t in extent.updated]],
+                           "trs": GREGORIAN}
+    return out or None
+
+
+def describe(request: Request, session: Session, c: colls.Collection) -> dict[str, Any]:
+    """A collection's description: extent (space, and time for segments) and the links
+    clients follow to its items, queryables and schemas."""
+    base = f"{base_url(request)}/collections/{c.id}"
     doc: dict[str, Any] = {
         "id": c.id,
         "title": f"{c.title or c.network} {c.kind}",
         "description": f"Road {c.kind} of network {c.network}",
         "itemType": "feature",
         "crs": [CRS84],
-        "links": [_link(base, "self", "application/json"),
-                  _link(f"{base}/items", "items", GEOJSON, f"{c.kind} of {c.network}")],
+        "storageCrs": CRS84,
+        "links": [
+            link(base, "self", "application/json"),
+            link(f"{base}/items", "items", GEOJSON, f"{c.kind} of {c.network}"),
+            link(f"{base}/feature-schema", "describedby", schemas.SCHEMA_JSON,
+                 "JSON Schema of one GeoJSON item"),
+            # The same link as GDAL before 3.8 matches it (case-sensitively).
+            link(f"{base}/feature-schema", "describedBy", schemas.SCHEMA_JSON,
+                 "JSON Schema of one GeoJSON item"),
+            link(f"{base}/schema", f"{OGC_REL}schema", schemas.SCHEMA_JSON,
+                 "Schema of the item properties"),
+            link(f"{base}/queryables", f"{OGC_REL}queryables", schemas.SCHEMA_JSON,
+                 "Properties the items can be filtered by"),
+            link(f"{base}/queryables", "queryables", schemas.SCHEMA_JSON),
+        ],
     }
-    if box:
-        doc["extent"] = {"spatial": {"bbox": [box], "crs": CRS84}}
+    extent = _extent(colls.extent(session, c))
+    if extent:
+        doc["extent"] = extent
     return doc
 
 
-@router.get("/conformance")
-def conformance() -> dict[str, list[str]]:
-    """The OGC API conformance classes we implement."""
-    return {"conformsTo": CONFORMANCE}
-
-
-@router.get("/collections")
+@router.get("/collections", response_model=None,
+            responses={200: {"model": CollectionList}})
 def collections(request: Request, session: SessionDep) -> dict[str, Any]:
     """Every network's segment and node collections."""
-    base = _base(request)
+    base = base_url(request)
     return {
-        "links": [_link(f"{base}/collections", "self", "application/json")],
-        "collections": [_describe(request, session, c)
+        "links": [link(f"{base}/collections", "self", "application/json")],
+        "collections": [describe(request, session, c)
                         for c in colls.list_collections(session)],
     }
 
 
-@router.get("/collections/{collection_id}")
+NOT_FOUND = errors.responses(errors.NotFoundError)
+
+
+@router.get("/collections/{collection_id}", response_model=None,
+            responses={200: {"model": CollectionInfo}, **NOT_FOUND})
 def collection(collection_id: str, request: Request,
                session: SessionDep) -> dict[str, Any]:
     """One collection's description, with its extent and links."""
-    return _describe(request, session, colls.resolve(session, collection_id))
+    return describe(request, session, colls.resolve(session, collection_id))
 
 
-@router.get("/collections/{collection_id}/items")
+ITEMS_DOC: dict[str, Any] = {"parameters": [ogc_params.parameter_ref(name)
+                                            for name in ogc_params.ITEM_PARAMS]}
+
+
+@router.get("/collections/{collection_id}/items", response_class=GeoJSONResponse,
+            openapi_extra=ITEMS_DOC,
+            responses={200: {"content": {GEOJSON: {"schema": {
+                "$ref": "#/components/schemas/FeatureCollection"}}}},
+                **errors.responses(errors.InvalidParameterValueError, errors.NotFoundError)})
 def items(collection_id: str, request: Request,
-          session: SessionDep) -> JSONResponse:
-    """A page of features, filtered by bbox; unknown parameters are a 400 so a typo does not
-    silently return everything."""
-    query = request.query_params
-    unknown = sorted(set(query.keys()) - ITEM_PARAMS)
-    if unknown:
-        raise InvalidParameterValueError(f"unknown query parameter {unknown[0][:100]!r}")
-    if query.get("bbox-crs", CRS84) != CRS84:
-        raise InvalidParameterValueError(f"bbox-crs must be {CRS84}")
+          session: SessionDep) -> GeoJSONResponse:
+    """A page of features, filtered by bbox, datetime and property values; unknown
+    parameters are a 400 so a typo does not silently return everything."""
     c = colls.resolve(session, collection_id)
-    limit = min(_int_param("limit", query.get("limit"), DEFAULT_LIMIT, 1), MAX_LIMIT)
-    offset = _int_param("offset", query.get("offset"), 0, 0)
-    if offset > MAX_FID:
-        raise InvalidParameterValueError("offset is too large")
-    bbox = parse_bbox(query.get("bbox"))
-    matched, features = colls.query_items(session, c, bbox=bbox, limit=limit, offset=offset)
-    base = f"{_base(request)}/collections/{c.id}/items"
-    kept = {k: v for k, v in query.items() if k in ("bbox", "bbox-crs")}
+    query = dict(request.query_params)
+    item_query = ogc_params.item_query(c.kind, query)
+    limit, offset = ogc_params.paging(query)
+    matched, features = colls.query_items(session, c, item_query, limit=limit, offset=offset)
+    base = f"{base_url(request)}/collections/{c.id}/items"
+    kept = {k: v for k, v in query.items() if k not in ("limit", "offset")}
 
     def page(rel: str, start: int) -> dict[str, str]:
-        return _link(f"{base}?{urlencode({**kept, 'limit': limit, 'offset': start})}",
-                     rel, GEOJSON)
+        return link(f"{base}?{urlencode({**kept, 'limit': limit, 'offset': start})}",
+                    rel, GEOJSON)
 
     links = [page("self", offset)]
     if offset + len(features) < matched:
@@ -152,8 +197,9 @@ def items(collection_id: str, request: Request,
     if offset > 0:
         links.append(page("prev", max(offset - limit, 0)))
     body = {"type": "FeatureCollection", "features": features, "numberMatched": matched,
-            "numberReturned": len(features), "links": links}
-    return JSONResponse(body, media_type=GEOJSON)
+            "numberReturned": len(features),
+            "timeStamp": datetime.now(UTC).isoformat(timespec="seconds"), "links": links}
+    return GeoJSONResponse(body)
 
 
 def etag(version: int) -> str:
@@ -161,16 +207,50 @@ def etag(version: int) -> str:
     return f'"{version}"'
 
 
-@router.get("/collections/{collection_id}/items/{fid}")
+@router.get("/collections/{collection_id}/items/{fid}", response_class=GeoJSONResponse,
+            responses={200: {"content": {GEOJSON: {"schema": {
+                "$ref": "#/components/schemas/Feature"}}}}, **NOT_FOUND})
 def item(collection_id: str, fid: str, request: Request,
-         session: SessionDep) -> JSONResponse:
+         session: SessionDep) -> GeoJSONResponse:
     """One feature; segments carry their version as ETag for ``If-Match`` edits."""
     c = colls.resolve(session, collection_id)
     feature = colls.get_item(session, c, parse_fid(fid))
-    base = f"{_base(request)}/collections/{c.id}"
-    feature["links"] = [_link(f"{base}/items/{feature['id']}", "self", GEOJSON),
-                        _link(base, "collection", "application/json")]
+    base = f"{base_url(request)}/collections/{c.id}"
+    feature["links"] = [link(f"{base}/items/{feature['id']}", "self", GEOJSON),
+                        link(base, "collection", "application/json")]
     headers = {}
     if c.kind == "segments":
         headers["ETag"] = etag(feature["properties"]["version"])
-    return JSONResponse(feature, media_type=GEOJSON, headers=headers)
+    return GeoJSONResponse(feature, headers=headers)
+
+
+SCHEMA_DOC = {200: {"content": {schemas.SCHEMA_JSON: {"schema": {"type": "object"}}}},
+              **NOT_FOUND}
+
+
+@router.get("/collections/{collection_id}/queryables", response_class=SchemaResponse,
+            responses=SCHEMA_DOC)
+def queryables(collection_id: str, request: Request, session: SessionDep) -> SchemaResponse:
+    """The properties ``?name=value`` filters the items by (OGC API Features Part 3)."""
+    c = colls.resolve(session, collection_id)
+    return SchemaResponse(schemas.queryables_document(
+        c.kind, str(request.url.remove_query_params("f")), f"Queryables of {c.id}"))
+
+
+@router.get("/collections/{collection_id}/schema", response_class=SchemaResponse,
+            responses=SCHEMA_DOC)
+def schema(collection_id: str, request: Request, session: SessionDep) -> SchemaResponse:
+    """Every property of the items with its type (OGC API Features Part 5, draft)."""
+    c = colls.resolve(session, collection_id)
+    return SchemaResponse(schemas.part5_document(
+        c.kind, str(request.url.remove_query_params("f")), f"Schema of {c.id}"))
+
+
+@router.get("/collections/{collection_id}/feature-schema", response_class=SchemaResponse,
+            responses=SCHEMA_DOC)
+def feature_schema(collection_id: str, request: Request,
+                   session: SessionDep) -> SchemaResponse:
+    """JSON Schema of one GeoJSON item (the collection's ``describedby`` link)."""
+    c = colls.resolve(session, collection_id)
+    return SchemaResponse(schemas.geojson_feature_document(
+        c.kind, str(request.url.remove_query_params("f")), f"A feature of {c.id}"))

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from fastapi import FastAPI
 
-from app.network import editing_router, features, tiles
+from app.network import discovery, editing_router, features, tiles
 
 
 def include_network(app: FastAPI) -> None:
-    """Mount the OGC API Features, editing and vector-tile routers."""
+    """Mount the OGC API Features, editing, vector-tile and network discovery routers."""
     app.include_router(features.router)
     app.include_router(editing_router.router)
+    app.include_router(discovery.router)
     app.include_router(tiles.router)

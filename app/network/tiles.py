@@ -26,6 +26,7 @@ from fastapi.responses import Response
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
+from app import errors
 from app.errors import NotFoundError
 from app.grid import TILE_SIZE, parse_tile, pixel_size_m
 from app.network.collections import network_row
@@ -35,7 +36,11 @@ from app.params import NetworkName
 from app.settings import get_settings
 from app.tiles.versioned import cache_headers, not_modified, version_token
 
-router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)])
+router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)],
+                   responses=errors.responses(
+                       errors.InvalidParameterValueError, errors.NotFoundError,
+                       errors.TileOutOfRangeError, errors.UnauthorizedError,
+                       errors.ForbiddenError, errors.DatabaseUnavailableError))
 
 MVT = "application/vnd.mapbox-vector-tile"
 EXTENT = 4096

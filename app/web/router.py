@@ -1,4 +1,4 @@
-"""Serves the web map: the page at ``/``, its own static files, and MapLibre GL JS.
+"""Serves the web map: the page (at ``/`` for browsers), its static files, and MapLibre GL JS.
 
 The page is plain ES modules with no build step, so the server only hands out files. MapLibre
 comes from ``app/web/node_modules`` (installed by ``npm ci`` in ``scripts/setup.sh`` at the
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fastapi import APIRouter, FastAPI
+from fastapi import FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
@@ -18,19 +18,15 @@ WEB_DIR = Path(__file__).resolve().parent
 STATIC_DIR = WEB_DIR / "static"
 MAPLIBRE_DIST = WEB_DIR / "node_modules" / "maplibre-gl" / "dist"
 
-router = APIRouter(include_in_schema=False)
 
-
-@router.get("/")
-def index() -> FileResponse:
-    """The map page."""
+def index_page() -> FileResponse:
+    """The map page, which ``/`` answers browsers with (``app.api.landing`` negotiates)."""
     # no-cache: the page names its modules by path, so a stale copy would mix versions.
     return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
 
 
 def include_web(app: FastAPI) -> None:
-    """Add the page and mount its static files (Starlette mounts live on the app, not a router)."""
-    app.include_router(router)
+    """Mount the page's static files (Starlette mounts live on the app, not a router)."""
     app.mount("/web", StaticFiles(directory=STATIC_DIR), name="web-static")
     # check_dir=False: without `npm ci` the API still starts; the page then reports the
     # missing library instead of the whole service failing.

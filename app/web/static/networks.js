@@ -1,23 +1,9 @@
-// Road networks as vector tiles: segments coloured by road class or speed limit, nodes by kind.
+// Road networks as vector tiles, found like any client would: /networks lists them, each
+// network's TileJSON gives the tile URLs and zooms, its MapLibre style the road-class colours.
 import { request, describeError, setStatus } from './api.js';
 
-const SUFFIX = '-segments';
-
-export const ROAD_CLASS_COLOURS = [
-  ['motorway', '#e8308a'], ['trunk', '#f0642a'], ['primary', '#f5a623'],
-  ['secondary', '#e6d23c'], ['tertiary', '#8fd14f'], ['residential', '#4fb5d1'],
-  ['service', '#9b8fd1'], ['track', '#a0764a'],
-];
-const OTHER_COLOUR = '#5a6b7a';
 const SPEED_STOPS = [[10, '#d7301f'], [30, '#fc8d59'], [50, '#fee08b'], [70, '#91cf60'], [100, '#1a9850']];
 const NO_SPEED_COLOUR = '#8a8a8a';
-
-function classExpression() {
-  const match = ['match', ['get', 'road_class']];
-  for (const [cls, colour] of ROAD_CLASS_COLOURS) match.push([cls, `${cls}_link`], colour);
-  match.push(OTHER_COLOUR);
-  return match;
-}
 
 function speedExpression() {
   return ['case', ['==', ['typeof', ['get', 'speed_limit_kph']], 'number'],
@@ -25,59 +11,49 @@ function speedExpression() {
     NO_SPEED_COLOUR];
 }
 
+/** [label, colour] rows of a style's ['match', input, labels, colour, ..., fallback]. */
+function matchRows(expression) {
+  const rows = [];
+  for (let i = 2; i < expression.length - 1; i += 2) {
+    const labels = expression[i];
+    rows.push([Array.isArray(labels) ? labels[0] : labels, expression[i + 1]]);
+  }
+  rows.push(['other', expression[expression.length - 1]]);
+  return rows;
+}
+
 export function segmentsLayerId(name) { return `net-${name}-segments`; }
 function nodesLayerId(name) { return `net-${name}-nodes`; }
 function selectedLayerId(name) { return `net-${name}-selected`; }
 function sourceId(name) { return `net-${name}`; }
 
-function tileUrl(name, stamp) {
-  return `${location.origin}/networks/${encodeURIComponent(name)}/tiles/{z}/{x}/{y}.mvt?v=${stamp}`;
-}
-
 // Networks are drawn from this zoom on: a low-zoom tile would hold a whole city's roads (or
 // every network in the database) for lines too small to see, and costs the server most.
 export const NETWORK_MINZOOM = 10;
 
-/** A value per node kind: traffic light, junction, other. */
-function nodeValue(light, junction, other) {
-  return ['case', ['get', 'traffic_light'], light, ['==', ['get', 'kind'], 'junction'], junction, other];
-}
-
-function addNetwork(map, name) {
+/** Add one network: its tiles as described by its TileJSON, its style's layers renamed for
+ * this map, and a highlight layer for the selected segment. */
+function addNetwork(map, name, tilejson, style) {
   map.addSource(sourceId(name), {
-    type: 'vector', tiles: [tileUrl(name, Date.now())], minzoom: NETWORK_MINZOOM, maxzoom: 18,
+    type: 'vector', tiles: tilejson.tiles, bounds: tilejson.bounds,
+    minzoom: Math.max(tilejson.minzoom, NETWORK_MINZOOM), maxzoom: tilejson.maxzoom,
   });
-  map.addLayer({
-    id: segmentsLayerId(name), type: 'line', source: sourceId(name), 'source-layer': 'segments',
-    layout: { 'line-cap': 'round', 'line-join': 'round' },
-    paint: {
-      'line-color': classExpression(),
-      'line-width': ['interpolate', ['linear'], ['zoom'], 10, 1.5, 16, 5, 19, 10],
-    },
-  });
+  const styled = Object.fromEntries(style.layers.map((layer) => [layer['source-layer'], layer]));
+  const own = (layer, id) => ({ ...layer, id, source: sourceId(name) });
+  map.addLayer(own(styled.segments, segmentsLayerId(name)));
   map.addLayer({
     id: selectedLayerId(name), type: 'line', source: sourceId(name), 'source-layer': 'segments',
     filter: ['==', ['id'], -1],
     paint: { 'line-color': '#00e5ff', 'line-width': ['interpolate', ['linear'], ['zoom'], 10, 4, 16, 9, 19, 16], 'line-opacity': 0.8 },
   });
-  map.addLayer({
-    id: nodesLayerId(name), type: 'circle', source: sourceId(name), 'source-layer': 'nodes',
-    paint: {
-      // Traffic lights: big red with a white ring; junctions: orange; plain (degree-2) nodes:
-      // small grey, only from z16 where they no longer crowd the roads. Zoom must be the input
-      // of the top-level step, so the kind cases repeat on both sides of it.
-      'circle-radius': ['step', ['zoom'], nodeValue(6, 4, 0), 16, nodeValue(6, 4, 2.5)],
-      'circle-stroke-width': ['step', ['zoom'], nodeValue(2, 1, 0), 16, nodeValue(2, 1, 1)],
-      'circle-color': nodeValue('#e02020', '#ff9800', '#607080'),
-      'circle-stroke-color': '#ffffff',
-    },
-  });
+  map.addLayer(own(styled.nodes, nodesLayerId(name)));
+  return styled.segments.paint['line-color'];
 }
 
-function legendRows(mode) {
+function legendRows(mode, classColours) {
   const rows = mode === 'speed'
     ? [...SPEED_STOPS.map(([kph, colour]) => [`${kph} km/h`, colour]), ['no limit set', NO_SPEED_COLOUR]]
-    : [...ROAD_CLASS_COLOURS, ['other', OTHER_COLOUR]];
+    : matchRows(classColours);
   const lines = rows.map(([label, colour]) => `<li><i class="swatch" style="background:${colour}"></i>${label}</li>`);
   lines.push('<li><i class="dot" style="background:#ff9800"></i>junction</li>');
   lines.push('<li><i class="dot light"></i>traffic light</li>');
@@ -90,26 +66,34 @@ export class Networks {
     this.map = map;
     this.names = [];
     this.extents = [];
+    this.tilejsonUrls = {};
+    this.classColours = ['match', ['get', 'road_class'], 'other'];
     this.mode = 'road_class';
   }
 
   async load() {
     const list = document.getElementById('networks');
-    const result = await request('/collections');
+    const result = await request('/networks');
     if (!result.ok) {
       list.innerHTML = '';
       setStatus(`Networks: ${describeError(result)}`);
       return;
     }
-    const segmentCollections = result.body.collections.filter((c) => c.id.endsWith(SUFFIX));
-    list.innerHTML = segmentCollections.length ? '' : '<li class="empty">no road networks</li>';
-    for (const collection of segmentCollections) {
-      const name = collection.id.slice(0, -SUFFIX.length);
-      this.names.push(name);
-      addNetwork(this.map, name);
-      const bbox = collection.extent?.spatial?.bbox?.[0];
-      if (bbox) this.extents.push(bbox);
-      list.appendChild(this.entry(name, bbox));
+    const found = result.body.networks;
+    list.innerHTML = found.length ? '' : '<li class="empty">no road networks</li>';
+    const described = await Promise.all(found.map((network) => Promise.all(
+      [request(network.links.tilejson), request(network.links.style)])));
+    for (const [i, network] of found.entries()) {
+      const [tilejson, style] = described[i];
+      if (!tilejson.ok || !style.ok) {
+        setStatus(`${network.name}: ${describeError(tilejson.ok ? style : tilejson)}`);
+        continue;
+      }
+      this.names.push(network.name);
+      this.tilejsonUrls[network.name] = network.links.tilejson;
+      this.classColours = addNetwork(this.map, network.name, tilejson.body, style.body);
+      if (network.bounds) this.extents.push(network.bounds);
+      list.appendChild(this.entry(network.name, network.bounds));
     }
     const hint = document.getElementById('net-hint');
     const showHint = () => { hint.hidden = !this.names.length || this.map.getZoom() >= NETWORK_MINZOOM; };
@@ -140,9 +124,9 @@ export class Networks {
 
   setMode(mode) {
     this.mode = mode;
-    const colour = mode === 'speed' ? speedExpression() : classExpression();
+    const colour = mode === 'speed' ? speedExpression() : this.classColours;
     for (const name of this.names) this.map.setPaintProperty(segmentsLayerId(name), 'line-color', colour);
-    document.getElementById('legend').innerHTML = legendRows(mode);
+    document.getElementById('legend').innerHTML = legendRows(mode, this.classColours);
   }
 
   segmentLayerIds() { return this.names.map(segmentsLayerId); }
@@ -152,7 +136,7 @@ export class Networks {
     const box = [[point.x - 5, point.y - 5], [point.x + 5, point.y + 5]];
     const [feature] = this.map.queryRenderedFeatures(box, { layers: this.segmentLayerIds() });
     if (!feature) return null;
-    return { network: feature.layer.id.slice('net-'.length, -SUFFIX.length), id: feature.id };
+    return { network: feature.layer.id.slice('net-'.length, -'-segments'.length), id: feature.id };
   }
 
   select(network, id) {
@@ -161,8 +145,11 @@ export class Networks {
     }
   }
 
-  /** Re-request the network's tiles (new URL, so no cached tile survives) after an edit. */
-  refresh(network) {
-    this.map.getSource(sourceId(network)).setTiles([tileUrl(network, Date.now())]);
+  /** After an edit: read the TileJSON again, whose tile URLs name the network's new version
+   * (so neither the browser nor a front cache can serve a tile from before the edit). */
+  async refresh(network) {
+    const tilejson = await request(this.tilejsonUrls[network]);
+    if (tilejson.ok) this.map.getSource(sourceId(network)).setTiles(tilejson.body.tiles);
+    else setStatus(`${network}: ${describeError(tilejson)}`);
   }
 }

@@ -1,0 +1,164 @@
+"""What a vector-tile client needs to use a network's tiles without being told: TileJSON 3.0.0
+with ``vector_layers``, a MapLibre style, and the MBTiles-style ``metadata.json`` GDAL's MVT
+driver reads. Pure builders over one description of the tile layers (:data:`TILE_LAYERS`).
+
+The tile SQL lives in :mod:`app.network.tiles`; ``tests/test_network_discovery.py`` decodes a
+real tile and checks its layers and fields are exactly the ones described here.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+from app.network.collections import Kind
+from app.network.properties import GEOMETRY, MVT_TYPES, by_name
+from app.network.tiles import NODES_MINZOOM
+
+MINZOOM = 0
+# Past this zoom clients overzoom: a z18 tile's 4096-unit grid is already ~4 cm.
+MAXZOOM = 18
+OTHER_COLOUR = "#5a6b7a"
+# Road class -> line colour (the class and its *_link share one), in legend order.
+ROAD_CLASS_COLOURS = (
+    ("motorway", "#e8308a"), ("trunk", "#f0642a"), ("primary", "#f5a623"),
+    ("secondary", "#e6d23c"), ("tertiary", "#8fd14f"), ("residential", "#4fb5d1"),
+    ("service", "#9b8fd1"), ("track", "#a0764a"),
+)
+
+
+@dataclass(frozen=True)
+class TileLayer:
+    """One layer of the network's vector tiles."""
+
+    id: str
+    kind: Kind
+    fields: tuple[str, ...]
+    minzoom: int
+    description: str
+
+
+TILE_LAYERS = (
+    TileLayer("segments", "segments",
+              ("name", "road_class", "oneway", "lanes_forward", "lanes_backward",
+               "speed_limit_kph", "is_junction", "surface", "width_m", "length_m", "version"),
+              MINZOOM, "Road segments (feature id = segment id); simplified below z14"),
+    TileLayer("nodes", "nodes", ("kind", "traffic_light"), NODES_MINZOOM,
+              "Topology nodes (feature id = node id)"),
+)
+
+
+@dataclass(frozen=True)
+class NetworkInfo:
+    """What the builders need to know about a network."""
+
+    name: str
+    title: str | None
+    description: str | None
+    version: int
+    bounds: list[float] | None
+
+
+def vector_layers() -> list[dict[str, Any]]:
+    """TileJSON ``vector_layers``: each layer's fields with their types, and its zooms."""
+    return [{"id": layer.id, "description": layer.description,
+             "fields": {f: MVT_TYPES[by_name(layer.kind)[f].type] for f in layer.fields},
+             "minzoom": layer.minzoom, "maxzoom": MAXZOOM} for layer in TILE_LAYERS]
+
+
+def _bounds(network: NetworkInfo) -> list[float]:
+    return network.bounds or [-180.0, -85.0511, 180.0, 85.0511]
+
+
+def _center(network: NetworkInfo) -> list[float]:
+    b = _bounds(network)
+    return [(b[0] + b[2]) / 2, (b[1] + b[3]) / 2, 14]
+
+
+def tilejson(network: NetworkInfo, tiles_url: str) -> dict[str, Any]:
+    """TileJSON 3.0.0 for the network's tiles (``tiles_url`` is the {z}/{x}/{y} template)."""
+    return {
+        "tilejson": "3.0.0",
+        "name": network.title or network.name,
+        "description": network.description or f"ugvmap road network {network.name}",
+        "version": f"1.0.{network.version}",
+        "attribution": "",
+        "scheme": "xyz",
+        "tiles": [tiles_url],
+        "minzoom": MINZOOM,
+        "maxzoom": MAXZOOM,
+        "bounds": _bounds(network),
+        "center": _center(network),
+        "vector_layers": vector_layers(),
+    }
+
+
+def _class_colour() -> list[Any]:
+    expression: list[Any] = ["match", ["get", "road_class"]]
+    for cls, colour in ROAD_CLASS_COLOURS:
+        expression += [[cls, f"{cls}_link"], colour]
+    return [*expression, OTHER_COLOUR]
+
+
+def _by_node(light: Any, junction: Any, other: Any) -> list[Any]:
+    """A value per node: traffic light, junction, other."""
+    return ["case", ["get", "traffic_light"], light,
+            ["==", ["get", "kind"], "junction"], junction, other]
+
+
+def style(network: NetworkInfo, tilejson_url: str) -> dict[str, Any]:
+    """A MapLibre style drawing the network: roads coloured by class, junctions orange,
+    traffic lights red (plain nodes from z16). No glyphs or sprites, so it loads offline."""
+    source = network.name
+    return {
+        "version": 8,
+        "name": f"ugvmap network {network.name}",
+        "center": _center(network)[:2],
+        "zoom": _center(network)[2],
+        "sources": {source: {"type": "vector", "url": tilejson_url}},
+        "layers": [
+            {"id": "segments", "type": "line", "source": source, "source-layer": "segments",
+             "layout": {"line-cap": "round", "line-join": "round"},
+             "paint": {"line-color": _class_colour(),
+                       "line-width": ["interpolate", ["linear"], ["zoom"],
+                                      10, 1.5, 16, 5, 19, 10]}},
+            {"id": "nodes", "type": "circle", "source": source, "source-layer": "nodes",
+             "minzoom": NODES_MINZOOM,
+             "paint": {
+                 # Zoom must be the input of the top-level step, so the node cases repeat.
+                 "circle-radius": ["step", ["zoom"], _by_node(6, 4, 0), 16,
+                                   _by_node(6, 4, 2.5)],
+                 "circle-stroke-width": ["step", ["zoom"], _by_node(2, 1, 0), 16,
+                                         _by_node(2, 1, 1)],
+                 "circle-color": _by_node("#e02020", "#ff9800", "#607080"),
+                 "circle-stroke-color": "#ffffff"}},
+        ],
+    }
+
+
+def mbtiles_metadata(network: NetworkInfo,
+                     integer_ranges: dict[str, tuple[int, int]]) -> dict[str, Any]:
+    """``metadata.json`` as MBTiles writes it (strings, layers in a ``json`` string), which
+    GDAL's MVT driver reads next to a tile directory. ``tilestats`` gives each layer's
+    geometry type and the integer fields' ranges, so GDAL types them Integer, not Real."""
+    layers = []
+    for layer in TILE_LAYERS:
+        attributes = [{"attribute": f, "type": "number", "min": low, "max": high}
+                      for f, (low, high) in integer_ranges.items() if f in layer.fields]
+        layers.append({"layer": layer.id, "geometry": GEOMETRY[layer.kind],
+                       "attributeCount": len(layer.fields), "attributes": attributes})
+    bounds, center = _bounds(network), _center(network)
+    return {
+        "name": network.title or network.name,
+        "description": network.description or f"ugvmap road network {network.name}",
+        "version": str(network.version),
+        "format": "pbf",
+        "type": "overlay",
+        "minzoom": str(MINZOOM),
+        "maxzoom": str(MAXZOOM),
+        "bounds": ",".join(f"{v:.7f}" for v in bounds),
+        "center": ",".join(f"{v:.7f}" for v in center[:2]) + f",{center[2]}",
+        "json": json.dumps({"vector_layers": vector_layers(),
+                            "tilestats": {"layerCount": len(layers), "layers": layers}}),
+    }

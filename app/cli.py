@@ -126,6 +126,7 @@ def _register_capabilities() -> None:
     from app.network import cli as network_cli
     from app.routing import cli as routing_cli
     from app.tiles import cli as tiles_cli
+    from ingest.ipm import cli as ipm_cli
     from ingest.roads import cli as roads_cli
 
     ingest.add_command(network_cli.ingest_network)
@@ -139,6 +140,7 @@ def _register_capabilities() -> None:
     main.add_command(roads_cli.evaluate_roads)
     ingest.add_command(roads_cli.ingest_roads)
     main.add_command(roads_cli.roads)
+    ingest.add_command(ipm_cli.ingest_ipm_cmd)
 
 
 _register_capabilities()

@@ -16,6 +16,7 @@ import csv
 import json
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import cv2
@@ -136,15 +137,19 @@ class Drive:
         return rgb
 
 
+@lru_cache(maxsize=4)
 def _vehicle_rays(camera: Camera, du: float, dv: float) -> np.ndarray:
-    """(H, W, 3) vehicle-frame directions through each pixel at offset (du, dv) in it."""
+    """(H, W, 3) vehicle-frame directions through each pixel at offset (du, dv) in it (the
+    same for every frame of a drive: cached for the supersampling offsets)."""
     width, height = camera.image_size
     cols, rows = np.meshgrid(np.arange(width) + du, np.arange(height) + dv)
     phi = (cols / width - 0.5) * 2 * np.pi
     theta = rows / height * np.pi
     d_cam = np.stack([np.sin(theta) * np.sin(phi), np.sin(theta) * np.cos(phi),
                       np.cos(theta)], axis=-1)
-    return d_cam @ camera.vehicle_from_camera().T
+    rays = (d_cam @ camera.vehicle_from_camera().T).astype(np.float32)
+    rays.flags.writeable = False
+    return rays
 
 
 def _hit(camera: Camera, d: np.ndarray, z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

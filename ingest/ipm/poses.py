@@ -81,7 +81,8 @@ def interpolate_poses(track: PoseTrack, times: np.ndarray,
 
     Position is linear in time between the two surrounding samples; heading is linear on
     the circle (the short way round). Frames before the first or after the last sample, or
-    between two samples more than ``max_gap_s`` apart, get a skip reason instead.
+    between two samples more than ``max_gap_s`` apart (unless exactly at one of them), get a
+    skip reason instead.
     """
     times = np.asarray(times, float)
     after = np.searchsorted(track.t, times, side="right").clip(1, len(track.t) - 1)
@@ -98,7 +99,7 @@ def interpolate_poses(track: PoseTrack, times: np.ndarray,
             out.append(NO_TIME)
         elif t < track.t[0] or t > track.t[-1]:
             out.append(NO_POSE)
-        elif gap[i] > max_gap_s:
+        elif gap[i] > max_gap_s and t not in (track.t[before[i]], track.t[after[i]]):
             out.append(POSE_GAP)
         else:
             out.append(Pose(float(t), float(lon[i]), float(lat[i]), float(hdg[i])))

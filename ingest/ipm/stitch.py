@@ -121,16 +121,20 @@ class ZoneStitcher:
         h, w = patch.shape
         box = (patch.col0, patch.row0, patch.col0 + w, patch.row0 + h)
         for key in self.grid.zones_meeting(*box):
-            zone = self.open.get(key)
-            if zone is None:
-                self.passes[key] = self.passes.get(key, 0) + 1
-                zone = self.open[key] = OpenZone(*key, self.passes[key])
-            self._add_to_zone(zone, patch, box)
+            self._add_to_zone(key, patch, box)
         self.stats.peak_open_zones = max(self.stats.peak_open_zones, len(self.open))
 
-    def _add_to_zone(self, zone: OpenZone, patch: PlacedPatch,
+    def _zone(self, key: tuple[int, int]) -> OpenZone:
+        """The open zone ``key``, opened (as a new pass if it was written before) if need be."""
+        zone = self.open.get(key)
+        if zone is None:
+            self.passes[key] = self.passes.get(key, 0) + 1
+            zone = self.open[key] = OpenZone(*key, self.passes[key])
+        return zone
+
+    def _add_to_zone(self, key: tuple[int, int], patch: PlacedPatch,
                      box: tuple[int, int, int, int]) -> None:
-        zc0, zr0, zc1, zr1 = self.grid.zone_box(zone.row, zone.col)
+        zc0, zr0, zc1, zr1 = self.grid.zone_box(*key)
         c0, r0 = max(box[0], zc0) - zc0, max(box[1], zr0) - zr0
         c1, r1 = min(box[2], zc1) - zc0, min(box[3], zr1) - zr0
         for ci in range(c0 // CHUNK_PX, (c1 - 1) // CHUNK_PX + 1):
@@ -143,9 +147,10 @@ class ZoneStitcher:
                 valid = patch.valid[pr, pc]
                 if not valid.any():
                     continue
-                chunk = zone.chunks.get((ri, ci))
+                chunks = self._zone(key).chunks
+                chunk = chunks.get((ri, ci))
                 if chunk is None:
-                    chunk = zone.chunks[(ri, ci)] = Chunk(self.blend)
+                    chunk = chunks[(ri, ci)] = Chunk(self.blend)
                     self._bytes += chunk.nbytes
                     self.stats.peak_bytes = max(self.stats.peak_bytes, self._bytes)
                 chunk.add(slice(lr0 - ri * CHUNK_PX, lr1 - ri * CHUNK_PX),

@@ -215,6 +215,13 @@ def test_grid_poses_use_grid_north_and_scale() -> None:
     assert pose.row == pytest.approx((north0 - north) / 0.06)
 
 
+def test_default_grid_is_centred_on_the_first_pose() -> None:
+    grid = ZoneGrid.centred_on(17.6, 48.15, 0.06, (4096, 4096), (128, 128))
+    pose = grid.to_grid([17.6], [48.15], [0.0])[0]
+    assert (pose.col, pose.row) == pytest.approx((3968 / 2, 3968 / 2), abs=1e-6)
+    assert grid.sidecar(0, 0).crs().to_epsg() == 32633
+
+
 def test_zones_meeting_a_box() -> None:
     grid = ZoneGrid(17.6, 48.15, zone_size_px=(100, 60), overlap_px=(20, 10))
     for box in [(0, 0, 1, 1), (79, 49, 81, 51), (-5, -5, 5, 5), (150, 30, 420, 200),

@@ -229,17 +229,16 @@ def test_poses_from_qr_codes_match_the_pose_stream(client, drive, tmp_path: Path
         pose = Pose(float(frame_times(N)[i]), float(lon[i]), float(lat[i]), float(heading[i]))
         cv2.imwrite(str(path), stamp_pose(cv2.imread(str(path)), pose, "top-right"),
                     [cv2.IMWRITE_JPEG_QUALITY, 95])
-    ref, qr = tmp_path / "ref", tmp_path / "qr"
-    _, result = run(drive, "--zones-dir", str(ref), "--frames", "4:")
-    assert result.exit_code == 0, result.output
-    _, result = run(drive, "--qr-pose", "top-right", "--zones-dir", str(qr),
-                    "--origin", f"{DRIVE.pose(0.0)[0]},{DRIVE.pose(0.0)[1]}", poses=False)
+    origin = "--origin", f"{DRIVE.pose(0.0)[0]},{DRIVE.pose(0.0)[1]}"
+    _, result = run(drive, "--qr-pose", "top-right", poses=False)
     assert result.exit_code == 0, result.output
     assert f"frames: {N - 1} used, 1 skipped (1 no readable QR pose)" in result.output
-    # Same grid origin as the pose-stream run: frames 4.. must give the same pixels.
+    # On the same grid, frames 4.. must give the same pixels from QR codes and pose stream.
+    ref = tmp_path / "ref"
+    _, result = run(drive, "--zones-dir", str(ref), "--frames", "4:", *origin)
+    assert result.exit_code == 0, result.output
     _, result = run(drive, "--qr-pose", "top-right", "--zones-dir", str(tmp_path / "qr4"),
-                    "--origin", f"{DRIVE.pose(0.0)[0]},{DRIVE.pose(0.0)[1]}", "--frames", "4:",
-                    poses=False)
+                    "--frames", "4:", *origin, poses=False)
     assert result.exit_code == 0, result.output
     a, b = zone_pixels(ref), zone_pixels(tmp_path / "qr4")
     assert a.keys() == b.keys()

@@ -77,7 +77,7 @@ def _pair(kind: type, sep: str):
               callback=_pair(int, "x"), help="Overlap of neighbouring zones WxH, pixels.")
 @click.option("--origin", callback=_pair(float, ","),
               help="LON,LAT of the zone grid's origin (north-west corner of zone 0/0) "
-                   "[default: the first pose].")
+                   "[default: zone 0/0 centred on the first pose].")
 @click.option("--max-pose-gap", default=0.5, show_default=True, type=float,
               help="Skip frames between two poses farther apart than this, seconds.")
 @click.option("--zones-dir", type=click.Path(path_type=Path, file_okay=False),

@@ -45,6 +45,21 @@ class ZoneGrid:
     zone_size_px: tuple[int, int] = (4096, 4096)
     overlap_px: tuple[int, int] = (128, 128)
 
+    @classmethod
+    def centred_on(cls, lon: float, lat: float, resolution_m: float,
+                   zone_size_px: tuple[int, int], overlap_px: tuple[int, int]) -> ZoneGrid:
+        """The grid whose zone (0, 0) has the point lon/lat at the centre of its own part (the
+        default for a drive: its first pose), so a short drive needs one zone, not the four
+        that meet at an origin placed on it."""
+        at_point = cls(lon, lat, resolution_m, zone_size_px, overlap_px)
+        crs = at_point.sidecar(0, 0).crs()
+        to_crs = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+        east, north = to_crs.transform(lon, lat)
+        sx, sy = at_point.step_px
+        west, top = to_crs.transform(east - sx * resolution_m / 2, north + sy * resolution_m / 2,
+                                     direction="INVERSE")
+        return cls(west, top, resolution_m, zone_size_px, overlap_px)
+
     def sidecar(self, row: int, col: int) -> ZoneSidecar:
         return ZoneSidecar(row=row, col=col, origin_lat=self.origin_lat,
                            origin_lon=self.origin_lon, resolution_m=self.resolution_m,

@@ -67,7 +67,7 @@ class IpmOptions:
     overlap_px: tuple[int, int] = (128, 128)
     max_gap_s: float = 0.5
     origin: tuple[float, float] | None = None
-    """(lon, lat) of the zone grid's origin; default the drive's first pose."""
+    """(lon, lat) of the zone grid's origin; default: zone (0, 0) centred on the first pose."""
     qr_corner: str | None = None
     title: str | None = None
     priority: int = 0
@@ -281,14 +281,15 @@ def ingest_ipm(frames_path: Path, layer: str, calib_path: Path, poses_path: Path
     range_m = options.range_m if options.range_m is not None else options.window_m / 2
     lookup = build_lookup(calib, options.window_m, options.resolution_m, range_m)
     if options.origin is not None:
-        origin = options.origin
-    elif track is not None:
-        origin = (float(track.lon[0]), float(track.lat[0]))
+        grid = ZoneGrid(*options.origin, options.resolution_m, options.zone_size_px,
+                        options.overlap_px)
     else:
-        first = _first_qr_pose(frames, str(options.qr_corner))
-        origin = (first.lon, first.lat)
-    grid = ZoneGrid(origin[0], origin[1], options.resolution_m, options.zone_size_px,
-                    options.overlap_px)
+        if track is not None:
+            first = Pose(float(track.t[0]), float(track.lon[0]), float(track.lat[0]), 0.0)
+        else:
+            first = _first_qr_pose(frames, str(options.qr_corner))
+        grid = ZoneGrid.centred_on(first.lon, first.lat, options.resolution_m,
+                                   options.zone_size_px, options.overlap_px)
     grid.check()
     if zones_dir is not None and any(Path(zones_dir).glob("zone_*.tif")):
         raise IpmInputError(f"--zones-dir {zones_dir} already holds zone mosaics; give an "
@@ -317,7 +318,8 @@ def ingest_ipm(frames_path: Path, layer: str, calib_path: Path, poses_path: Path
         layer=layer, version=report.version, frames=frames.count, used=drive.used,
         skipped=drive.skipped, examples=drive.examples,
         area_m2=stats.covered_px * options.resolution_m ** 2,
-        zones_written=stats.zones_written, zones_dropped=stats.zones_dropped, origin=origin,
+        zones_written=stats.zones_written, zones_dropped=stats.zones_dropped,
+        origin=(grid.origin_lon, grid.origin_lat),
         crs=grid.sidecar(0, 0).crs().to_string(), peak_buffer_bytes=stats.peak_bytes,
         peak_open_zones=stats.peak_open_zones, frames_seconds=frames_seconds,
         total_seconds=time.monotonic() - started)

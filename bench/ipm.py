@@ -12,9 +12,14 @@ so its peak RSS is its own:
 * ``ugvmap, half the drive``: the same on the first half, to show peak memory does not grow
   with the drive (zones are written and freed as the vehicle leaves them);
 * ``ugvmap (1 worker)``;
+* ``ugvmap, 2048/8192 px zones``: other zone sizes (the COG step's cost follows the zones'
+  area, the frame phase's does not);
 * baseline ``naive per-frame lookup``: the same IPM with the ground -> panorama lookup
   recomputed for every frame (what a straightforward implementation does), against
   ``precomputed lookup`` in the same sequential loop.
+
+Each configuration runs ``--repeat`` times (rounds over all of them) and its fastest run
+counts: other jobs share the machine, and a load spike should not decide a comparison.
 
 Goal (issue 11): >= 7 frames/s (the camera's rate) on this 2-core machine.
 
@@ -148,7 +153,7 @@ def child(config: str, folder: Path, frames: int) -> dict:
     return run_job(folder, frames, **kwargs)
 
 
-def throughput(frames: int) -> None:
+def throughput(frames: int, repeat: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         start = time.perf_counter()
@@ -156,11 +161,15 @@ def throughput(frames: int) -> None:
         print(f"drive: {frames} frames of 2048x1024 JPEG at 7 Hz, 10 m/s "
               f"({frames / 7 * 10:.0f} m), window 30 m at 0.06 m/px, zones 4096 px "
               f"(rendered in {time.perf_counter() - start:.0f} s); 2 shared cores, noisy")
-        results = {}
-        for config in CONFIGS:
-            out = subprocess.run([sys.executable, __file__, "--child", config, str(folder),
-                                  str(frames)], capture_output=True, text=True, check=True)
-            results[config] = json.loads(out.stdout.strip().splitlines()[-1])
+        results: dict[str, dict] = {}
+        for _ in range(repeat):  # rounds over all configurations: load spikes hit each alike
+            for config in CONFIGS:
+                out = subprocess.run([sys.executable, __file__, "--child", config, str(folder),
+                                      str(frames)], capture_output=True, text=True, check=True)
+                run = json.loads(out.stdout.strip().splitlines()[-1])
+                best = results.get(config)
+                if best is None or run["frames_s"] < best["frames_s"]:
+                    results[config] = run
     baseline = results["naive per-frame lookup, sequential (baseline)"]
     base_fps = baseline["frames"] / baseline["frames_s"]
     print(f"{'configuration':46} {'frames':>6} {'frames/s':>8} {'vs goal':>7} "
@@ -260,6 +269,8 @@ def blend_quality() -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=420, help="frames in the drive")
+    parser.add_argument("--repeat", type=int, default=2,
+                        help="runs per configuration; the fastest counts (shared machine)")
     parser.add_argument("--skip-blend", action="store_true")
     parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -267,7 +278,7 @@ def main() -> None:
         os.environ.setdefault("UGVMAP_LOG_LEVEL", "WARNING")
         print(json.dumps(child(args.child[0], Path(args.child[1]), int(args.child[2]))))
         return
-    throughput(args.frames)
+    throughput(args.frames, args.repeat)
     if not args.skip_blend:
         blend_quality()
 

@@ -101,8 +101,8 @@ class IpmSummary:
         out.append(f"zones written: {self.zones_written}"
                    + (f" ({self.zones_dropped} slivers dropped)" if self.zones_dropped else "")
                    + f", grid origin lon {self.origin[0]:.7f} lat {self.origin[1]:.7f} "
-                     f"in {self.crs}; at most {self.peak_open_zones} zones / "
-                     f"{self.peak_buffer_bytes / 2**20:.0f} MiB open at once")
+                     f"in {self.crs}; at most {self.peak_open_zones} open at once "
+                     f"({self.peak_buffer_bytes / 2**20:.0f} MiB of buffers)")
         rate = self.used / self.frames_seconds if self.frames_seconds else 0.0
         out.append(f"time: {self.frames_seconds:.1f} s for frames ({rate:.1f} frames/s), "
                    f"{self.total_seconds:.1f} s in all")

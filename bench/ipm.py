@@ -12,7 +12,7 @@ so its peak RSS is its own:
 * ``ugvmap, half the drive``: the same on the first half, to show peak memory does not grow
   with the drive (zones are written and freed as the vehicle leaves them);
 * ``ugvmap (1 worker)``;
-* ``ugvmap, 2048/8192 px zones``: other zone sizes (the COG step's cost follows the zones'
+* ``ugvmap, 4096/8192 px zones``: other zone sizes (the COG step's cost follows the zones'
   area, the frame phase's does not);
 * baseline ``naive per-frame lookup``: the same IPM with the ground -> panorama lookup
   recomputed for every frame (what a straightforward implementation does), against
@@ -84,7 +84,7 @@ def make_drive(folder: Path, count: int) -> dict[str, Path]:
 
 
 def run_job(folder: Path, frames: int, workers: int = 2, share: float = 1.0,
-            zone_px: int = 4096) -> dict:
+            zone_px: int = 2048) -> dict:
     """Child: the real job into a scratch database; frame phase and total frames/s."""
     from app.db.scratch import scratch_database
     from ingest.ipm.job import IpmOptions, ingest_ipm
@@ -139,7 +139,7 @@ CONFIGS: dict[str, dict] = {
     "ugvmap (2 workers)": {},
     "ugvmap, half the drive": {"share": 0.5},
     "ugvmap (1 worker)": {"workers": 1},
-    "ugvmap, 2048 px zones": {"zone_px": 2048},
+    "ugvmap, 4096 px zones": {"zone_px": 4096},
     "ugvmap, 8192 px zones": {"zone_px": 8192},
     "precomputed lookup, sequential": {"naive": False},
     "naive per-frame lookup, sequential (baseline)": {"naive": True},
@@ -159,7 +159,7 @@ def throughput(frames: int, repeat: int) -> None:
         start = time.perf_counter()
         make_drive(folder, frames)
         print(f"drive: {frames} frames of 2048x1024 JPEG at 7 Hz, 10 m/s "
-              f"({frames / 7 * 10:.0f} m), window 30 m at 0.06 m/px, zones 4096 px "
+              f"({frames / 7 * 10:.0f} m), window 30 m at 0.06 m/px, zones 2048 px "
               f"(rendered in {time.perf_counter() - start:.0f} s); 2 shared cores, noisy")
         results: dict[str, dict] = {}
         for _ in range(repeat):  # rounds over all configurations: load spikes hit each alike

@@ -71,7 +71,7 @@ def _pair(kind: type, sep: str):
               type=click.Choice(["nearest", "later", "weighted"]),
               help="nearest: each pixel from the frame that saw it closest; later: later "
                    "frames over earlier; weighted: 1/d² average.")
-@click.option("--zone-size", default="4096x4096", show_default=True, callback=_pair(int, "x"),
+@click.option("--zone-size", default="2048x2048", show_default=True, callback=_pair(int, "x"),
               help="Zone mosaic size WxH, pixels.")
 @click.option("--zone-overlap", default="128x128", show_default=True,
               callback=_pair(int, "x"), help="Overlap of neighbouring zones WxH, pixels.")

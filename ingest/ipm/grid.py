@@ -42,7 +42,7 @@ class ZoneGrid:
     origin_lon: float
     origin_lat: float
     resolution_m: float = 0.06
-    zone_size_px: tuple[int, int] = (4096, 4096)
+    zone_size_px: tuple[int, int] = (2048, 2048)
     overlap_px: tuple[int, int] = (128, 128)
 
     @classmethod

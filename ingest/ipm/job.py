@@ -63,7 +63,7 @@ class IpmOptions:
     frames: slice = field(default_factory=lambda: slice(None))
     workers: int = field(default_factory=lambda: os.cpu_count() or 1)
     blend: str = "nearest"
-    zone_size_px: tuple[int, int] = (4096, 4096)
+    zone_size_px: tuple[int, int] = (2048, 2048)
     overlap_px: tuple[int, int] = (128, 128)
     max_gap_s: float = 0.5
     origin: tuple[float, float] | None = None

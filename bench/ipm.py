@@ -53,7 +53,7 @@ GOAL_FPS = 7.0
 BENCH_DRIVE = Drive(radius_m=400.0, speed_mps=10.0, markers=())
 BENCH_CAMERA = Camera(image_size=(2048, 1024))
 DISTINCT_FRAMES = 12
-BASELINE_FRAMES = 40
+BASELINE_FRAMES = 100
 
 
 def peak_rss_mib() -> float:

@@ -35,8 +35,6 @@ class FrameError(Exception):
 
 @dataclass(frozen=True)
 class FrameRef:
-    index: int
-    """Position in the drive (row of frames.csv / frame number of the video), from 0."""
     t: float
     """Seconds on the pose clock; NaN when unknown."""
     name: str
@@ -113,7 +111,7 @@ def directory_frames(folder: Path, selection: slice, need_times: bool) -> FrameS
     rows = _read_csv(listing, ("t", "file") if need_times else ("file",))
     times = _times(rows, listing, 2, need_times)
     indices = range(len(rows))[selection]
-    refs = [FrameRef(i, times[i], rows[i]["file"], _file_loader(folder / rows[i]["file"]))
+    refs = [FrameRef(times[i], rows[i]["file"], _file_loader(folder / rows[i]["file"]))
             for i in indices]
     return FrameSet(len(refs), lambda: iter(refs))
 
@@ -143,7 +141,7 @@ def video_frames(video: Path, times_file: Path | None, selection: slice) -> Fram
                     ok, image = cap.read()
                     position += 1
                     ended = not ok
-                yield FrameRef(i, times[i], f"{video.name}#{i}", _loaded(image, video, i))
+                yield FrameRef(times[i], f"{video.name}#{i}", _loaded(image, video, i))
         finally:
             cap.release()
 

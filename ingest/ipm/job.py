@@ -112,7 +112,6 @@ class IpmSummary:
 
 @dataclass(frozen=True)
 class _Outcome:
-    index: int
     placed: PlacedPatch | None = None
     pose: GridPose | None = None
     skip: str | None = None
@@ -132,24 +131,24 @@ def _process(ref: FrameRef, pose: Pose | None, ctx: _Context) -> _Outcome:
     try:
         image = ref.load()
     except FrameError as exc:
-        return _Outcome(ref.index, skip=UNREADABLE, message=str(exc))
+        return _Outcome(skip=UNREADABLE, message=str(exc))
     width, height = ctx.calib.image_size
     if image.shape[:2] != (height, width):
-        return _Outcome(ref.index, skip=WRONG_SIZE,
+        return _Outcome(skip=WRONG_SIZE,
                         message=f"{ref.name} is {image.shape[1]}x{image.shape[0]} px but the "
                                 f"calibration's image_size is {width}x{height}")
     if ctx.qr_corner:
         pose = read_pose(image, ctx.qr_corner)
         if pose is None:
-            return _Outcome(ref.index, skip=NO_QR,
+            return _Outcome(skip=NO_QR,
                             message=f"{ref.name}: no pose QR code in the {ctx.qr_corner} corner")
     assert pose is not None
     grid_pose = ctx.grid.to_grid([pose.lon], [pose.lat], [pose.heading_deg])[0]
     placed = place(sample_patch(image, ctx.lookup), ctx.lookup.window, grid_pose,
                    ctx.grid.resolution_m)
     if placed is None:
-        return _Outcome(ref.index, skip=NO_GROUND, message=f"{ref.name}: nothing valid")
-    return _Outcome(ref.index, placed, grid_pose)
+        return _Outcome(skip=NO_GROUND, message=f"{ref.name}: nothing valid")
+    return _Outcome(placed, grid_pose)
 
 
 def _first_qr_pose(frames: FrameSet, corner: str, limit: int = 200) -> Pose:
@@ -177,6 +176,10 @@ def _check_options(layer: str, options: IpmOptions, poses: Path | None) -> None:
     if (poses is None) == (options.qr_corner is None):
         raise IpmInputError("give the poses either with --poses poses.csv or from QR codes "
                             "in the frames with --qr-pose CORNER (exactly one of them)")
+    if not 0.001 <= options.resolution_m <= 100:
+        raise IpmInputError(f"--resolution {options.resolution_m} m/px is not plausible")
+    if options.window_m <= 0:
+        raise IpmInputError("--window must be positive")
     if options.workers < 1:
         raise IpmInputError("--workers must be at least 1")
     if options.max_gap_s <= 0:
@@ -245,7 +248,7 @@ def stitch_drive(frames: FrameSet, track: PoseTrack | None, ctx: _Context,
                 pending.append(pool.submit(_process, ref, None, ctx))
             else:
                 pose = pose_lookup(track, np.array([ref.t]), options.max_gap_s)[0]
-                pending.append(_Outcome(ref.index, skip=pose, message=f"{ref.name} at "
+                pending.append(_Outcome(skip=pose, message=f"{ref.name} at "
                                         f"t={ref.t}") if isinstance(pose, str)
                                else pool.submit(_process, ref, pose, ctx))
             while len(pending) > 2 * options.workers:

@@ -1,0 +1,233 @@
+"""A synthetic drive with known truth, for tests, the benchmark and the README example.
+
+A vehicle drives at constant speed along a circular arc (a right-hand bend) on a textured
+ground plane: grass, a 7 m road with edge lines and a dashed centre line, and coloured
+discs (markers) at known lon/lat. Its roof-mounted panoramic camera (a lever arm and a
+tilted mount) sees the ground and the car's red roof. The renderer deliberately shares no
+code with the IPM pipeline: it builds the camera rotation with SciPy's Euler angles from
+the documented composition order, follows each pixel's ray to the roof or the ground, and
+places the ground in an azimuthal-equidistant frame (not UTM), so a mistake in the
+pipeline's geometry cannot cancel out against the same mistake here.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import cv2
+import numpy as np
+from pyproj import Transformer
+from scipy.spatial.transform import Rotation
+
+MARKER_RGB = {"red": (225, 25, 25), "blue": (25, 60, 225), "magenta": (215, 30, 215),
+              "yellow": (235, 215, 15)}
+ROOF_RGB = (225, 25, 25)  # the markers' red: an unmasked roof would be seen as markers
+SKY_TOP, SKY_HORIZON = np.array([70, 120, 200.0]), np.array([190, 210, 235.0])
+
+
+@dataclass(frozen=True)
+class Camera:
+    image_size: tuple[int, int] = (1024, 512)
+    position_m: tuple[float, float, float] = (0.1, 0.2, 2.4)
+    pitch_deg: float = 4.0
+    roll_deg: float = -3.0
+    yaw_deg: float = 7.0
+    roof_z_m: float = 1.5
+    roof_xy_m: tuple[float, float, float, float] = (-0.7, -1.2, 0.7, 1.0)
+    """Car roof outline (x0, y0, x1, y1) in the vehicle frame."""
+
+    def vehicle_from_camera(self) -> np.ndarray:
+        """M with d_vehicle = M · d_cam: intrinsic yaw (about z, clockwise), pitch (x), roll
+        (y), as the README documents."""
+        return Rotation.from_euler("ZXY", [-self.yaw_deg, self.pitch_deg, self.roll_deg],
+                                   degrees=True).as_matrix()
+
+    def calibration(self, mask_name: str | None = "mask.png") -> dict:
+        doc = {"image_size": list(self.image_size), "camera_position_m": list(self.position_m),
+               "pitch_deg": self.pitch_deg, "roll_deg": self.roll_deg,
+               "yaw_deg": self.yaw_deg}
+        if mask_name:
+            doc["vehicle_mask"] = mask_name
+        return doc
+
+
+@dataclass(frozen=True)
+class Drive:
+    """The bend: centre (aeqd origin) at lon0/lat0, the vehicle on a circle of ``radius_m``
+    driving clockwise from azimuth ``start_deg`` (seen from the centre)."""
+
+    lon0: float = 17.6
+    lat0: float = 48.15
+    radius_m: float = 40.0
+    start_deg: float = 200.0
+    speed_mps: float = 8.0
+    road_offset_m: float = 1.75
+    """Road centre line this far outside the vehicle's path (it drives in the right lane)."""
+    markers: tuple[tuple[str, float, float], ...] = field(default=(
+        ("red", 6.0, -3.2), ("blue", 9.0, 4.5), ("magenta", 13.0, -4.0),
+        ("yellow", 17.0, 3.5), ("blue", 21.0, -3.0), ("red", 25.0, 4.2),
+        ("yellow", 29.0, -4.5), ("magenta", 33.0, 3.8)))
+    """(colour, distance along the path from the start, metres left (+) of the path)."""
+    marker_radius_m: float = 0.3
+
+    def _aeqd(self) -> str:
+        return f"+proj=aeqd +lat_0={self.lat0} +lon_0={self.lon0} +ellps=WGS84 +units=m"
+
+    def to_lonlat(self, east: np.ndarray, north: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return Transformer.from_crs(self._aeqd(), "EPSG:4326",
+                                    always_xy=True).transform(east, north)
+
+    def to_local(self, lon: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return Transformer.from_crs("EPSG:4326", self._aeqd(),
+                                    always_xy=True).transform(lon, lat)
+
+    def local_pose(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(east, north, heading_deg) after ``s`` metres along the path."""
+        az = np.radians(self.start_deg) + np.asarray(s, float) / self.radius_m
+        east, north = self.radius_m * np.sin(az), self.radius_m * np.cos(az)
+        return east, north, (np.degrees(az) + 90) % 360
+
+    def pose(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(lon, lat, heading_deg) at time ``t`` (s): the truth the pose stream samples."""
+        east, north, heading = self.local_pose(np.asarray(t, float) * self.speed_mps)
+        lon, lat = self.to_lonlat(east, north)
+        return lon, lat, heading
+
+    def marker_points(self) -> list[tuple[str, float, float]]:
+        """(colour, east, north) of every marker."""
+        out = []
+        for colour, s, left in self.markers:
+            east, north, heading = self.local_pose(s)
+            h = math.radians(float(heading))
+            # Left of a vehicle heading h is the direction h - 90°.
+            out.append((colour, float(east - left * math.cos(h)),
+                        float(north + left * math.sin(h))))
+        return out
+
+    def marker_lonlats(self) -> list[tuple[str, float, float]]:
+        return [(c, *map(float, self.to_lonlat(e, n))) for c, e, n in self.marker_points()]
+
+    def texture(self, east: np.ndarray, north: np.ndarray) -> np.ndarray:
+        """Ground colour (..., 3) RGB float32 at local metres."""
+        east, north = np.asarray(east, np.float32), np.asarray(north, np.float32)
+        rgb = np.stack([70 + 22 * np.sin(east / 1.3) * np.cos(north / 1.7),
+                        125 + 30 * np.sin((east + north) / 1.1),
+                        55 + 20 * np.cos(north / 0.9)], axis=-1)
+        r = np.hypot(east, north)
+        centre = self.radius_m + self.road_offset_m
+        road = np.abs(r - centre) <= 3.5
+        asphalt = (108 + 14 * np.sin(east[road] / 0.8) * np.sin(north[road] / 1.0)
+                   + 8 * np.cos((east[road] - north[road]) / 0.6))
+        rgb[road] = np.stack([asphalt, asphalt, asphalt + 5], axis=-1)
+        along = np.arctan2(east, north) * centre
+        lines = ((np.abs(r - (centre - 3.35)) < 0.075) | (np.abs(r - (centre + 3.35)) < 0.075)
+                 | ((np.abs(r - centre) < 0.075) & (np.mod(along, 6.0) < 3.0)))
+        rgb[lines] = 235.0
+        for colour, me, mn in self.marker_points():
+            near = (np.abs(east - me) <= self.marker_radius_m) \
+                & (np.abs(north - mn) <= self.marker_radius_m)
+            disc = near.copy()
+            disc[near] = np.hypot(east[near] - me, north[near] - mn) <= self.marker_radius_m
+            rgb[disc] = MARKER_RGB[colour]
+        return rgb
+
+
+@lru_cache(maxsize=4)
+def _vehicle_rays(camera: Camera, du: float, dv: float) -> np.ndarray:
+    """(H, W, 3) vehicle-frame directions through each pixel at offset (du, dv) in it (the
+    same for every frame of a drive: cached for the supersampling offsets)."""
+    width, height = camera.image_size
+    cols, rows = np.meshgrid(np.arange(width) + du, np.arange(height) + dv)
+    phi = (cols / width - 0.5) * 2 * np.pi
+    theta = rows / height * np.pi
+    d_cam = np.stack([np.sin(theta) * np.sin(phi), np.sin(theta) * np.cos(phi),
+                      np.cos(theta)], axis=-1)
+    rays = (d_cam @ camera.vehicle_from_camera().T).astype(np.float32)
+    rays.flags.writeable = False
+    return rays
+
+
+def _hit(camera: Camera, d: np.ndarray, z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where rays ``d`` from the camera meet the plane at height ``z``: (x, y, going down)."""
+    cam = camera.position_m
+    down = d[..., 2] < -1e-9
+    t = (z - cam[2]) / np.where(down, d[..., 2], -1.0)
+    return cam[0] + t * d[..., 0], cam[1] + t * d[..., 1], down
+
+
+def _on_roof(camera: Camera, d: np.ndarray) -> np.ndarray:
+    x, y, down = _hit(camera, d, camera.roof_z_m)
+    x0, y0, x1, y1 = camera.roof_xy_m
+    return down & (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+
+
+def render_frame(drive: Drive, camera: Camera, t: float, supersample: int = 2) -> np.ndarray:
+    """The panorama (H, W, 3) BGR uint8 the camera takes at time ``t``."""
+    east0, north0, heading = drive.local_pose(t * drive.speed_mps)
+    h = math.radians(float(heading))
+    offsets = (np.arange(supersample) + 0.5) / supersample
+    acc = 0.0
+    for du in offsets:
+        for dv in offsets:
+            d = _vehicle_rays(camera, du, dv)
+            gx, gy, down = _hit(camera, d, 0.0)
+            colour = SKY_HORIZON + (SKY_TOP - SKY_HORIZON) * np.clip(d[..., 2], 0, 1)[..., None]
+            roof = _on_roof(camera, d)
+            ground = down & ~roof
+            # Vehicle (x right, y forward) -> local east/north for heading h (clockwise).
+            gx, gy = gx[ground], gy[ground]
+            colour[ground] = drive.texture(east0 + gx * math.cos(h) + gy * math.sin(h),
+                                           north0 - gx * math.sin(h) + gy * math.cos(h))
+            colour[roof] = ROOF_RGB
+            acc = acc + colour
+    rgb = acc / supersample**2
+    return np.clip(rgb[..., ::-1] + 0.5, 0, 255).astype(np.uint8)
+
+
+def roof_mask(camera: Camera) -> np.ndarray:
+    """(H, W) uint8, 255 where any part of the pixel (corners, edges, centre) sees the roof."""
+    width, height = camera.image_size
+    mask = np.zeros((height, width), bool)
+    for du in (0.0, 0.5, 1.0):
+        for dv in (0.0, 0.5, 1.0):
+            mask |= _on_roof(camera, _vehicle_rays(camera, du, dv))
+    return np.where(mask, 255, 0).astype(np.uint8)
+
+
+def frame_times(count: int, frame_hz: float = 7.0, start_s: float = 0.513) -> np.ndarray:
+    """Frame times that fall between pose samples (pose clock)."""
+    return start_s + np.arange(count) / frame_hz
+
+
+def write_drive(folder: Path, drive: Drive, camera: Camera, times: np.ndarray,
+                pose_hz: float = 20.0, supersample: int = 2) -> dict[str, Path]:
+    """Frames (JPEG) + frames.csv, poses.csv (``pose_hz`` samples spanning the frames, with
+    an extra ``alt`` column) and calib.json + mask.png in ``folder``."""
+    frames = folder / "frames"
+    frames.mkdir(parents=True, exist_ok=True)
+    with open(frames / "frames.csv", "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(["t", "file"])
+        for i, t in enumerate(times):
+            name = f"frame_{i:05d}.jpg"
+            cv2.imwrite(str(frames / name), render_frame(drive, camera, float(t), supersample),
+                        [cv2.IMWRITE_JPEG_QUALITY, 95])
+            out.writerow([f"{t:.6f}", name])
+    pose_t = np.arange(0.0, float(times[-1]) + 1.0, 1.0 / pose_hz)
+    lon, lat, heading = drive.pose(pose_t)
+    poses = folder / "poses.csv"
+    with open(poses, "w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(["t", "lon", "lat", "heading_deg", "alt"])
+        for row in zip(pose_t, lon, lat, heading, strict=True):
+            out.writerow([f"{row[0]:.4f}", f"{row[1]:.9f}", f"{row[2]:.9f}", f"{row[3]:.5f}",
+                          "212.0"])
+    cv2.imwrite(str(folder / "mask.png"), roof_mask(camera))
+    calib = folder / "calib.json"
+    calib.write_text(json.dumps(camera.calibration(), indent=1))
+    return {"frames": frames, "poses": poses, "calib": calib, "mask": folder / "mask.png"}

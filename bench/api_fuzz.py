@@ -48,9 +48,11 @@ enabled = false
 [checks.positive_data_acceptance]
 enabled = {positive}
 
-# A missing If-Match is 428 Precondition Required (RFC 6585), which is what the code is for.
+# A missing If-Match is 428 Precondition Required (RFC 6585), which is what the code is for;
+# an unknown or read-only target (404, 405: a nodes collection) is said first, since RFC 9110
+# evaluates preconditions only for a request that could otherwise succeed.
 [checks.missing_required_header]
-expected-statuses = [400, 401, 403, 406, 415, 422, 428]
+expected-statuses = [400, 401, 403, 404, 405, 406, 415, 422, 428]
 
 # RFC 9110 evaluates If-Match before the body is processed: a stale or garbled ETag is 412
 # whatever the body holds.

@@ -134,8 +134,10 @@ def test_round_trip_into_a_new_database_and_store(source, database_url: str,
                     assert r.status_code == 200 and r.content == body, url
                 for url, body in source["bodies"].items():
                     got = httpx.get(base + url).json()
-                    assert json.loads(json.dumps(got).replace(base, "http://testserver")) \
-                        == body, url
+                    got = json.loads(json.dumps(got).replace(base, "http://testserver"))
+                    # An items page says when it was answered (OGC timeStamp): not data.
+                    got.pop("timeStamp", None)
+                    assert got == {k: v for k, v in body.items() if k != "timeStamp"}, url
         finally:
             away.rename(old)
         # A second restore into the now populated database is refused, and changes nothing.

@@ -136,10 +136,11 @@ def bent(database_url: str) -> tuple[str, int]:
 
 def _features(name: str) -> list[dict]:
     from app.network import collections as colls
+    from app.network.collections import ItemQuery
 
     with session_scope() as s:
         c = colls.resolve(s, f"{name}-segments")
-        return colls.query_items(s, c, bbox=None, limit=100, offset=0)[1]
+        return colls.query_items(s, c, ItemQuery(), limit=100, offset=0)[1]
 
 
 def _split(client, name: str, fid: int, body: str):

@@ -24,7 +24,8 @@ from app.tiles.versioned import versioned
 router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)],
                    responses=errors.responses(*READ_ERRORS))
 NO_CACHE = {"Cache-Control": "no-cache"}  # they name the network's version, which edits bump
-NOT_FOUND = errors.responses(errors.NotFoundError)
+# A network name that is not a valid slug is 400, an unknown one 404.
+NOT_FOUND = errors.responses(errors.NotFoundError, errors.InvalidParameterValueError)
 NETWORKS_SQL = """
 SELECT n.id, n.name, n.title, n.description, n.version, n.updated_at,
        (SELECT count(*) FROM road_segments s WHERE s.network_id = n.id) AS segments,

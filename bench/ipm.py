@@ -147,6 +147,7 @@ CONFIGS: dict[str, dict] = {
 
 
 def child(config: str, folder: Path, frames: int) -> dict:
+    """Run one configuration in this (child) process, so its peak RSS is its own."""
     kwargs = CONFIGS[config]
     if "naive" in kwargs:
         return run_sequential(folder, **kwargs)
@@ -154,6 +155,8 @@ def child(config: str, folder: Path, frames: int) -> dict:
 
 
 def throughput(frames: int, repeat: int) -> None:
+    """Print frames/s, buffers and peak RSS of every configuration against the goal and the
+    naive baseline, each the fastest of ``repeat`` rounds."""
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         start = time.perf_counter()
@@ -230,6 +233,8 @@ def truth_scores(zone_dir: Path, drive: Drive) -> tuple[float, float, float]:
 
 
 def blend_quality() -> None:
+    """Print how close each blend mode's mosaic is to the known ground, with exact and with
+    noisy poses: the measurement behind the default ``nearest``."""
     from app.db.scratch import scratch_database
     from ingest.ipm.job import IpmOptions, ingest_ipm
 
@@ -267,6 +272,7 @@ def blend_quality() -> None:
 
 
 def main() -> None:
+    """Command line entry point (see the module docstring); ``--child`` is the subprocess."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=420, help="frames in the drive")
     parser.add_argument("--repeat", type=int, default=2,

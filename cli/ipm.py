@@ -7,11 +7,13 @@ Registered on the ``ingest`` group of ``cli.main``. Heavy imports happen inside 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import click
 
-from app.errors import UserError
+T = TypeVar("T")
 
 
 def _slice(ctx: click.Context, param: click.Parameter, value: str | None) -> slice:
@@ -30,8 +32,11 @@ def _slice(ctx: click.Context, param: click.Parameter, value: str | None) -> sli
     return slice(start, stop)
 
 
-def _pair(kind: type, sep: str):
-    def parse(ctx: click.Context, param: click.Parameter, value: str | None):
+def _pair(kind: Callable[[str], T], sep: str
+          ) -> Callable[[click.Context, click.Parameter, str | None], tuple[T, T] | None]:
+    """A click callback parsing "a<sep>b" into two ``kind`` values (None stays None)."""
+    def parse(ctx: click.Context, param: click.Parameter, value: str | None
+              ) -> tuple[T, T] | None:
         if value is None:
             return None
         try:

@@ -33,6 +33,9 @@ ANGLE_KEYS = ("pitch_deg", "roll_deg", "yaw_deg")
 
 @dataclass(frozen=True)
 class Calibration:
+    """A validated calibration: everything the ground -> pixel mapping needs, fixed for the
+    whole drive (which is what lets :mod:`ingest.ipm.lookup` compute it once)."""
+
     image_size: tuple[int, int]
     camera_position_m: np.ndarray
     rotation: np.ndarray
@@ -75,7 +78,7 @@ def rotation_from_angles(pitch_deg: float = 0.0, roll_deg: float = 0.0,
 def _numbers(doc: dict, key: str, count: int, source: Path) -> list[float]:
     value = doc.get(key)
     try:
-        numbers = [float(v) for v in value]
+        numbers = [] if value is None else [float(v) for v in value]
     except (TypeError, ValueError):
         numbers = []
     if len(numbers) != count or not all(map(math.isfinite, numbers)):

@@ -35,6 +35,10 @@ class FrameError(Exception):
 
 @dataclass(frozen=True)
 class FrameRef:
+    """One selected frame; ``load`` gives its pixels and is called in a worker thread (for a
+    frames directory that is where the file is read and decoded), so a bad frame costs only
+    itself and only the frames in flight are in memory."""
+
     t: float
     """Seconds on the pose clock; NaN when unknown."""
     name: str
@@ -105,6 +109,8 @@ class FrameSet:
 
 
 def directory_frames(folder: Path, selection: slice, need_times: bool) -> FrameSet:
+    """The frames listed in ``folder/frames.csv``; the listing is read and its times checked
+    now, the images only when loaded."""
     listing = folder / "frames.csv"
     if not listing.is_file():
         raise IpmInputError(f"{folder}: no frames.csv (header t,file) in the frames directory")
@@ -117,6 +123,8 @@ def directory_frames(folder: Path, selection: slice, need_times: bool) -> FrameS
 
 
 def video_frames(video: Path, times_file: Path | None, selection: slice) -> FrameSet:
+    """The frames of ``video``, decoded in one sequential pass when iterated (videos cannot
+    be read out of order cheaply); frames the video lacks load as :class:`FrameError`."""
     capture = cv2.VideoCapture(str(video))
     if not capture.isOpened():
         raise IpmInputError(f"{video}: not a video OpenCV can read")

@@ -18,8 +18,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
+from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 from pyproj import Proj, Transformer
 
 from ingest.ipm import IpmInputError
@@ -39,6 +41,9 @@ class GridPose:
 
 @dataclass(frozen=True)
 class ZoneGrid:
+    """The zone scheme a drive is stitched into; the same fields as a zone sidecar, so every
+    zone mosaic it writes lines up with the survey's other zones."""
+
     origin_lon: float
     origin_lat: float
     resolution_m: float = 0.06
@@ -61,6 +66,9 @@ class ZoneGrid:
         return cls(west, top, resolution_m, zone_size_px, overlap_px)
 
     def sidecar(self, row: int, col: int) -> ZoneSidecar:
+        """Zone (row, col) as the raster ingest will read it back: the stitcher takes its CRS
+        and transform from here, so the zone mosaics and the ingest cannot disagree on
+        georeference."""
         return ZoneSidecar(row=row, col=col, origin_lat=self.origin_lat,
                            origin_lon=self.origin_lon, resolution_m=self.resolution_m,
                            zone_width_px=self.zone_size_px[0],
@@ -68,13 +76,17 @@ class ZoneGrid:
                            overlap_x_px=self.overlap_px[0], overlap_y_px=self.overlap_px[1])
 
     def check(self) -> None:
+        """Refuse an implausible grid (origin, resolution, sizes) as :class:`IpmInputError`
+        before any frame is read, by the raster ingest's own sidecar rules."""
         try:
-            self.sidecar(0, 0).check("the zone grid")
+            # The sidecar names its file in the message; the grid has none yet, only a label.
+            self.sidecar(0, 0).check(Path("the zone grid"))
         except GeorefError as exc:
             raise IpmInputError(str(exc)) from exc
 
     @property
     def step_px(self) -> tuple[int, int]:
+        """(x, y) pixels from one zone's origin to the next: the zone size less the overlap."""
         return (self.zone_size_px[0] - self.overlap_px[0],
                 self.zone_size_px[1] - self.overlap_px[1])
 
@@ -86,8 +98,8 @@ class ZoneGrid:
         return (Transformer.from_crs("EPSG:4326", crs, always_xy=True), Proj(crs),
                 transform.c, transform.f)
 
-    def to_grid(self, lon: np.ndarray, lat: np.ndarray,
-                heading_deg: np.ndarray) -> list[GridPose]:
+    def to_grid(self, lon: npt.ArrayLike, lat: npt.ArrayLike,
+                heading_deg: npt.ArrayLike) -> list[GridPose]:
         """Grid poses of lon/lat/heading (degrees, heading clockwise from true north)."""
         to_crs, proj, west, north = self._frame
         east, northing = to_crs.transform(np.asarray(lon, float), np.asarray(lat, float))

@@ -56,6 +56,10 @@ PoseLookup = Callable[[PoseTrack, np.ndarray, float], list[Pose | str]]
 
 @dataclass(frozen=True)
 class IpmOptions:
+    """Everything ``ugvmap ingest ipm`` lets the user choose, with the CLI's defaults, so the
+    API, the CLI and the benchmark run the same job; checked by :func:`ingest_ipm` before
+    anything is read."""
+
     resolution_m: float = 0.06
     window_m: float = 30.0
     range_m: float | None = None
@@ -75,6 +79,9 @@ class IpmOptions:
 
 @dataclass
 class IpmSummary:
+    """What a finished ingest did, for the CLI's report and the benchmark: how many frames
+    were used or skipped (and why), what was covered and written, memory and time."""
+
     layer: str
     version: int
     frames: int
@@ -92,6 +99,8 @@ class IpmSummary:
     total_seconds: float
 
     def lines(self) -> list[str]:
+        """The report the CLI prints: skip reasons with one example each, so a user sees why
+        frames were dropped without reading a log."""
         skipped = sum(self.skipped.values())
         why = ", ".join(f"{n} {reason}" for reason, n in self.skipped.most_common())
         out = [f"frames: {self.used} used, {skipped} skipped" + (f" ({why})" if why else "")
@@ -199,6 +208,8 @@ class DriveResult:
     """Times of the frames, for the "no pose" hint."""
 
     def no_frame_used(self, track: PoseTrack | None) -> str:
+        """The one-line error when every frame was skipped; when frames fell outside the pose
+        stream it shows both time ranges, since different clocks are the usual cause."""
         why = ", ".join(f"{n} {reason}" for reason, n in self.skipped.most_common())
         times = [t for t in self.times if np.isfinite(t)]
         hint = ""

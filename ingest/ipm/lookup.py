@@ -50,6 +50,9 @@ class GroundWindow:
 
 @dataclass(frozen=True)
 class IpmLookup:
+    """The drive's whole inverse perspective mapping, computed once: per ground cell, the
+    panorama pixel to sample and whether the cell is usable."""
+
     window: GroundWindow
     map1: np.ndarray
     map2: np.ndarray

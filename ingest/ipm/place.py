@@ -33,6 +33,7 @@ class PlacedPatch:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """(h, w) in grid pixels: with (col0, row0), the box of the grid the patch touches."""
         return self.valid.shape
 
 

@@ -25,6 +25,9 @@ NO_TIME, NO_POSE, POSE_GAP = "no frame time", "outside the pose stream", "in a p
 
 @dataclass(frozen=True)
 class Pose:
+    """Where one frame was taken: ``t`` on the frame clock, WGS84 degrees, heading clockwise
+    from *true* north (the grid turns it to grid north per pose)."""
+
     t: float
     lon: float
     lat: float
@@ -33,6 +36,9 @@ class Pose:
 
 @dataclass(frozen=True)
 class PoseTrack:
+    """The validated stream as parallel arrays (``t`` strictly increasing), ready for
+    vectorised interpolation."""
+
     t: np.ndarray
     lon: np.ndarray
     lat: np.ndarray
@@ -48,7 +54,7 @@ def read_poses(path: Path) -> PoseTrack:
             if missing:
                 raise IpmInputError(f"{path}: missing column(s) {', '.join(missing)} "
                                     f"(header must include {','.join(COLUMNS)})")
-            rows = []
+            rows: list[list[float]] = []
             for row in reader:
                 try:
                     values = [float(row[c]) for c in COLUMNS]

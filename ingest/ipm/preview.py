@@ -29,6 +29,7 @@ def topdown(pano: np.ndarray, calib: Calibration, window_m: float, resolution_m:
 
 
 def main() -> None:
+    """Command line entry point (see the module docstring)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("pano", type=Path)
     parser.add_argument("--calib", type=Path, required=True)

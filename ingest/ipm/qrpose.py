@@ -20,6 +20,7 @@ CORNERS = ("top-left", "top-right", "bottom-left", "bottom-right")
 
 
 def encode_pose(pose: Pose) -> str:
+    """The payload :func:`stamp_pose` burns into a frame and :func:`decode_pose` reads."""
     return (f"{PREFIX},{round(pose.t * 1000)},{round(pose.lon * 1e7)},"
             f"{round(pose.lat * 1e7)},{round(pose.heading_deg * 100) % 36000}")
 

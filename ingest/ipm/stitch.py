@@ -58,10 +58,13 @@ class Chunk:
 
     @property
     def nbytes(self) -> int:
+        """Memory held by the chunk's buffers, for the stitcher's peak-memory figure."""
         return sum(a.nbytes for a in vars(self).values() if isinstance(a, np.ndarray))
 
     def add(self, rows: slice, cols: slice, colour: np.ndarray, valid: np.ndarray,
             dist2: np.ndarray, metre_px2: float) -> None:
+        """Blend one patch's pixels into ``[rows, cols]`` of the chunk by the blend mode;
+        ``metre_px2`` (1 m² in grid pixels²) keeps the weighted mode finite under the camera."""
         if self.blend == "nearest":
             better = valid & (dist2 < self.score[rows, cols])
             np.copyto(self.colour[rows, cols], colour, where=better[..., None])
@@ -86,6 +89,9 @@ class Chunk:
 
 @dataclass
 class OpenZone:
+    """A zone being stitched: only its touched chunks exist; ``pass_no`` > 1 when the drive
+    came back to a zone already written (each pass is its own file)."""
+
     row: int
     col: int
     pass_no: int
@@ -94,6 +100,8 @@ class OpenZone:
 
 @dataclass
 class StitchStats:
+    """Counters for the job's summary and the benchmark, kept as zones are written."""
+
     zones_written: int = 0
     zones_dropped: int = 0
     covered_px: int = 0
@@ -118,6 +126,8 @@ class ZoneStitcher:
         self._metre_px2 = (1.0 / grid.resolution_m) ** 2
 
     def add(self, patch: PlacedPatch) -> None:
+        """Blend ``patch`` into every zone it touches (overlapping zones each get their copy),
+        opening zones and chunks as needed."""
         h, w = patch.shape
         box = (patch.col0, patch.row0, patch.col0 + w, patch.row0 + h)
         for key in self.grid.zones_meeting(*box):
@@ -167,6 +177,7 @@ class ZoneStitcher:
                 self._finish(self.open.pop(key))
 
     def close_all(self) -> None:
+        """Write every zone still open: the end of the drive."""
         for key in list(self.open):
             self._finish(self.open.pop(key))
 

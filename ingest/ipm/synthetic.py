@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
+from typing import TypeVar, overload
 
 import cv2
 import numpy as np
@@ -28,10 +29,15 @@ MARKER_RGB = {"red": (225, 25, 25), "blue": (25, 60, 225), "magenta": (215, 30, 
               "yellow": (235, 215, 15)}
 ROOF_RGB = (225, 25, 25)  # the markers' red: an unmasked roof would be seen as markers
 SKY_TOP, SKY_HORIZON = np.array([70, 120, 200.0]), np.array([190, 210, 235.0])
+#: Local metres or degrees: one point (float) or many (array), returned in the same form.
+Coord = TypeVar("Coord", float, np.ndarray)
 
 
 @dataclass(frozen=True)
 class Camera:
+    """The truth the calibration file describes: a panorama camera on a lever arm above a
+    car roof, mounted with a deliberate tilt so that every angle of the contract matters."""
+
     image_size: tuple[int, int] = (1024, 512)
     position_m: tuple[float, float, float] = (0.1, 0.2, 2.4)
     pitch_deg: float = 4.0
@@ -48,6 +54,9 @@ class Camera:
                                    degrees=True).as_matrix()
 
     def calibration(self, mask_name: str | None = "mask.png") -> dict:
+        """The calibration JSON document of this camera, in the angle form (pitch/roll/yaw)
+        rather than a matrix, so the pipeline's own angle composition is under test; no
+        ``vehicle_mask`` when ``mask_name`` is falsy."""
         doc = {"image_size": list(self.image_size), "camera_position_m": list(self.position_m),
                "pitch_deg": self.pitch_deg, "roll_deg": self.roll_deg,
                "yaw_deg": self.yaw_deg}
@@ -78,15 +87,24 @@ class Drive:
     def _aeqd(self) -> str:
         return f"+proj=aeqd +lat_0={self.lat0} +lon_0={self.lon0} +ellps=WGS84 +units=m"
 
-    def to_lonlat(self, east: np.ndarray, north: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def to_lonlat(self, east: Coord, north: Coord) -> tuple[Coord, Coord]:
+        """Local metres (the renderer's aeqd frame, deliberately not the pipeline's UTM) ->
+        WGS84 lon/lat."""
         return Transformer.from_crs(self._aeqd(), "EPSG:4326",
                                     always_xy=True).transform(east, north)
 
-    def to_local(self, lon: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def to_local(self, lon: Coord, lat: Coord) -> tuple[Coord, Coord]:
+        """WGS84 lon/lat -> local aeqd metres, where :meth:`texture` is defined."""
         return Transformer.from_crs("EPSG:4326", self._aeqd(),
                                     always_xy=True).transform(lon, lat)
 
-    def local_pose(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    @overload
+    def local_pose(self, s: float) -> tuple[float, float, float]: ...
+
+    @overload
+    def local_pose(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+    def local_pose(self, s: float | np.ndarray) -> tuple[float | np.ndarray, ...]:
         """(east, north, heading_deg) after ``s`` metres along the path."""
         az = np.radians(self.start_deg) + np.asarray(s, float) / self.radius_m
         east, north = self.radius_m * np.sin(az), self.radius_m * np.cos(az)
@@ -110,7 +128,12 @@ class Drive:
         return out
 
     def marker_lonlats(self) -> list[tuple[str, float, float]]:
-        return [(c, *map(float, self.to_lonlat(e, n))) for c, e, n in self.marker_points()]
+        """(colour, lon, lat) of every marker: where a test expects to find them on the map."""
+        out = []
+        for colour, east, north in self.marker_points():
+            lon, lat = self.to_lonlat(east, north)
+            out.append((colour, float(lon), float(lat)))
+        return out
 
     def texture(self, east: np.ndarray, north: np.ndarray) -> np.ndarray:
         """Ground colour (..., 3) RGB float32 at local metres."""
@@ -171,7 +194,7 @@ def render_frame(drive: Drive, camera: Camera, t: float, supersample: int = 2) -
     east0, north0, heading = drive.local_pose(t * drive.speed_mps)
     h = math.radians(float(heading))
     offsets = (np.arange(supersample) + 0.5) / supersample
-    acc = 0.0
+    acc = np.zeros((camera.image_size[1], camera.image_size[0], 3))
     for du in offsets:
         for dv in offsets:
             d = _vehicle_rays(camera, du, dv)

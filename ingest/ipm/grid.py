@@ -80,7 +80,7 @@ class ZoneGrid:
         before any frame is read, by the raster ingest's own sidecar rules."""
         try:
             # The sidecar names its file in the message; the grid has none yet, only a label.
-            self.sidecar(0, 0).check(Path("the zone grid"))
+            self.sidecar(0, 0).check("the zone grid")
         except GeorefError as exc:
             raise IpmInputError(str(exc)) from exc
 

@@ -127,9 +127,9 @@ class ZoneSidecar:
         sidecar.check(path)
         return sidecar
 
-    def check(self, path: Path) -> None:
-        """Refuse implausible values (origin, resolution, sizes, frame) before anything is written.
-        """
+    def check(self, where: Path | str) -> None:
+        """Refuse implausible values (origin, resolution, sizes, frame) before anything is written;
+        ``where`` (the sidecar file, or what the values came from) starts the message."""
         problems = []
         if not (-84 <= self.origin_lat <= 84 and -180 <= self.origin_lon <= 180):
             problems.append("origin outside the UTM latitude band / longitude range")
@@ -143,7 +143,7 @@ class ZoneSidecar:
         if self.frame not in ("utm", "enu"):
             problems.append(f"frame must be 'utm' or 'enu', not {self.frame!r}")
         if problems:
-            raise GeorefError(f"{path}: " + "; ".join(problems))
+            raise GeorefError(f"{where}: " + "; ".join(problems))
 
     def crs(self) -> CRS:
         """The metric frame the zone image is north-up in: the origin's UTM zone, or a local tangent

@@ -37,5 +37,5 @@ def route(client, name: str, points: list[tuple[float, float]], **params) -> dic
 
 
 def segment_walk(body: dict) -> list[int]:
-    """Segment ids driven, in order (from each leg's annotation)."""
-    return [sid for leg in body["routes"][0]["legs"] for sid in leg["annotation"]["segment_ids"]]
+    """Segment ids driven, in order (from each leg's ``segments``)."""
+    return [s["id"] for leg in body["routes"][0]["legs"] for s in leg["segments"]]

@@ -145,10 +145,10 @@ def candidates(conn: Connection, network: str, points: Sequence[tuple[float, flo
 
 def _directions(graph: RoadGraph, row: int, c: Candidate, point: tuple[float, float],
                 opts: PointOptions) -> tuple[bool, bool]:
-    """(forward, backward) allowed at the candidate by one-way rules, bearing and approach."""
+    """(forward, backward): the directions along the candidate the point's bearing and approach
+    allow (one-way rules are the engine's, applied with them)."""
     assert c.fraction is not None
-    way = int(graph.segs.oneway[row])
-    forward, backward = way >= 0, way <= 0
+    forward = backward = True
     if opts.bearing is None and opts.approach == "unrestricted":
         return forward, backward
     coords, fracs = graph.line(row)
@@ -182,7 +182,8 @@ def choose(graph: RoadGraph, near: Sequence[Candidate], i: int, point: tuple[flo
         if row is None:  # committed after the version we route on
             continue
         forward, backward = _directions(graph, row, c, point, opts)
-        if forward or backward:
+        way = int(graph.segs.oneway[row])
+        if (forward and way >= 0) or (backward and way <= 0):
             return Snap(i, point, c.segment_id, float(c.fraction), float(c.distance_m),
                         forward, backward)
     return None

@@ -8,6 +8,7 @@ import json
 import shutil
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import httpx
 import psycopg
@@ -23,8 +24,9 @@ NODE = shutil.which("node")
 pytestmark = pytest.mark.skipif(NODE is None, reason="node not on PATH: run scripts/setup.sh")
 
 
-def node(script: str, *args: str, stdin: str = "") -> object:
-    assert (CLIENTS / "node_modules").is_dir(), "run scripts/setup.sh (npm ci in tests/osrm_clients)"
+def node(script: str, *args: str, stdin: str = "") -> Any:
+    """Run a client script in node; its stdout is JSON."""
+    assert (CLIENTS / "node_modules").is_dir(), "run scripts/setup.sh (npm ci there)"
     done = subprocess.run([NODE or "node", str(CLIENTS / script), *args], input=stdin,
                           capture_output=True, text=True, timeout=60, check=False)
     assert done.returncode == 0, done.stderr

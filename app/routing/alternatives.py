@@ -9,6 +9,10 @@ road with a detour at one junction). The penalised searches are plain bounded Di
 re-weighted copy of the cost graph (the hierarchy holds only true costs), so each alternative
 costs a few searches; they are offered for two-point routes, as OSRM does.
 
+Known limit: the cost graph keeps one arc per pair of junctions (the cheapest), so two roads
+that join the same two junctions directly, with no node between, are never alternatives to
+each other.
+
 Why this rather than the plateau method: the plateau method needs a full forward and
 backward search tree per request, which the hierarchy does not give; the penalty method
 reuses the engine's searches unchanged and produces the same kind of answers on road

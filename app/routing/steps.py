@@ -122,7 +122,7 @@ def _exits_passed(ctx: StepContext, runs: list[Run]) -> int:
         for road in ctx.junctions.roads(node):
             seg = int(ctx.graph.segs.ids[road.row])
             if not ctx.tags.get(seg, RoadTags()).roundabout and \
-                    ctx.junctions.enterable(road, ctx.avoid):
+                    ctx.junctions.enterable(ctx.graph, road, ctx.avoid):
                 count += 1
                 break
     return count
@@ -130,7 +130,8 @@ def _exits_passed(ctx: StepContext, runs: list[Run]) -> int:
 
 def _intersection(ctx: StepContext, prev: Run, run: Run) -> dict[str, Any]:
     node = ctx.node_after(prev)
-    return ctx.junctions.intersection(node, run.coords[0], (prev.piece.row, prev.forward),
+    return ctx.junctions.intersection(ctx.graph, node, run.coords[0],
+                                      (prev.piece.row, prev.forward),
                                       (run.piece.row, not run.forward), ctx.avoid)
 
 

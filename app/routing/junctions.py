@@ -28,7 +28,7 @@ class Road:
 
     row: int
     at_target: bool
-    bearing: float
+    bearing: int  # degrees, rounded as OSRM sends them
 
 
 class Junctions:
@@ -44,6 +44,10 @@ class Junctions:
         self.offsets = np.concatenate(
             [[0], np.cumsum(np.bincount(ends, minlength=len(shape.node_ids)))])
 
+    def degree(self, node: int) -> int:
+        """How many segment ends meet at ``node``."""
+        return int(self.offsets[node + 1] - self.offsets[node])
+
     def roads(self, node: int) -> list[Road]:
         """The roads at ``node`` (a graph node index), clockwise from north."""
         lo, hi = int(self.offsets[node]), int(self.offsets[node + 1])
@@ -51,10 +55,10 @@ class Junctions:
         out = []
         for k in range(lo, hi):
             row, at_target = int(self.row[k]), bool(self.at_target[k])
-            away = ((float(s.bearing_end[row]) + 180.0) % 360.0 if at_target
+            away = ((float(s.bearing_end[row]) + 180.0) if at_target
                     else float(s.bearing_start[row]))
-            out.append(Road(row, at_target, away))
-        return sorted(out, key=lambda r: (round(r.bearing) % 360, r.row, r.at_target))
+            out.append(Road(row, at_target, round(away) % 360))
+        return sorted(out, key=lambda r: (r.bearing, r.row, r.at_target))
 
     @staticmethod
     def enterable(graph: RoadGraph, road: Road, avoid: frozenset[str]) -> bool:
@@ -74,7 +78,7 @@ class Junctions:
         keys = [(r.row, r.at_target) for r in roads]
         out: dict[str, Any] = {
             "location": location,
-            "bearings": [round(r.bearing) % 360 for r in roads],
+            "bearings": [r.bearing for r in roads],
             "entry": [self.enterable(graph, r, avoid) for r in roads],
         }
         if came is not None and came in keys:

@@ -81,8 +81,9 @@ class Shaper:
         distance: list[float] = []
         duration: list[float] = []
         for run in t.runs:
-            distance.extend(run.pair_m.tolist())
-            duration.extend((run.pair_m / run.speed_ms).tolist())
+            pair_m = run.pair_m
+            distance.extend(pair_m.tolist())
+            duration.extend((pair_m / run.speed_ms).tolist())
         if not t.runs:
             distance, duration = [0.0], [0.0]
         out: dict[str, Any] = {}

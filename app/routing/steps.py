@@ -60,6 +60,9 @@ class RoadTags:
     roundabout: bool = False
 
 
+NO_TAGS = RoadTags()
+
+
 @dataclass
 class StepContext:
     """What shaping a leg's steps needs besides the leg."""
@@ -74,7 +77,7 @@ class StepContext:
 
     def tags_of(self, run: Run) -> RoadTags:
         """The run's guidance tags (none when the segment has none)."""
-        return self.tags.get(run.segment_id, RoadTags())
+        return self.tags.get(run.segment_id, NO_TAGS)
 
     def attrs(self, run: Run) -> dict[str, Any]:
         """Per-step attributes of a run: a new step starts where any of them changes."""
@@ -121,7 +124,7 @@ def _exits_passed(ctx: StepContext, runs: list[Run]) -> int:
         node = ctx.node_after(prev)
         for road in ctx.junctions.roads(node):
             seg = int(ctx.graph.segs.ids[road.row])
-            if not ctx.tags.get(seg, RoadTags()).roundabout and \
+            if not ctx.tags.get(seg, NO_TAGS).roundabout and \
                     ctx.junctions.enterable(ctx.graph, road, ctx.avoid):
                 count += 1
                 break
@@ -149,14 +152,16 @@ def _group(ctx: StepContext, t: Trace) -> list[_Step]:
             continue
         step = steps[-1]
         turn = modifier(prev.b_in, run.b_out)
-        inter = _intersection(ctx, prev, run)
         on_roundabout = step.kind == "roundabout" and tags.roundabout
         if on_roundabout or (turn == "straight" and attrs == step.attrs
                              and step.kind != "roundabout"):
             step.runs.append(run)
-            if len(inter["bearings"]) >= 3:
-                step.intersections.append(inter)
-        elif tags.roundabout and not ctx.tags_of(prev).roundabout:
+            if ctx.junctions.degree(ctx.node_after(prev)) >= 3:
+                step.intersections.append(_intersection(ctx, prev, run))
+            prev = run
+            continue
+        inter = _intersection(ctx, prev, run)
+        if tags.roundabout and not ctx.tags_of(prev).roundabout:
             steps.append(_Step("roundabout", turn, run.coords[0], prev.b_in, run.b_out, attrs,
                                [run], [inter]))
         else:

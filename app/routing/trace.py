@@ -31,25 +31,22 @@ class Run:
     segment_id: int
     coords: list[list[float]]
     fracs: np.ndarray  # fraction along the segment of each coordinate
-    pair_m: np.ndarray  # metres of each consecutive coordinate pair
+    length_m: float  # of the whole segment
     speed_ms: float
     b_out: float  # bearing leaving the first coordinate
     b_in: float  # bearing reaching the last
+    distance: float  # metres driven
+    duration: float  # seconds at the segment's effective speed
+
+    @property
+    def pair_m(self) -> np.ndarray:
+        """Metres of each consecutive coordinate pair (fractions are metric)."""
+        return np.abs(np.diff(self.fracs)) * self.length_m
 
     @property
     def forward(self) -> bool:
         """Driven along the segment's geometry."""
         return self.piece.f_to >= self.piece.f_from
-
-    @property
-    def distance(self) -> float:
-        """Metres driven."""
-        return float(self.pair_m.sum())
-
-    @property
-    def duration(self) -> float:
-        """Seconds at the segment's effective speed."""
-        return self.distance / self.speed_ms
 
     def weight(self, cost: Cost) -> float:
         """What the route minimises over this run."""
@@ -84,7 +81,7 @@ def run_of(graph: RoadGraph, p: Piece) -> Run:
     """The run of one piece: coordinates cut at its fractions, bearings at its ends."""
     line, line_fracs = graph.line(p.row)
     coords, fracs = cut_with_fractions(line, line_fracs, p.f_from, p.f_to)
-    pair_m = np.abs(np.diff(fracs)) * float(graph.segs.length_m[p.row])
+    length = float(graph.segs.length_m[p.row])
     if (p.f_from, p.f_to) == (0.0, 1.0):  # whole segments: bearings precomputed per graph
         b_out, b_in = float(graph.bearing_start[p.row]), float(graph.bearing_end[p.row])
     elif (p.f_from, p.f_to) == (1.0, 0.0):
@@ -92,8 +89,10 @@ def run_of(graph: RoadGraph, p: Piece) -> Run:
         b_in = (float(graph.bearing_start[p.row]) + 180.0) % 360.0
     else:
         b_out, b_in = bearing(coords[0], coords[1]), bearing(coords[-2], coords[-1])
-    return Run(p, int(graph.segs.ids[p.row]), coords, fracs, pair_m,
-               float(graph.speed_kph[p.row]) / 3.6, b_out, b_in)
+    speed_ms = float(graph.speed_kph[p.row]) / 3.6
+    distance = abs(p.f_to - p.f_from) * length
+    return Run(p, int(graph.segs.ids[p.row]), coords, fracs, length, speed_ms, b_out, b_in,
+               distance, distance / speed_ms)
 
 
 def trace(graph: RoadGraph, leg: Leg) -> Trace:

@@ -26,15 +26,19 @@ from app.routing.planner import plan_route, read_connection
               show_default=True)
 @click.option("--format", "fmt", type=click.Choice([*FORMATS, "summary"]), default="summary",
               show_default=True, help="summary: one line per leg")
-@click.option("--spacing", default="1", show_default=True,
-              help="metres between points for --format waypoints")
+@click.option("--spacing", default=None,
+              help="metres between points for --format waypoints (default 1)")
 @click.option("--radius", default=None, help="snap radius in metres")
 def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geometries: str,
-          fmt: str, spacing: str, radius: str | None) -> None:
+          fmt: str, spacing: str | None, radius: str | None) -> None:
     """Plan a route on NETWORK through the given points."""
-    raw = {"cost": cost, "avoid": avoid, "optimize": "true" if optimize else "false",
-           "geometries": geometries, "format": "waypoints" if fmt == "waypoints" else "osrm",
-           "spacing": spacing, **({"radius": radius} if radius is not None else {})}
+    raw = {"cost": cost, "avoid": avoid, "optimize": "true" if optimize else "false"}
+    if fmt == "waypoints":
+        raw.update(format="waypoints", **({"spacing": spacing} if spacing is not None else {}))
+    else:
+        raw.update(geometries=geometries)
+    if radius is not None:
+        raw["radius"] = radius
     pts = parse_points(points)  # option errors (ApiError): one line from cli.main
     opts = parse(raw, "ugvmap", len(pts))
     with read_connection() as conn:

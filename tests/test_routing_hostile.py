@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import psycopg
 import pytest
 
@@ -16,8 +18,9 @@ BIG = 50 * 1024 * 1024
 
 
 @pytest.fixture(scope="module")
-def net(database_url: str) -> dict:
-    """A 2 km street, and a second network holding a segment that runs off the globe."""
+def net(database_url: str) -> Iterator[dict]:
+    """A 2 km street, and a second network holding a segment that runs off the globe (deleted
+    afterwards: other tests draw every network of the session's database)."""
     with psycopg.connect(dsn(database_url), autocommit=True) as conn:
         name = unique("hostile")
         nid = synthetic.create_network(conn, name)
@@ -25,9 +28,10 @@ def net(database_url: str) -> dict:
         broken = unique("offglobe")
         bid = synthetic.create_network(conn, broken)
         synthetic.add_line(conn, bid, [xy(0, 0), (200.0, 95.0)])
-    a, b = xy(10, 1), xy(1990, 1)
-    return {"name": name, "broken": broken, "points": f"{a[0]!r},{a[1]!r};{b[0]!r},{b[1]!r}",
-            "point": f"{a[0]!r},{a[1]!r}"}
+        a, b = xy(10, 1), xy(1990, 1)
+        yield {"name": name, "broken": broken,
+               "points": f"{a[0]!r},{a[1]!r};{b[0]!r},{b[1]!r}", "point": f"{a[0]!r},{a[1]!r}"}
+        conn.execute("DELETE FROM networks WHERE id = %s", (bid,))
 
 
 @pytest.fixture()
@@ -203,3 +207,16 @@ def test_read_role_covers_routes_isochrones_waypoints_and_osrm_urls(client, net,
         monkeypatch.delenv("UGVMAP_NETWORK_READ_ROLE")
         get_settings.cache_clear()
     assert all(client.get(url).status_code == 200 for url in urls)
+
+
+def test_options_that_do_not_apply_are_refused(client, net) -> None:
+    url = f"/networks/{net['name']}/route"
+    r = client.get(url, params={"points": net["points"], "spacing": "5"})
+    assert "spacing" in problem(r, 400, "InvalidOptions")["message"]
+    r = client.get(url, params={"points": net["points"], "format": "waypoints",
+                                "alternatives": "true"})
+    assert "alternatives" in problem(r, 400, "InvalidOptions")["message"]
+    r = client.post(url, json={"points": [[1.5, 42.5], [1.51, 42.5]], "point": [1, 2]})
+    problem(r, 422, "InvalidValue")
+    r = client.post(url, json={"points": [[10**400, 42.5], [1.51, 42.5]]})
+    problem(r, 400, "InvalidQuery")

@@ -55,6 +55,9 @@ MAX_OPTION_CHARS = 2048  # any one option's value, before it is split
 POINT_CHARS = 64  # per point in points= / radiuses= / bearings= ...; hints get HINT's 512
 
 Profile = Literal["ugvmap", "osrm"]
+# Options that shape an OSRM answer, which format=waypoints does not give.
+OSRM_SHAPE = frozenset({"geometries", "overview", "steps", "annotations", "alternatives",
+                        "generate_hints", "skip_waypoints"})
 
 
 @dataclass(frozen=True)
@@ -300,6 +303,9 @@ def parse(raw: Mapping[str, str], profile: Profile, n_points: int) -> RouteOptio
         radius_m=radius,
     )
     opts.points = _points(raw, n_points, radius if radius is not None else limits.snap_radius_m)
+    given = set(raw) & (OSRM_SHAPE if opts.format == "waypoints" else {"spacing"})
+    if given:
+        raise InvalidOptionsError(f"{sorted(given)[0]} does not apply to format={opts.format}")
     opts.check(n_points)
     return opts
 

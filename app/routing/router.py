@@ -158,7 +158,7 @@ def _body_point(i: int, raw: Any) -> tuple[float, float]:
     if not isinstance(raw, list) or len(raw) != 2 or not all(
             isinstance(v, int | float) and not isinstance(v, bool) for v in raw):
         raise errors.InvalidQueryError(f"point {i} {str(raw)[:60]} is not [lon, lat]")
-    lon, lat = (params.finite(f"point {i}", repr(float(v))) for v in raw)
+    lon, lat = (params.finite(f"point {i}", repr(v)) for v in raw)
     return params.lonlat(i, lon, lat)
 
 

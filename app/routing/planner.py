@@ -6,6 +6,8 @@ bounded (:mod:`app.routing.options`).
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, cast
@@ -51,18 +53,51 @@ def visit_order(router: engine.Router, n: int) -> list[int]:
     return best_order(matrix)
 
 
+class TagCache:
+    """Guidance tags already read, per network version (a version holds every edit, so its
+    tags never go stale): routes planned again over the same roads skip the query."""
+
+    VERSIONS = 2
+    MAX_SEGMENTS = 200_000  # per version; beyond, the version starts afresh
+
+    def __init__(self) -> None:
+        self._known: OrderedDict[tuple[int, int], dict[int, RoadTags | None]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, conn: Connection, graph: RoadGraph, ids: set[int]) -> dict[int, RoadTags]:
+        """Tags of the segments ``ids`` that have any, reading only those not seen yet."""
+        key = (graph.network_id, graph.version)
+        with self._lock:
+            known = self._known.setdefault(key, {})
+            self._known.move_to_end(key)
+            while len(self._known) > self.VERSIONS:
+                self._known.popitem(last=False)
+            have = {i: known[i] for i in ids if i in known}
+        missing = sorted(ids - have.keys())
+        if missing:
+            rows = cast(list[tuple[int, str | None, str | None]],
+                        conn.execute(TAGS_SQL, {"ids": missing}).all())
+            found: dict[int, RoadTags | None] = dict.fromkeys(missing)
+            found.update({int(sid): RoadTags(ref or "", junction in ROUNDABOUT)
+                          for sid, ref, junction in rows if ref or junction in ROUNDABOUT})
+            have.update(found)
+            with self._lock:
+                if len(known) + len(found) > self.MAX_SEGMENTS:
+                    known.clear()
+                known.update(found)
+        return {i: t for i, t in have.items() if t is not None}
+
+
+_tags = TagCache()
+
+
 def road_tags(conn: Connection, graph: RoadGraph, routes: Sequence[Sequence[Leg]]
               ) -> dict[int, RoadTags]:
     """``ref`` and roundabout flags of the segments the routes drive (OSM tags kept in
-    ``attrs``, which the routing graph does not load): one indexed read, only for steps."""
-    ids = sorted({int(graph.segs.ids[p.row]) for legs in routes for leg in legs
-                  for p in leg.pieces})
-    if not ids:
-        return {}
-    rows = cast(list[tuple[int, str | None, str | None]],
-                conn.execute(TAGS_SQL, {"ids": ids}).all())
-    return {int(sid): RoadTags(ref or "", junction in ROUNDABOUT)
-            for sid, ref, junction in rows if ref or junction in ROUNDABOUT}
+    ``attrs``, which the routing graph does not load): one indexed read of the segments not
+    seen before in this network version, only for steps."""
+    return _tags.get(conn, graph, {int(graph.segs.ids[p.row]) for legs in routes
+                                   for leg in legs for p in leg.pieces})
 
 
 def plan_route(conn: Connection, network: str, points: list[tuple[float, float]],

@@ -156,6 +156,68 @@ class NoRouteError(ApiError):
     status, code = 422, "NoRoute"
 
 
+class InvalidOptionsError(ApiError):
+    """Route options that parse but do not fit together (one radius per point, ...)."""
+
+    status, code = 400, "InvalidOptions"
+
+
+class InvalidUrlError(ApiError):
+    """An OSRM-shaped URL that cannot be read (a bad network name or coordinates part)."""
+
+    status, code = 400, "InvalidUrl"
+
+
+class InvalidServiceError(ApiError):
+    """An OSRM service other than ``route`` (table, nearest, match, trip, tile)."""
+
+    status, code = 400, "InvalidService"
+
+
+class InvalidVersionError(ApiError):
+    """An OSRM protocol version other than ``v1``."""
+
+    status, code = 400, "InvalidVersion"
+
+
+class NotImplementedOptionError(ApiError):
+    """A well-formed OSRM option this server does not implement: refused, never ignored."""
+
+    status, code = 400, "NotImplemented"
+
+
+class ResponseTooLargeError(ApiError):
+    """An answer over the configured output caps (coordinates, waypoints): refused before it is
+    built, so one request cannot make a worker allocate without bound."""
+
+    status, code = 422, "ResponseTooLarge"
+
+
+# OSRM's own server answers every error with 400; on the OSRM-shaped URLs the same faults keep
+# their code and take that status, so OSRM clients branch as they do against OSRM.
+class OsrmInvalidValueError(InvalidValueError):
+    """:class:`InvalidValueError` on an OSRM-shaped URL."""
+
+    status = 400
+
+
+class OsrmNoSegmentError(NoSegmentError):
+    """:class:`NoSegmentError` on an OSRM-shaped URL."""
+
+    status = 400
+
+
+class OsrmNoRouteError(NoRouteError):
+    """:class:`NoRouteError` on an OSRM-shaped URL."""
+
+    status = 400
+
+
+class OsrmTooBigError(TooBigError):
+    """:class:`ResponseTooLargeError` on an OSRM-shaped URL: OSRM calls every size limit
+    ``TooBig``."""
+
+
 def body_limit_message(limit: object) -> str:
     """What a 413 says: the body limit in force for the route (``UGVMAP_MAX_BODY_BYTES``)."""
     return f"the request body exceeds the limit of {limit} bytes"

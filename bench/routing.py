@@ -207,8 +207,8 @@ def edit_to_route(http: httpx.Client, conn: psycopg.Connection, name: str, net: 
     lags = []
     for kph in (5, 150, 5, 150, 5):
         walk = http.get(f"/networks/{name}/route", params=params).json()
-        sid = walk["routes"][0]["legs"][0]["annotation"]["segment_ids"][len(
-            walk["routes"][0]["legs"][0]["annotation"]["segment_ids"]) // 2]
+        driven = walk["routes"][0]["legs"][0]["segments"]
+        sid = driven[len(driven) // 2]["id"]
         t = time.perf_counter()
         conn.execute("UPDATE road_segments SET speed_limit_kph = %s WHERE id = %s", (kph, sid))
         body = http.get(f"/networks/{name}/route", params=params).json()

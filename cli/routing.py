@@ -11,14 +11,8 @@ import json
 import click
 
 from app.routing.costs import Cost
-from app.routing.planner import (
-    FORMATS,
-    GEOMETRIES,
-    RouteOptions,
-    parse_points,
-    plan_route,
-    read_connection,
-)
+from app.routing.options import FORMATS, GEOMETRIES, parse, parse_points
+from app.routing.planner import plan_route, read_connection
 
 
 @click.command("route")
@@ -32,24 +26,30 @@ from app.routing.planner import (
               show_default=True)
 @click.option("--format", "fmt", type=click.Choice([*FORMATS, "summary"]), default="summary",
               show_default=True, help="summary: one line per leg")
-@click.option("--spacing", type=float, default=1.0, show_default=True,
-              help="metres between points for --format waypoints")
-@click.option("--radius", type=float, default=None, help="snap radius in metres")
+@click.option("--spacing", default=None,
+              help="metres between points for --format waypoints (default 1)")
+@click.option("--radius", default=None, help="snap radius in metres")
 def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geometries: str,
-          fmt: str, spacing: float, radius: float | None) -> None:
+          fmt: str, spacing: str | None, radius: str | None) -> None:
     """Plan a route on NETWORK through the given points."""
-    opts = RouteOptions(Cost(cost), frozenset(a for a in avoid.split(",") if a), optimize,
-                        geometries, "waypoints" if fmt == "waypoints" else "osrm", spacing,
-                        radius)
-    with read_connection() as conn:  # planner errors (ApiError): one line from cli.main
-        body = plan_route(conn, network, parse_points(points), opts)
+    raw = {"cost": cost, "avoid": avoid, "optimize": "true" if optimize else "false"}
+    if fmt == "waypoints":
+        raw.update(format="waypoints", **({"spacing": spacing} if spacing is not None else {}))
+    else:
+        raw.update(geometries=geometries)
+    if radius is not None:
+        raw["radius"] = radius
+    pts = parse_points(points)  # option errors (ApiError): one line from cli.main
+    opts = parse(raw, "ugvmap", len(pts))
+    with read_connection() as conn:
+        body = plan_route(conn, network, pts, opts)
     if fmt != "summary":
         click.echo(json.dumps(body))
         return
     r = body["routes"][0]
     for k, leg in enumerate(r["legs"]):
         click.echo(f"leg {k}: {leg['distance']:.1f} m, {leg['duration']:.1f} s, "
-                   f"{len(leg['annotation']['segment_ids'])} segments")
+                   f"{len(leg['segments'])} segments")
     ranks = [w["waypoint_index"] for w in body["waypoints"]]
     order = sorted(range(len(ranks)), key=ranks.__getitem__)
     click.echo(f"total: {r['distance']:.1f} m, {r['duration']:.1f} s"

@@ -69,4 +69,13 @@ if [[ ! -f $web_stamp || $(cat "$web_stamp") != "$web_want" ]]; then
     (cd app/web && npm ci --omit=dev --no-audit --no-fund --loglevel=error)
     echo "$web_want" > "$web_stamp"
 fi
+# Test-only: the OSRM client libraries the routing tests run in node (osrm-text-instructions,
+# Leaflet Routing Machine + Leaflet + jsdom), pinned by their own lockfile; never served.
+clients_stamp=tests/osrm_clients/node_modules/.ugvmap-installed
+clients_want=$(sha256sum tests/osrm_clients/package-lock.json | cut -d' ' -f1)
+if [[ ! -f $clients_stamp || $(cat "$clients_stamp") != "$clients_want" ]]; then
+    echo "setup: installing the OSRM client libraries for the routing tests"
+    (cd tests/osrm_clients && npm ci --no-audit --no-fund --loglevel=error)
+    echo "$clients_want" > "$clients_stamp"
+fi
 echo "setup: ok"

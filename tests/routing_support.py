@@ -37,5 +37,36 @@ def route(client, name: str, points: list[tuple[float, float]], **params) -> dic
 
 
 def segment_walk(body: dict) -> list[int]:
-    """Segment ids driven, in order (from each leg's annotation)."""
-    return [sid for leg in body["routes"][0]["legs"] for sid in leg["annotation"]["segment_ids"]]
+    """Segment ids driven, in order (from each leg's ``segments``)."""
+    return [s["id"] for leg in body["routes"][0]["legs"] for s in leg["segments"]]
+
+
+def town(conn, name: str) -> dict:
+    """A small town for guidance tests (metres east/north of (1.5, 42.5)).
+
+    Main Street (0,0)->(200,0) runs on as High Street to (400,0); Church Lane turns north there
+    to a one-way roundabout (OSM ``junction=roundabout``, centre (400,250), radius 50, driven
+    anticlockwise S->E->N->W) with exits East Road (east from E), North Road (north from N)
+    and West Road (west from W).
+    """
+    from psycopg.types.json import Jsonb
+
+    from app.routing import synthetic
+
+    net = synthetic.create_network(conn, name)
+    add = synthetic.add_line
+    seg = {
+        "main": add(conn, net, [xy(0, 0), xy(200, 0)], name="Main Street"),
+        "high": add(conn, net, [xy(200, 0), xy(400, 0)], name="High Street"),
+        "church": add(conn, net, [xy(400, 0), xy(400, 200)], name="Church Lane"),
+        "east": add(conn, net, [xy(450, 250), xy(650, 250)], name="East Road"),
+        "north": add(conn, net, [xy(400, 300), xy(400, 500)], name="North Road"),
+        "west": add(conn, net, [xy(350, 250), xy(150, 250)], name="West Road"),
+    }
+    ring = [(400, 200), (450, 250), (400, 300), (350, 250)]
+    for k, (a, b) in enumerate(zip(ring, ring[1:] + ring[:1], strict=True)):
+        mid = ((a[0] + b[0]) / 2 - 400, (a[1] + b[1]) / 2 - 250)
+        bulge = (400 + mid[0] * 1.41, 250 + mid[1] * 1.41)  # on the circle, between a and b
+        seg[f"ring{k}"] = add(conn, net, [xy(*a), xy(*bulge), xy(*b)], oneway="forward",
+                              attrs=Jsonb({"junction": "roundabout"}))
+    return {"name": name, "net": net, "seg": seg}

@@ -122,8 +122,8 @@ def test_osrm_url_shape_answers_like_osrm(client, block) -> None:
 @pytest.mark.parametrize(("path", "status", "code", "needle"), [
     ("/networks/nope-nope/route?points=1.5,42.5;1.6,42.5", 404, "NotFound", "nope-nope"),
     ("/networks/{n}/route?points=1.5,42.5;abc", 400, "InvalidQuery", "point 1"),
-    ("/networks/{n}/route?points=1.5,42.5", 400, "InvalidQuery", "two points"),
-    ("/networks/{n}/route?points=1.5,42.5;1.5,95", 400, "InvalidQuery", "point 1"),
+    ("/networks/{n}/route?points=1.5,42.5", 400, "InvalidOptions", "two points"),
+    ("/networks/{n}/route?points=1.5,42.5;1.5,95", 422, "InvalidValue", "point 1"),
     ("/networks/{n}/route?points=1.5,42.5;1.51,42.5&cost=fast", 400, "InvalidQuery", "cost"),
     ("/networks/{n}/route?points=1.5,42.5;1.5,42.6", 422, "NoSegment", "point 1"),
 ])

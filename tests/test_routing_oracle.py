@@ -38,8 +38,7 @@ def assert_connected_walk(body: dict, segs: dict, start: int, end: int) -> None:
     """Segments follow each other end to end, each driven in a direction its one-way allows."""
     node = start
     for leg in body["routes"][0]["legs"]:
-        walk = leg["annotation"]
-        for sid, forward in zip(walk["segment_ids"], walk["forward"], strict=True):
+        for sid, forward in ((s["id"], s["forward"]) for s in leg["segments"]):
             src, dst, oneway = segs[sid]
             tail, head = (src, dst) if forward else (dst, src)
             assert tail == node, f"segment {sid} does not start where the route is"

@@ -4,11 +4,14 @@ A snapped point sits at fraction ``f`` of segment (u -> v). Leaving it costs ``(
 reach v (if the segment may be driven along its geometry) and ``f·c`` to reach u (if it may be
 driven against it); arriving is the mirror image, and two points on the same segment may also
 be joined directly along it. One-way rules therefore hold on the snapped segments themselves.
-A point within :data:`AT_NODE_M` of a segment end is *at* that node and may leave by any arc.
+A point within :data:`AT_NODE_M` of a segment end is *at* that node and may leave by any arc,
+unless its snap restricts the directions (OSRM's ``bearings``/``approaches``): such a point is
+left and reached only along its segment, in the directions the snap keeps.
 """
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -64,44 +67,62 @@ def place(graph: RoadGraph, snap: Snap) -> Place:
     length = float(graph.segs.length_m[row])
     u, v, f = int(graph.u[row]), int(graph.v[row]), snap.fraction
     at = u if f * length <= AT_NODE_M else v if (1 - f) * length <= AT_NODE_M else None
+    if snap.restricted:
+        at = None
     coords, fracs = graph.line(row)
     return Place(snap, row, u, v, f, at, point_at(coords, fracs, f))
 
 
-def departures(graph: RoadGraph, cg: CostGraph, p: Place) -> list[tuple[int, float, Piece | None]]:
-    """(node, cost, piece) ways to leave a place onto the graph."""
+def _ways(graph: RoadGraph, p: Place, way: int | None) -> tuple[bool, bool]:
+    """(forward, backward): may the place's segment be driven along / against its geometry
+    there, by its one-way rule, the snap's directions and the direction asked for (``way``)."""
+    oneway = int(graph.segs.oneway[p.row])
+    return (oneway >= 0 and p.snap.forward and way != -1,
+            oneway <= 0 and p.snap.backward and way != 1)
+
+
+def departures(graph: RoadGraph, cg: CostGraph, p: Place, way: int | None = None
+               ) -> list[tuple[int, float, Piece | None]]:
+    """(node, cost, piece) ways to leave a place onto the graph (only along its geometry,
+    ``way`` +1, or against it, -1, when asked)."""
     if p.at_node is not None:
         return [(p.at_node, 0.0, None)]
-    c, way = float(cg.seg_cost[p.row]), int(graph.segs.oneway[p.row])
+    c = float(cg.seg_cost[p.row])
+    forward, backward = _ways(graph, p, way)
     out: list[tuple[int, float, Piece | None]] = []
-    if way >= 0:
+    if forward:
         out.append((p.v, (1 - p.fraction) * c, Piece(p.row, p.fraction, 1.0)))
-    if way <= 0:
+    if backward:
         out.append((p.u, p.fraction * c, Piece(p.row, p.fraction, 0.0)))
     return out
 
 
-def arrivals(graph: RoadGraph, cg: CostGraph, p: Place) -> list[tuple[int, float, Piece | None]]:
-    """(node, cost, piece) ways to reach a place from the graph."""
+def arrivals(graph: RoadGraph, cg: CostGraph, p: Place, way: int | None = None
+             ) -> list[tuple[int, float, Piece | None]]:
+    """(node, cost, piece) ways to reach a place from the graph (arriving along the geometry,
+    ``way`` +1, or against it, -1, when asked)."""
     if p.at_node is not None:
         return [(p.at_node, 0.0, None)]
-    c, way = float(cg.seg_cost[p.row]), int(graph.segs.oneway[p.row])
+    c = float(cg.seg_cost[p.row])
+    forward, backward = _ways(graph, p, way)
     out: list[tuple[int, float, Piece | None]] = []
-    if way >= 0:
+    if forward:
         out.append((p.u, p.fraction * c, Piece(p.row, 0.0, p.fraction)))
-    if way <= 0:
+    if backward:
         out.append((p.v, (1 - p.fraction) * c, Piece(p.row, 1.0, p.fraction)))
     return out
 
 
-def direct(graph: RoadGraph, cg: CostGraph, a: Place, b: Place) -> tuple[float, Piece] | None:
+def direct(graph: RoadGraph, cg: CostGraph, a: Place, b: Place, out_way: int | None = None,
+           in_way: int | None = None) -> tuple[float, Piece] | None:
     """Driving straight along a shared segment, when its direction allows."""
     if a.row != b.row or a.at_node is not None or b.at_node is not None:
         return None
-    way = int(graph.segs.oneway[a.row])
     ahead = b.fraction >= a.fraction
-    if (ahead and way < 0) or (not ahead and way > 0):
-        return None
+    for p, way in ((a, out_way), (b, in_way)):
+        forward, backward = _ways(graph, p, way)
+        if not (forward if ahead else backward):
+            return None
     return abs(b.fraction - a.fraction) * float(cg.seg_cost[a.row]), Piece(a.row, a.fraction,
                                                                           b.fraction)
 
@@ -116,7 +137,10 @@ class Router:
     def costs_from(self, i: int, targets: Sequence[int]) -> list[float]:
         """Cheapest cost from place i to each target place (inf where unreachable)."""
         a = self.places[i]
-        dist, _ = self.cg.search((n, c) for n, c, _ in departures(self.graph, self.cg, a))
+        outs = departures(self.graph, self.cg, a)
+        if not outs:
+            return [float(np.inf)] * len(targets)
+        dist, _ = self.cg.search((n, c) for n, c, _ in outs)
         out = []
         for j in targets:
             b = self.places[j]
@@ -132,11 +156,20 @@ class Router:
         c_a, c_b = (float(self.cg.seg_cost[p.row]) for p in (a, b))
         return FIRST_LIMIT_FACTOR * crow + c_a + c_b + 1.0
 
-    def leg(self, i: int, j: int) -> Leg:
+    def leg(self, i: int, j: int, out_way: int | None = None, in_way: int | None = None) -> Leg:
         """Cheapest way from place i to place j: through the network's contraction hierarchy
-        when it can answer for this graph version, else by bounded Dijkstra."""
+        when it can answer for this graph version, else by bounded Dijkstra. ``out_way`` and
+        ``in_way`` (+1 along the snapped segment's geometry, -1 against it) pin the direction
+        of leaving i and reaching j."""
         a, b = self.places[i], self.places[j]
-        outs, ins = departures(self.graph, self.cg, a), arrivals(self.graph, self.cg, b)
+        outs = departures(self.graph, self.cg, a, out_way)
+        ins = arrivals(self.graph, self.cg, b, in_way)
+        straight = direct(self.graph, self.cg, a, b, out_way, in_way)
+        if not (outs and ins):
+            if straight:
+                return Leg(a.snap, b.snap, straight[0], [straight[1]])
+            raise NoRouteError(f"no route from point {a.snap.index} to point {b.snap.index} "
+                               "in the allowed directions")
         found = self.cg.fast_path([(n, c) for n, c, _ in outs], [(n, c) for n, c, _ in ins])
         if found is not None:
             k, m, rows, ways = found
@@ -144,7 +177,6 @@ class Router:
             weight = outs[k][1] + float(self.cg.seg_cost[rows].sum()) + ins[m][1]
         else:
             weight, first, rows, ways, last = self._dijkstra(a, b, outs, ins)
-        straight = direct(self.graph, self.cg, a, b)
         if straight and straight[0] <= weight:
             return Leg(a.snap, b.snap, straight[0], [straight[1]])
         if not np.isfinite(weight):
@@ -156,6 +188,33 @@ class Router:
         if last is not None:
             pieces.append(last)
         return Leg(a.snap, b.snap, weight, pieces)
+
+    def legs(self, seq: Sequence[int], continue_straight: bool = False) -> list[Leg]:
+        """The legs visiting the places ``seq`` in order. With ``continue_straight`` (OSRM's
+        option) no route turns back at an intermediate point: it leaves in the direction it
+        arrived, chosen over all points at once (up to four searches per leg); points at a
+        node are not constrained (any arc there is a way on)."""
+        pairs = list(itertools.pairwise(seq))
+        if not continue_straight or len(seq) < 3:
+            return [self.leg(i, j) for i, j in pairs]
+        ways = [[None] if k in (0, len(seq) - 1) or self.places[p].at_node is not None
+                else [1, -1] for k, p in enumerate(seq)]
+        best: dict[int | None, tuple[float, list[Leg]]] = {None: (0.0, [])}
+        for k, (i, j) in enumerate(pairs):
+            nxt: dict[int | None, tuple[float, list[Leg]]] = {}
+            for out_way, (cost, done) in best.items():
+                for in_way in ways[k + 1]:
+                    try:
+                        leg = self.leg(i, j, out_way, in_way)
+                    except NoRouteError:
+                        continue
+                    if in_way not in nxt or cost + leg.weight < nxt[in_way][0]:
+                        nxt[in_way] = (cost + leg.weight, [*done, leg])
+            if not nxt:
+                raise NoRouteError(f"no route from point {i} to point {j} that keeps going "
+                                   "straight at the points (continue_straight=true)")
+            best = nxt
+        return best[None][1]
 
     def _dijkstra(self, a: Place, b: Place, outs: list, ins: list
                   ) -> tuple[float, Piece | None, np.ndarray, np.ndarray, Piece | None]:

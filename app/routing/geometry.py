@@ -8,6 +8,7 @@ exactly ``fraction * segment cost``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from pyproj import Transformer
@@ -44,13 +45,22 @@ def point_at(coords: np.ndarray, fracs: np.ndarray, f: float) -> tuple[float, fl
 
 def cut(coords: np.ndarray, fracs: np.ndarray, f_from: float, f_to: float) -> list[list[float]]:
     """The part of a line between two fractions, in travel order (reversed if f_from > f_to)."""
+    return cut_with_fractions(coords, fracs, f_from, f_to)[0]
+
+
+def cut_with_fractions(coords: np.ndarray, fracs: np.ndarray, f_from: float, f_to: float
+                       ) -> tuple[list[list[float]], np.ndarray]:
+    """:func:`cut`, plus the fraction along the line of each returned point (travel order), which
+    prices each coordinate pair of a route exactly (fractions are metric)."""
     lo, hi = sorted((f_from, f_to))
     if lo == 0.0 and hi == 1.0:  # a whole segment: most pieces of a route
-        pts = coords.tolist()
-        return pts if f_from <= f_to else pts[::-1]
-    inner = coords[(fracs > lo) & (fracs < hi)]
-    pts = [list(point_at(coords, fracs, lo)), *inner.tolist(), list(point_at(coords, fracs, hi))]
-    return pts if f_from <= f_to else pts[::-1]
+        pts, fr = coords.tolist(), fracs
+    else:
+        keep = (fracs > lo) & (fracs < hi)
+        pts = [list(point_at(coords, fracs, lo)), *coords[keep].tolist(),
+               list(point_at(coords, fracs, hi))]
+        fr = np.concatenate([[lo], fracs[keep], [hi]])
+    return (pts, fr) if f_from <= f_to else (pts[::-1], fr[::-1])
 
 
 def bearing(a: list[float] | tuple[float, float], b: list[float] | tuple[float, float]) -> float:
@@ -60,6 +70,24 @@ def bearing(a: list[float] | tuple[float, float], b: list[float] | tuple[float, 
     x = (math.cos(lat1) * math.sin(lat2)
          - math.sin(lat1) * math.cos(lat2) * math.cos(lon2 - lon1))
     return (math.degrees(math.atan2(y, x)) + 360.0) % 360.0
+
+
+def bearing_at(coords: np.ndarray, fracs: np.ndarray, f: float) -> float:
+    """Compass bearing of a line, along its geometry, at metric fraction ``f`` (the edge holding
+    ``f``; past zero-length edges to the next real one)."""
+    k = int(np.clip(np.searchsorted(fracs, f, side="right") - 1, 0, len(coords) - 2))
+    ahead = np.flatnonzero(fracs[k + 1:] > fracs[k])
+    j = k + 1 + int(ahead[0]) if len(ahead) else len(coords) - 1
+    return bearing(coords[k], coords[j])
+
+
+def side_of(a: Sequence[float], heading_deg: float, p: Sequence[float]) -> float:
+    """Which side of a line through ``a`` with compass ``heading_deg`` the point ``p`` lies:
+    positive right, negative left, zero on it (metres, locally flat)."""
+    dx = (p[0] - a[0]) * math.cos(math.radians(a[1]))
+    dy = p[1] - a[1]
+    h = math.radians(heading_deg)
+    return (dx * math.cos(h) - dy * math.sin(h)) * EARTH_RADIUS_M * math.pi / 180
 
 
 def bearings(a: np.ndarray, b: np.ndarray) -> np.ndarray:

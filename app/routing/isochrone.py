@@ -13,9 +13,11 @@ from typing import Any
 
 import numpy as np
 
+from app.errors import ResponseTooLargeError
 from app.routing import engine
 from app.routing.geometry import cut
 from app.routing.graph import CostGraph, RoadGraph
+from app.routing.settings import routing_settings
 from app.routing.snap import Snap
 
 
@@ -62,8 +64,16 @@ def isochrone_geojson(graph: RoadGraph, cg: CostGraph, snap: Snap, avoid: frozen
                       budget: float, unit: str) -> dict[str, Any]:
     """The reachable segments and segment parts as a GeoJSON FeatureCollection: each names its
     segment and the fraction range reached, so a client can tell whole segments from parts."""
+    reached = reachable(graph, cg, snap, avoid, budget)
+    offsets = graph.segs.offsets
+    count = sum((int(offsets[r + 1] - offsets[r]) + 2) * len(iv) for r, iv in reached.items())
+    most = routing_settings().max_response_coordinates
+    if count > most:
+        raise ResponseTooLargeError(
+            f"the isochrone would hold about {count} coordinates; at most {most} "
+            "(UGVMAP_ROUTING_MAX_RESPONSE_COORDINATES): ask for a smaller budget")
     features = []
-    for row, intervals in sorted(reachable(graph, cg, snap, avoid, budget).items()):
+    for row, intervals in sorted(reached.items()):
         coords, fracs = graph.line(row)
         for lo, hi in intervals:
             features.append({

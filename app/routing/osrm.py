@@ -1,166 +1,179 @@
-"""Shape legs into an OSRM route-service response, so existing OSRM clients work unchanged.
+"""Shape routes into an OSRM route-service response, so existing OSRM clients work unchanged.
 
-Follows OSRM v5 (``code``, ``routes[].geometry|distance|duration|weight|legs[].steps[]``,
-``waypoints[]``). A step is a stretch driven without a turn on segments with the same name,
-class, lanes and speed limit, and carries what a vehicle planner needs besides OSRM's fields:
-``segment_ids``, ``lanes`` (in the direction of travel), ``speed_limit_kph``, ``speed_kph``
-and ``road_class``. Maneuver modifiers are ``straight``, ``left``, ``right`` and ``uturn``.
-Each leg's ``annotation`` lists every segment piece driven: ``segment_ids``, ``forward``
-(along the segment's geometry or against it), ``distance`` (m) and ``duration`` (s).
+Follows OSRM v5: ``code``, ``routes[]`` (``geometry`` per ``geometries``/``overview``,
+``distance``, ``duration``, ``weight``, ``weight_name``, ``legs[]``) and ``waypoints[]``
+(``hint``, ``distance``, ``name``, ``location``). Each leg has ``summary``, ``steps`` (when asked;
+see :mod:`app.routing.steps`) and ``annotation`` (when asked): OSRM's per-coordinate-pair
+arrays over the leg's full geometry (``distance``, ``duration``, ``speed``, ``weight``,
+``datasources``) and ``nodes``, one id per coordinate (:func:`app.routing.trace.node_ids`).
+
+Besides OSRM's fields, what a vehicle planner needs: each leg's ``segments`` (every segment
+piece driven: ``id``, ``forward``, ``from_fraction``, ``to_fraction``, ``distance``,
+``duration``), each step's ``segment_ids``, ``lanes`` (direction of travel),
+``speed_limit_kph``, ``speed_kph`` and ``road_class``, and each waypoint's ``segment_id`` and
+``fraction``.
 """
 
 from __future__ import annotations
 
+import base64
+import struct
 from collections.abc import Sequence
 from typing import Any
 
 import polyline
 
-from app.routing.costs import Cost
-from app.routing.engine import Leg, Piece
-from app.routing.geometry import bearing, cut, point_at
+from app.errors import ResponseTooLargeError
+from app.routing.engine import Leg
 from app.routing.graph import RoadGraph
+from app.routing.junctions import junctions
+from app.routing.options import RouteOptions
+from app.routing.overview import simplify
+from app.routing.settings import routing_settings
 from app.routing.snap import Snap
+from app.routing.steps import RoadTags, StepContext, leg_steps
+from app.routing.trace import Trace, location, node_ids, trace
 
-STRAIGHT_DEG = 30.0
-UTURN_DEG = 150.0
-
-
-def modifier(before: float, after: float) -> str:
-    """Turn direction from the bearing before to the bearing after a maneuver point."""
-    delta = (after - before + 540.0) % 360.0 - 180.0  # -180..180, positive = clockwise
-    if abs(delta) <= STRAIGHT_DEG:
-        return "straight"
-    if abs(delta) >= UTURN_DEG:
-        return "uturn"
-    return "right" if delta > 0 else "left"
+DATASOURCE_NAMES = ["ugvmap"]  # annotation.metadata: every speed comes from the network
 
 
 def encode(coords: list[list[float]], geometries: str) -> Any:
-    """The geometry as OSRM sends it: an encoded polyline (precision 5) or GeoJSON."""
-    if geometries == "polyline":
-        return polyline.encode([(lat, lon) for lon, lat in coords], 5)
+    """A line as OSRM sends it: an encoded polyline (precision 5 or 6) or GeoJSON."""
+    if geometries in ("polyline", "polyline6"):
+        return polyline.encode([(lat, lon) for lon, lat in coords],
+                               6 if geometries == "polyline6" else 5)
     return {"type": "LineString", "coordinates": coords}
 
 
+def hint(snap: Snap, version: int) -> str:
+    """An opaque OSRM-style waypoint hint (segment, fraction, graph version, base64url). Clients
+    send hints back; they are accepted and not needed (a snap costs one indexed query)."""
+    raw = struct.pack("<qdq", snap.segment_id, snap.fraction, version)
+    return base64.urlsafe_b64encode(raw).decode("ascii").rstrip("=")
+
+
 class Shaper:
-    """Turns the legs of one request into the response dictionary."""
+    """Turns the routes of one request into the response dictionary."""
 
-    def __init__(self, graph: RoadGraph, geometries: str) -> None:
-        self.graph, self.geometries = graph, geometries
+    def __init__(self, graph: RoadGraph, opts: RouteOptions,
+                 tags: dict[int, RoadTags] | None = None) -> None:
+        self.graph, self.opts = graph, opts
+        self.context = StepContext(
+            graph, junctions(graph), opts.avoid, tags or {}, opts.cost,
+            routing_settings().driving_side, self.encode) if opts.steps else None
 
-    def piece_coords(self, p: Piece) -> list[list[float]]:
-        """Coordinates of the driven part of a segment, in driving direction."""
-        coords, fracs = self.graph.line(p.row)
-        return cut(coords, fracs, p.f_from, p.f_to)
+    def encode(self, coords: list[list[float]]) -> Any:
+        """A line in the requested ``geometries``."""
+        return encode(coords, self.opts.geometries)
 
-    def location(self, snap: Snap) -> list[float]:
-        """Where a snapped point lies on its segment (lon, lat)."""
-        row = self.graph.row_of(snap.segment_id)
-        assert row is not None  # the route was planned on this graph, so it holds the snaps
-        coords, fracs = self.graph.line(row)
-        return list(point_at(coords, fracs, snap.fraction))
+    def _summary(self, t: Trace) -> str:
+        names = self.graph.segs.name
+        length: dict[str, float] = {}
+        for run in t.runs:
+            name = names[run.piece.row] or ""
+            if name:
+                length[name] = length.get(name, 0.0) + run.distance
+        longest = sorted(length, key=length.__getitem__, reverse=True)[:2]
+        return ", ".join(n for n in length if n in longest)
 
-    def _bearings(self, p: Piece, pc: list[list[float]]) -> tuple[float, float]:
-        """Bearing leaving and bearing arriving, precomputed for whole segments."""
-        g = self.graph
-        if (p.f_from, p.f_to) == (0.0, 1.0):
-            return float(g.bearing_start[p.row]), float(g.bearing_end[p.row])
-        if (p.f_from, p.f_to) == (1.0, 0.0):
-            return ((float(g.bearing_end[p.row]) + 180.0) % 360.0,
-                    (float(g.bearing_start[p.row]) + 180.0) % 360.0)
-        return bearing(pc[0], pc[1]), bearing(pc[-2], pc[-1])
+    def _annotation(self, t: Trace) -> dict[str, Any]:
+        wanted, cost = self.opts.annotations, self.opts.cost
+        distance: list[float] = []
+        duration: list[float] = []
+        for run in t.runs:
+            pair_m = run.pair_m
+            distance.extend(pair_m.tolist())
+            duration.extend((pair_m / run.speed_ms).tolist())
+        if not t.runs:
+            distance, duration = [0.0], [0.0]
+        out: dict[str, Any] = {}
+        if "distance" in wanted:
+            out["distance"] = distance
+        if "duration" in wanted:
+            out["duration"] = duration
+        if "speed" in wanted:
+            out["speed"] = [round(d / s, 1) if s > 0 else 0.0
+                            for d, s in zip(distance, duration, strict=True)]
+        if "weight" in wanted:
+            out["weight"] = duration if cost.value == "time" else distance
+        if "nodes" in wanted:
+            out["nodes"] = node_ids(self.graph, t)
+        if "datasources" in wanted:
+            out["datasources"] = [0] * len(distance)
+            out["metadata"] = {"datasource_names": DATASOURCE_NAMES}
+        return out
 
-    def _attrs(self, p: Piece) -> dict[str, Any]:
-        """Per-step attributes of a piece: a new step starts where any of them changes."""
-        s, row = self.graph.segs, p.row
-        limit = s.speed_limit[row]
-        return {
-            "name": s.name[row] or "",
-            "lanes": int(s.lanes_forward[row] if p.f_to >= p.f_from else s.lanes_backward[row]),
-            "speed_limit_kph": None if limit != limit else float(limit),
-            "speed_kph": float(self.graph.speed_kph[row]),
-            "road_class": s.road_class[row],
+    def _leg(self, t: Trace) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "distance": sum(r.distance for r in t.runs),
+            "duration": sum(r.duration for r in t.runs),
+            "weight": t.leg.weight, "summary": self._summary(t),
+            "steps": leg_steps(self.context, t) if self.context is not None else [],
+            "segments": [{"id": r.segment_id, "forward": r.forward,
+                          "from_fraction": r.piece.f_from, "to_fraction": r.piece.f_to,
+                          "distance": r.distance, "duration": r.duration} for r in t.runs],
         }
+        if self.opts.annotations:
+            out["annotation"] = self._annotation(t)
+        return out
 
-    def leg(self, leg: Leg, heading_in: float | None) -> tuple[dict[str, Any], list, float | None]:
-        """The leg's dict, its coordinates, and the bearing it arrives with."""
-        s, g = self.graph.segs, self.graph
-        steps: list[dict[str, Any]] = []
-        coords = [self.location(leg.start)]
-        note: dict[str, list] = {"segment_ids": [], "forward": [], "distance": [], "duration": []}
-        for p in (p for p in leg.pieces if p.f_from != p.f_to):
-            pc = self.piece_coords(p)
-            b_out, b_in = self._bearings(p, pc)
-            span = abs(p.f_to - p.f_from)
-            dist = span * float(s.length_m[p.row])
-            dur = dist / (float(g.speed_kph[p.row]) / 3.6)
-            attrs = self._attrs(p)
-            turn = modifier(heading_in if heading_in is not None else b_out, b_out)
-            if steps and turn == "straight" and steps[-1]["_attrs"] == attrs:
-                step = steps[-1]
-                step["distance"] += dist
-                step["duration"] += dur
-                step["_coords"].extend(pc[1:])
-                step["segment_ids"].append(int(s.ids[p.row]))
-            else:
-                before = heading_in if heading_in is not None else b_out
-                kind = "depart" if not steps else "continue" if turn == "straight" else "turn"
-                steps.append({
-                    "distance": dist, "duration": dur, "_coords": pc, "_attrs": attrs,
-                    "mode": "driving",
-                    "maneuver": {"type": kind, "location": pc[0], "modifier": turn,
-                                 "bearing_before": round(before), "bearing_after": round(b_out)},
-                    "segment_ids": [int(s.ids[p.row])], **attrs,
-                })
-            for key, value in (("segment_ids", int(s.ids[p.row])),
-                               ("forward", p.f_to >= p.f_from), ("distance", dist),
-                               ("duration", dur)):
-                note[key].append(value)
-            coords.extend(pc[1:])
-            heading_in = b_in
-        end = self.location(leg.end)
-        for step in steps:
-            step["geometry"] = encode(step.pop("_coords"), self.geometries)
-            del step["_attrs"]
-        steps.append({
-            "distance": 0.0, "duration": 0.0, "geometry": encode([end, end], self.geometries),
-            "name": "", "mode": "driving", "segment_ids": [],
-            "maneuver": {"type": "arrive", "location": end, "modifier": "straight",
-                         "bearing_before": round(heading_in or 0), "bearing_after": 0},
-        })
-        out = {"distance": sum(note["distance"]), "duration": sum(note["duration"]),
-               "weight": leg.weight, "summary": "", "steps": steps, "annotation": note}
-        return out, coords, heading_in
+    def route(self, legs: Sequence[Leg]) -> dict[str, Any]:
+        """One route of the response."""
+        return self.route_of([trace(self.graph, leg) for leg in legs])
+
+    def route_of(self, traces: Sequence[Trace]) -> dict[str, Any]:
+        """One route of the response, from its legs' traces."""
+        legs = [self._leg(t) for t in traces]
+        route: dict[str, Any] = {
+            "distance": sum(leg["distance"] for leg in legs),
+            "duration": sum(leg["duration"] for leg in legs),
+            "weight": sum(t.leg.weight for t in traces),
+            "weight_name": "duration" if self.opts.cost.value == "time" else "distance",
+            "legs": legs,
+        }
+        if self.opts.overview != "false":
+            coords = list(traces[0].coords)
+            for t in traces[1:]:
+                coords.extend(t.coords[1:])
+            route["geometry"] = self.encode(simplify(coords) if self.opts.overview == "simplified"
+                                            else coords)
+        return route
 
     def waypoint(self, snap: Snap, waypoint_index: int) -> dict[str, Any]:
         """An OSRM waypoint, plus the segment id and fraction the point snapped to."""
         row = self.graph.row_of(snap.segment_id)
-        return {"name": self.graph.segs.name[row] or "", "location": self.location(snap),
-                "distance": snap.distance_m, "segment_id": snap.segment_id,
-                "fraction": snap.fraction, "waypoint_index": waypoint_index}
-
-    def response(self, legs: Sequence[Leg], cost: Cost, snaps: Sequence[Snap],
-                 order: Sequence[int] | None = None) -> dict[str, Any]:
-        """The whole OSRM route-service response for the legs."""
-        heading: float | None = None
-        legs_out: list[dict[str, Any]] = []
-        coords: list[list[float]] = []
-        for leg in legs:
-            out, leg_coords, heading = self.leg(leg, heading)
-            legs_out.append(out)
-            coords.extend(leg_coords if not coords else leg_coords[1:])
-        if len(coords) == 1:
-            coords.append(coords[0])
-        visit = list(order) if order is not None else list(range(len(snaps)))
-        rank = {i: k for k, i in enumerate(visit)}
-        route = {
-            "geometry": encode(coords, self.geometries),
-            "distance": sum(leg["distance"] for leg in legs_out),
-            "duration": sum(leg["duration"] for leg in legs_out),
-            "weight": sum(leg.weight for leg in legs),
-            "weight_name": "duration" if cost is Cost.TIME else "distance",
-            "legs": legs_out,
+        assert row is not None
+        out: dict[str, Any] = {
+            "name": self.graph.segs.name[row] or "",
+            "location": location(self.graph, snap),
+            "distance": snap.distance_m, "segment_id": snap.segment_id,
+            "fraction": snap.fraction, "waypoint_index": waypoint_index,
         }
-        return {"code": "Ok", "routes": [route],
-                "waypoints": [self.waypoint(s, rank[s.index]) for s in snaps]}
+        if self.opts.generate_hints:
+            out["hint"] = hint(snap, self.graph.version)
+        return out
+
+    def response(self, routes: Sequence[Sequence[Leg]], snaps: Sequence[Snap],
+                 order: Sequence[int] | None = None) -> dict[str, Any]:
+        """The whole OSRM route-service response: ``routes[0]`` the best, then alternatives."""
+        traces = [[trace(self.graph, leg) for leg in legs] for legs in routes]
+        check_size(traces, self.opts)
+        body: dict[str, Any] = {"code": "Ok", "routes": [self.route_of(t) for t in traces]}
+        if not self.opts.skip_waypoints:
+            visit = list(order) if order is not None else list(range(len(snaps)))
+            rank = {i: k for k, i in enumerate(visit)}
+            body["waypoints"] = [self.waypoint(s, rank[s.index]) for s in snaps]
+        return body
+
+
+def check_size(routes: Sequence[Sequence[Trace]], opts: RouteOptions) -> None:
+    """Refuse an answer over ``max_response_coordinates`` before encoding it: overview and step
+    geometries each carry every coordinate once."""
+    per_copy = sum(len(t.coords) for legs in routes for t in legs)
+    copies = (opts.overview != "false") + opts.steps
+    most = routing_settings().max_response_coordinates
+    if per_copy * max(copies, 1) > most:
+        raise ResponseTooLargeError(
+            f"the answer would hold {per_copy * max(copies, 1)} coordinates; at most {most} "
+            "(UGVMAP_ROUTING_MAX_RESPONSE_COORDINATES): ask for overview=false, steps=false, "
+            "fewer alternatives or a shorter route")

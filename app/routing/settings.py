@@ -1,8 +1,15 @@
-"""Routing limits, from the environment (prefix ``UGVMAP_ROUTING_``)."""
+"""Routing limits, from the environment (prefix ``UGVMAP_ROUTING_``).
+
+Every number a client sends is bounded by one of these, and so is every answer: a request
+over a limit is refused before the search (points, radii, budgets) or before the response is
+built (coordinates, waypoints), so no anonymous request can make a worker allocate without
+bound.
+"""
 
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Literal
 
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
@@ -11,12 +18,20 @@ class RoutingSettings(BaseSettings):
     """Routing limits, from ``UGVMAP_ROUTING_*`` environment variables."""
     model_config = SettingsConfigDict(env_prefix="UGVMAP_ROUTING_", extra="ignore")
 
-    snap_radius_m: float = 50.0  # farther than this from every road: 422 NoSegmentError
-    max_points: int = 100  # per route request: 400 TooBigError beyond
+    snap_radius_m: float = 50.0  # default per point: farther from every road is NoSegment
+    max_snap_radius_m: float = 10_000.0  # radius=/radiuses= ceiling; what `unlimited` means
+    max_points: int = 100  # per route request: TooBig beyond
     max_optimize_points: int = 30  # optimize=true needs a cost matrix: n searches
+    max_alternatives: int = 3  # alternatives=N: TooBig beyond
     max_isochrone_seconds: float = 4 * 3600.0
     max_isochrone_meters: float = 200_000.0
-    min_spacing_m: float = 0.1  # format=waypoints
+    min_spacing_m: float = 0.5  # format=waypoints
+    max_spacing_m: float = 10_000.0
+    # Output caps: coordinates of one answer (route overviews + step geometries, or isochrone
+    # lines) and dense waypoints; beyond them the answer is refused (ResponseTooLarge).
+    max_response_coordinates: int = 200_000
+    max_waypoints: int = 50_000
+    driving_side: Literal["right", "left"] = "right"  # approaches=curb and driving_side
     # Networks with fewer segments route by Dijkstra alone: a hierarchy would not pay off.
     hierarchy_min_segments: int = 1000
 

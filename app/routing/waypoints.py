@@ -12,20 +12,24 @@ from typing import Any
 
 import numpy as np
 
+from app.errors import ResponseTooLargeError
 from app.routing.engine import Leg
 from app.routing.geometry import local_frame
-from app.routing.osrm import Shaper
+from app.routing.graph import RoadGraph
+from app.routing.settings import routing_settings
+from app.routing.trace import location, run_of
 
 
-def dense_waypoints(shaper: Shaper, legs: list[Leg], spacing_m: float) -> dict[str, Any]:
-    """Points every ``spacing_m`` along the route (plus its end), with per-point attributes."""
+def dense_waypoints(graph: RoadGraph, legs: list[Leg], spacing_m: float) -> dict[str, Any]:
+    """Points every ``spacing_m`` along the route (plus its end), with per-point attributes;
+    refused (422 ``ResponseTooLarge``) when that is more than ``max_waypoints`` points."""
     rows, xs, ys = [], [], []
     frame = None
     for leg in legs:
         for p in leg.pieces:
             if p.f_from == p.f_to:
                 continue
-            pc = np.array(shaper.piece_coords(p))
+            pc = np.array(run_of(graph, p).coords)
             if frame is None:
                 frame = local_frame(*pc[0])
             x, y = frame.transform(pc[:, 0], pc[:, 1])
@@ -33,7 +37,7 @@ def dense_waypoints(shaper: Shaper, legs: list[Leg], spacing_m: float) -> dict[s
             xs.append(np.asarray(x))
             ys.append(np.asarray(y))
     if frame is None:  # start and end coincide
-        start = shaper.location(legs[0].start)
+        start = location(graph, legs[0].start)
         return {"frame": _frame_doc(start), "spacing_m": spacing_m, "points": []}
     # Each piece contributes its edges; consecutive pieces share their joining vertex.
     x = np.concatenate([xs[0][:1], *[a[1:] for a in xs]])
@@ -41,12 +45,17 @@ def dense_waypoints(shaper: Shaper, legs: list[Leg], spacing_m: float) -> dict[s
     edge_rows = np.array(rows, dtype=np.int64)
     edge_len = np.hypot(np.diff(x), np.diff(y))
     along = np.concatenate([[0.0], np.cumsum(edge_len)])
+    count, most = int(along[-1] // spacing_m) + 2, routing_settings().max_waypoints
+    if count > most:
+        raise ResponseTooLargeError(
+            f"{along[-1]:.0f} m every {spacing_m:g} m is {count} waypoints; at most {most} "
+            "(UGVMAP_ROUTING_MAX_WAYPOINTS): ask for a larger spacing")
     stations = np.arange(0.0, along[-1], spacing_m)
     stations = np.append(stations, along[-1])
     px, py = np.interp(stations, along, x), np.interp(stations, along, y)
     edge = np.clip(np.searchsorted(along, stations, side="right") - 1, 0, len(edge_rows) - 1)
     lon, lat = frame.transform(px, py, direction="INVERSE")
-    s, g = shaper.graph.segs, shaper.graph
+    s, g = graph.segs, graph
     origin = frame.transform(x[0], y[0], direction="INVERSE")
     points = []
     for k, st in enumerate(stations):

@@ -1,0 +1,354 @@
+"""Route options: one table of every option, parsed the same way from a query string, a JSON
+body or the CLI, with the defaults of the URL that received them.
+
+Two URL families take the same options and differ only in defaults: our ``/route`` answers a
+vehicle planner (GeoJSON, full overview, steps), the OSRM-shaped ``/route/v1/...`` answers like
+OSRM (polyline, simplified overview, no steps). Unknown options and invalid values are refused
+(400 ``InvalidQuery`` when they do not parse, ``InvalidOptions`` when per-point lists do not
+match the points, ``InvalidValue`` when out of range), never silently ignored.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Literal
+
+import polyline
+
+from app.errors import (
+    InvalidOptionsError,
+    InvalidQueryError,
+    InvalidValueError,
+    NotImplementedOptionError,
+    TooBigError,
+)
+from app.routing import params
+from app.routing.costs import Cost
+from app.routing.settings import routing_settings
+
+GEOMETRIES = ("geojson", "polyline", "polyline6")
+OVERVIEWS = ("full", "simplified", "false")
+FORMATS = ("osrm", "waypoints")
+APPROACHES = ("unrestricted", "curb", "opposite")
+ANNOTATIONS = ("nodes", "distance", "duration", "speed", "weight", "datasources")
+
+# exclude= classes (OSRM's option) -> the road_class values they stand for. OSRM's profile
+# classes that need data we do not hold (toll, ferry, tunnel, restricted) are unknown here.
+EXCLUDE_CLASSES: dict[str, tuple[str, ...]] = {
+    "motorway": ("motorway", "motorway_link"),
+    "trunk": ("trunk", "trunk_link"),
+    "primary": ("primary", "primary_link"),
+    "secondary": ("secondary", "secondary_link"),
+    "tertiary": ("tertiary", "tertiary_link"),
+    "unclassified": ("unclassified", "road"),
+    "residential": ("residential", "living_street"),
+    "service": ("service",),
+    "track": ("track",),
+    "path": ("path", "footway", "cycleway", "bridleway", "pedestrian", "steps", "corridor"),
+}
+ROAD_CLASS = re.compile(r"[A-Za-z0-9_:.-]{1,64}", re.ASCII)
+HINT = re.compile(r"[A-Za-z0-9+/=_-]{0,512}", re.ASCII)
+MAX_CLASSES = 32
+MAX_OPTION_CHARS = 2048  # any one option's value, before it is split
+POINT_CHARS = 64  # per point in points= / radiuses= / bearings= ...; hints get HINT's 512
+
+Profile = Literal["ugvmap", "osrm"]
+# Options that shape an OSRM answer, which format=waypoints does not give.
+OSRM_SHAPE = frozenset({"geometries", "overview", "steps", "annotations", "alternatives",
+                        "generate_hints", "skip_waypoints"})
+
+
+@dataclass(frozen=True)
+class PointOptions:
+    """What one input point asks of its snap: a radius, a bearing, an approach side."""
+
+    radius_m: float
+    bearing: tuple[int, int] | None = None  # (value, range) in degrees
+    approach: str = "unrestricted"
+
+
+@dataclass
+class RouteOptions:
+    """A route request's options, shared by the query string, the POST body and the CLI."""
+
+    cost: Cost = Cost.TIME
+    avoid: frozenset[str] = field(default_factory=frozenset)  # road classes, exclude= mapped
+    optimize: bool = False
+    geometries: str = "geojson"
+    overview: str = "full"
+    steps: bool = True
+    annotations: frozenset[str] = frozenset()
+    alternatives: int = 0
+    continue_straight: bool = False
+    generate_hints: bool = True
+    skip_waypoints: bool = False
+    format: str = "osrm"
+    spacing_m: float = 1.0
+    radius_m: float | None = None  # default snap radius for points without radiuses=
+    points: tuple[PointOptions, ...] = ()  # one per input point, filled by :func:`parse`
+
+    def point(self, i: int) -> PointOptions:
+        """Point ``i``'s snap options (the request-wide radius when none were given)."""
+        if self.points:
+            return self.points[i]
+        return PointOptions(self.radius_m if self.radius_m is not None
+                            else routing_settings().snap_radius_m)
+
+    def check(self, n_points: int) -> None:
+        """Refuse requests outside the limits before any search starts."""
+        limits = routing_settings()
+        if n_points < 2:
+            raise InvalidOptionsError("a route needs at least two points")
+        if n_points > limits.max_points:
+            raise TooBigError(f"{n_points} points; at most {limits.max_points} per route")
+        if self.optimize and n_points > limits.max_optimize_points:
+            raise TooBigError(f"{n_points} points; optimize=true takes at most "
+                              f"{limits.max_optimize_points}")
+
+
+DEFAULTS: dict[Profile, dict[str, str]] = {
+    "ugvmap": {"geometries": "geojson", "overview": "full", "steps": "true"},
+    "osrm": {"geometries": "polyline", "overview": "simplified", "steps": "false"},
+}
+# Option name -> the URL families that take it; ``points`` is the path on OSRM's URLs, and
+# format/spacing shape answers that are not OSRM's.
+OPTIONS: dict[str, tuple[Profile, ...]] = {
+    **{name: ("ugvmap",) for name in ("points", "format", "spacing")},
+    **{name: ("ugvmap", "osrm") for name in (
+        "cost", "avoid", "exclude", "optimize", "geometries", "overview", "steps", "annotations",
+        "alternatives", "continue_straight", "radius", "radiuses", "bearings", "approaches",
+        "hints", "generate_hints", "skip_waypoints", "snapping", "waypoints")},
+}
+
+
+DOCS: dict[str, str] = {
+    "points": "lon,lat;lon,lat[;...] visited in order (or polyline(...) / polyline6(...))",
+    "cost": "time (default) | distance: what the route minimises",
+    "avoid": "road classes never driven, comma-separated (road_class values)",
+    "exclude": f"OSRM classes never driven, comma-separated: {', '.join(EXCLUDE_CLASSES)}",
+    "optimize": "true: best order of the intermediate points (first and last fixed)",
+    "geometries": "geojson | polyline (precision 5) | polyline6",
+    "overview": "full | simplified (Douglas-Peucker at the zoom that shows the route) | false",
+    "steps": "true | false: turn-by-turn steps",
+    "annotations": "true | false | any of nodes,distance,duration,speed,weight,datasources",
+    "alternatives": "true | false | N: up to N clearly different alternatives (two points)",
+    "continue_straight": "default (= false) | true: no u-turn at intermediate points",
+    "radius": "snap radius for every point, metres, or unlimited",
+    "radiuses": "per point: metres or unlimited, ';'-separated, empty for the default",
+    "bearings": "per point: value,range in degrees (0..360, 0..180), empty for any",
+    "approaches": "per point: unrestricted | curb | opposite (driving side from settings)",
+    "hints": "per point: hints from an earlier answer (accepted, not needed)",
+    "generate_hints": "true | false: waypoint hints in the answer",
+    "skip_waypoints": "true | false: leave out the waypoints array",
+    "snapping": "default | any (the same here: every component is routable)",
+    "waypoints": "not implemented (400 NotImplemented): every point ends a leg",
+    "format": "osrm | waypoints (dense points in a local metric frame)",
+    "spacing": "metres between dense waypoints (format=waypoints)",
+}
+
+
+def check_names(raw: Mapping[str, object], profile: Profile) -> None:
+    """400 ``InvalidQuery`` for an option this URL does not take (OSRM refuses them too)."""
+    unknown = sorted(k for k in raw if profile not in OPTIONS.get(k, ()))
+    if unknown:
+        raise InvalidQueryError(f"unknown option {unknown[0][:40]!r}; this URL takes "
+                                f"{', '.join(k for k, v in OPTIONS.items() if profile in v)}")
+
+
+def parse_points(raw: str) -> list[tuple[float, float]]:
+    """``lon,lat;lon,lat;...`` (or OSRM's ``polyline(...)``/``polyline6(...)``) -> points."""
+    limits = routing_settings()
+    params.bounded("points", raw, POINT_CHARS * (limits.max_points + 1))
+    for precision, prefix in ((6, "polyline6("), (5, "polyline(")):
+        if raw.startswith(prefix) and raw.endswith(")"):
+            try:
+                pairs = polyline.decode(raw[len(prefix):-1], precision)
+            except (ValueError, IndexError, TypeError):
+                raise InvalidQueryError("points: the polyline does not decode") from None
+            return [params.lonlat(i, lon, lat) for i, (lat, lon) in enumerate(pairs)]
+    points = []
+    for i, part in enumerate(raw.strip().strip(";").split(";")):
+        lon_lat = part.split(",")
+        if len(lon_lat) != 2:
+            raise InvalidQueryError(f"point {i} {part[:POINT_CHARS]!r} is not 'lon,lat'")
+        lon, lat = (params.finite(f"point {i}", v) for v in lon_lat)
+        points.append(params.lonlat(i, lon, lat))
+    return points
+
+
+def _classes(field_name: str, raw: str) -> list[str]:
+    parts = [p.strip() for p in params.bounded(field_name, raw, MAX_OPTION_CHARS).split(",")]
+    parts = [p for p in parts if p]
+    if len(parts) > MAX_CLASSES:
+        raise InvalidQueryError(f"{field_name} lists {len(parts)} classes; at most {MAX_CLASSES}")
+    for p in parts:
+        if not ROAD_CLASS.fullmatch(p):
+            raise InvalidQueryError(f"{field_name}: {p[:40]!r} is not a road class name")
+    return parts
+
+
+def _exclude(raw: str) -> set[str]:
+    out: set[str] = set()
+    for name in _classes("exclude", raw):
+        if name not in EXCLUDE_CLASSES:
+            message = (f"exclude class {name!r} is unknown; known: "
+                       f"{', '.join(EXCLUDE_CLASSES)}")
+            raise InvalidValueError(message, errors={"exclude": message})
+        out.update(EXCLUDE_CLASSES[name])
+    return out
+
+
+def _annotations(raw: str) -> frozenset[str]:
+    if raw in ("true", "false"):
+        return frozenset(ANNOTATIONS) if raw == "true" else frozenset()
+    names = params.bounded("annotations", raw, 200).split(",")
+    for name in names:
+        params.choice("annotations", name, ANNOTATIONS)
+    return frozenset(names)
+
+
+def _alternatives(raw: str) -> int:
+    if raw in ("true", "false"):
+        return int(raw == "true")
+    most = routing_settings().max_alternatives
+    n = params.integer_in("alternatives", raw, 0, 10**6)
+    if n > most:
+        raise TooBigError(f"alternatives={n}; at most {most}")
+    return n
+
+
+def _per_point(name: str, raw: str | None, n: int, max_chars: int = POINT_CHARS
+               ) -> list[str | None]:
+    """OSRM's ``a;b;;d`` lists: exactly one element per point, empty for the default."""
+    if raw is None:
+        return [None] * n
+    parts = params.bounded(name, raw, (max_chars + 1) * n).split(";")
+    if len(parts) != n:
+        raise InvalidOptionsError(f"{name} has {len(parts)} elements for {n} points; give one "
+                                  "per point (empty for the default)")
+    return [p or None for p in parts]
+
+
+def _radius(name: str, raw: str) -> float:
+    most = routing_settings().max_snap_radius_m
+    if raw == "unlimited":
+        return most
+    return params.number_in(name, raw, 0.0, most)
+
+
+def _bearing(i: int, raw: str) -> tuple[int, int]:
+    parts = raw.split(",")
+    if len(parts) != 2:
+        raise InvalidQueryError(f"bearings: element {i} {raw!r} is not 'value,range'")
+    try:
+        return (params.integer_in(f"bearing {i} value", parts[0], 0, 360),
+                params.integer_in(f"bearing {i} range", parts[1], 0, 180))
+    except InvalidValueError as exc:  # OSRM: parsed, but not a valid bearing
+        raise InvalidOptionsError(exc.message) from None
+
+
+def _points(raw: Mapping[str, str], n: int, default_radius: float) -> tuple[PointOptions, ...]:
+    radiuses = _per_point("radiuses", raw.get("radiuses"), n)
+    bearings = _per_point("bearings", raw.get("bearings"), n)
+    approaches = _per_point("approaches", raw.get("approaches"), n)
+    for i, hint in enumerate(_per_point("hints", raw.get("hints"), n, max_chars=512)):
+        # Hints are accepted (OSRM clients send back the ones we gave) but not used: a snap
+        # is one indexed query, cheaper than validating a hint against the current version.
+        if hint is not None and not HINT.fullmatch(hint):
+            raise InvalidQueryError(f"hints: element {i} is not a base64 hint")
+    return tuple(PointOptions(
+        _radius(f"radiuses[{i}]", r) if r is not None else default_radius,
+        _bearing(i, b) if b is not None else None,
+        params.choice(f"approaches[{i}]", a, APPROACHES) if a is not None else "unrestricted",
+    ) for i, (r, b, a) in enumerate(zip(radiuses, bearings, approaches, strict=True)))
+
+
+def parse(raw: Mapping[str, str], profile: Profile, n_points: int) -> RouteOptions:
+    """Options from raw strings (query string, or a JSON body rendered as strings) for a request
+    of ``n_points`` points on URL family ``profile``."""
+    check_names(raw, profile)
+    for name, value in raw.items():
+        if name not in ("points", "hints", "radiuses", "bearings", "approaches"):
+            params.bounded(name, value, MAX_OPTION_CHARS)
+    if raw.get("waypoints") is not None:
+        raise NotImplementedOptionError("waypoints= (via points without legs) is not "
+                                        "implemented; every point ends a leg")
+    if raw.get("snapping") is not None:  # we never restrict snaps to the largest component
+        params.choice("snapping", raw["snapping"], ("default", "any"))
+    get = {**DEFAULTS[profile], **raw}.get
+    limits = routing_settings()
+    radius = (_radius("radius", get("radius") or "")
+              if get("radius") is not None else None)
+    avoid = set(_classes("avoid", get("avoid") or ""))
+    avoid |= _exclude(get("exclude") or "")
+    continue_straight = params.choice("continue_straight", get("continue_straight", "default"),
+                                      ("default", "true", "false"))
+    opts = RouteOptions(
+        cost=Cost(params.choice("cost", get("cost", "time"), tuple(c.value for c in Cost))),
+        avoid=frozenset(avoid),
+        optimize=params.boolean("optimize", get("optimize", "false")),
+        geometries=params.choice("geometries", get("geometries", ""), GEOMETRIES),
+        overview=params.choice("overview", get("overview", ""), OVERVIEWS),
+        steps=params.boolean("steps", get("steps", "")),
+        annotations=_annotations(get("annotations", "false")),
+        alternatives=_alternatives(get("alternatives", "false")),
+        continue_straight=continue_straight == "true",
+        generate_hints=params.boolean("generate_hints", get("generate_hints", "true")),
+        skip_waypoints=params.boolean("skip_waypoints", get("skip_waypoints", "false")),
+        format=params.choice("format", get("format", "osrm"), FORMATS),
+        spacing_m=params.number_in("spacing", get("spacing", "1"), limits.min_spacing_m,
+                                   limits.max_spacing_m),
+        radius_m=radius,
+    )
+    opts.points = _points(raw, n_points, radius if radius is not None else limits.snap_radius_m)
+    given = set(raw) & (OSRM_SHAPE if opts.format == "waypoints" else {"spacing"})
+    if given:
+        raise InvalidOptionsError(f"{sorted(given)[0]} does not apply to format={opts.format}")
+    opts.check(n_points)
+    return opts
+
+
+ISOCHRONE_OPTIONS = ("point", "seconds", "meters", "avoid", "exclude", "radius")
+
+
+@dataclass(frozen=True)
+class IsochroneOptions:
+    """An isochrone request: one point, one budget (seconds or metres), avoided classes."""
+
+    point: tuple[float, float]
+    budget: float
+    cost: Cost
+    avoid: frozenset[str]
+    snap: PointOptions
+
+    @property
+    def unit(self) -> str:
+        """``s`` or ``m``, as the answer's properties say."""
+        return "s" if self.cost is Cost.TIME else "m"
+
+
+def parse_isochrone(raw: Mapping[str, str]) -> IsochroneOptions:
+    """Isochrone options from raw strings; every number finite and bounded by the settings."""
+    unknown = sorted(k for k in raw if k not in ISOCHRONE_OPTIONS)
+    if unknown:
+        raise InvalidQueryError(f"unknown option {unknown[0][:40]!r}; the isochrone takes "
+                                f"{', '.join(ISOCHRONE_OPTIONS)}")
+    if "point" not in raw:
+        raise InvalidQueryError("point= (lon,lat) is required")
+    points = parse_points(raw["point"])
+    if len(points) != 1:
+        raise InvalidQueryError("isochrone takes exactly one point")
+    limits = routing_settings()
+    if ("seconds" in raw) == ("meters" in raw):
+        raise InvalidQueryError("give exactly one of seconds= or meters=")
+    if "seconds" in raw:
+        cost, budget = Cost.TIME, params.number_in("seconds", raw["seconds"], 0.0,
+                                                   limits.max_isochrone_seconds, open_low=True)
+    else:
+        cost, budget = Cost.DISTANCE, params.number_in("meters", raw["meters"], 0.0,
+                                                       limits.max_isochrone_meters, open_low=True)
+    avoid = set(_classes("avoid", raw.get("avoid", ""))) | _exclude(raw.get("exclude", ""))
+    radius = (_radius("radius", raw["radius"]) if "radius" in raw else limits.snap_radius_m)
+    return IsochroneOptions(points[0], budget, cost, frozenset(avoid), PointOptions(radius))

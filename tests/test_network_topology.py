@@ -96,8 +96,9 @@ def _neighbour_at_junction(network_id: int, fid: int) -> int:
             "SELECT b.id FROM road_segments a JOIN road_segments b ON b.id <> a.id AND "
             "b.network_id = a.network_id AND (b.source_node IN (a.source_node, a.target_node) "
             "OR b.target_node IN (a.source_node, a.target_node)) "
-            "JOIN road_nodes n ON n.id IN (b.source_node, b.target_node) AND n.kind = 'junction' "
-            "WHERE a.id = :id LIMIT 1"), {"id": fid}).scalar_one()
+            "JOIN road_nodes n ON n.id IN (a.source_node, a.target_node) "
+            " AND n.id IN (b.source_node, b.target_node) AND n.kind = 'junction' "
+            "WHERE a.id = :id ORDER BY b.id LIMIT 1"), {"id": fid}).scalar_one()
 
 
 def test_merge_of_opposite_digitised_one_ways(client) -> None:

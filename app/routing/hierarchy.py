@@ -14,8 +14,9 @@ direction weighs :data:`pyroutingkit.INF_WEIGHT`). Such an edit updates the metr
 before the graph version that contains it is published, so the next route sees it whether
 the road got faster, slower, closed or one-way. An edit that changes the arcs (a segment
 added, split, merged, or moved to other nodes) needs a new topology: that is rebuilt in a
-background thread and, until it is ready, routes use the exact compiled Dijkstra of
-:mod:`app.routing.graph` (never a stale hierarchy).
+background thread from the previous contraction order (seconds, :mod:`app.routing.orders`)
+and, until it is ready, routes use the exact compiled Dijkstra of :mod:`app.routing.graph`
+(never a stale hierarchy).
 
 Weights are integers: costs are quantised to ``quantum`` (:func:`quantum_for`), so among paths
 whose costs differ by less than ``quantum`` per arc the search may pick either; the route's
@@ -34,6 +35,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyroutingkit as rk
 
+from app.routing import orders
+from app.routing.arcs import Arcs
 from app.routing.geometry import haversine_m
 
 log = logging.getLogger("ugvmap.routing")
@@ -43,25 +46,6 @@ HEADROOM = 2**29  # largest quantised route cost we rely on (INF is 2**31 - 1)
 DETOUR = 8.0  # a shortest path is assumed at most this many times the network's diagonal
 PARTIAL_LIMIT = 50_000  # changed arcs beyond which a full customisation is cheaper
 MAX_METRICS = 3  # per hierarchy (cost model x avoid set), least recently used dropped
-
-
-@dataclass(frozen=True)
-class Arcs:
-    """The hierarchy's input arcs: every non-loop segment in both directions."""
-
-    tail: np.ndarray  # uint32 node index
-    head: np.ndarray
-    row: np.ndarray  # int64 segment row
-    way: np.ndarray  # int8: +1 along the geometry, -1 against it
-
-    @classmethod
-    def of(cls, u: np.ndarray, v: np.ndarray) -> Arcs:
-        """Both directions of every segment from node ``u`` to ``v``; loops carry no route."""
-        rows = np.flatnonzero(u != v)
-        return cls(np.concatenate([u[rows], v[rows]]).astype(np.uint32),
-                   np.concatenate([v[rows], u[rows]]).astype(np.uint32),
-                   np.concatenate([rows, rows]),
-                   np.concatenate([np.ones(len(rows), np.int8), -np.ones(len(rows), np.int8)]))
 
 
 def quantum_for(node_lonlat: np.ndarray, max_rate: float) -> float:
@@ -120,33 +104,71 @@ class Hierarchy:
     """The CCH topology of one graph *shape* (node set and arcs) and its metrics.
 
     Graph versions that share a shape share the hierarchy. The topology and each metric's
-    first customisation are built by one background thread (seconds on a million segments);
-    later versions update a metric in place (:meth:`metric`), and a query from an older
-    version than the metric's falls back to Dijkstra.
+    first customisation are built by one background thread; later versions update a metric in
+    place (:meth:`metric`), and a query from an older version than the metric's falls back to
+    Dijkstra. The topology's contraction order comes from disk when these exact arcs were
+    contracted before, else from ``previous`` (the hierarchy of the shape this one replaces)
+    when few nodes are new, else from nested dissection (:mod:`app.routing.orders`).
     """
 
-    def __init__(self, arcs: Arcs, node_lonlat: np.ndarray) -> None:
+    def __init__(self, arcs: Arcs, node_lonlat: np.ndarray, node_ids: np.ndarray,
+                 previous: Hierarchy | None = None) -> None:
         self.arcs = arcs
         self.node_lonlat = node_lonlat
+        self.node_ids = node_ids
         self.topology: rk.CCHTopology | None = None
+        self.order: orders.Order | None = None  # once built
+        self.order_source = ""  # "saved", "derived" or "dissected", once built (logs, tests)
         self.ready = threading.Event()  # topology built (or failed)
         self._metrics: OrderedDict[object, Metric] = OrderedDict()
         self._pending: set[object] = set()
         self._scheduled = False
         self._lock = threading.Lock()
         self.answered = 0  # routes found through the hierarchy (logs, tests)
+        # Where a derived order would come from: a built order, or a hierarchy still queued
+        # for building (never one that nobody asked for, so no chain of topologies stays alive).
+        self._previous: orders.Order | Hierarchy | None = None
+        if previous is not None:
+            self._previous = previous.order or (previous if previous._scheduled
+                                                else previous._previous)
+
+    def _previous_order(self) -> orders.Order | None:
+        previous = self._previous
+        if isinstance(previous, Hierarchy):
+            previous.ready.wait()  # queued before us on the same thread: already done
+            previous = previous.order
+        return previous
 
     def _build(self) -> None:
-        """Nested dissection and contraction (seconds on a million segments; no GIL held)."""
+        """The topology, from a known order when there is one (seconds), else by nested
+        dissection (minutes on a country); no GIL held either way."""
         try:
-            topology = rk.CCHTopology()
-            topology.build(self.arcs.tail, self.arcs.head,
-                           self.node_lonlat[:, 1].astype(np.float32),
-                           self.node_lonlat[:, 0].astype(np.float32), len(self.node_lonlat))
+            digest = orders.arcs_digest(self.node_ids, self.arcs)
+            known = orders.saved(digest, self.node_ids)
+            previous = self._previous_order() if known is None else None
+            from_previous = orders.derived(previous, self.node_ids) if previous else None
+            if known is not None:
+                rank = np.searchsorted(self.node_ids, known.node_ids)
+                topology, added, self.order_source = (orders.topology_from(self.arcs, rank),
+                                                      known.added, "saved")
+            elif from_previous is not None:
+                rank, added = from_previous
+                topology = orders.topology_from(self.arcs, rank)
+                self.order_source = "derived"
+            else:
+                topology = rk.CCHTopology()
+                topology.build(self.arcs.tail, self.arcs.head,
+                               self.node_lonlat[:, 1].astype(np.float32),
+                               self.node_lonlat[:, 0].astype(np.float32), len(self.node_lonlat))
+                rank, added, self.order_source = orders.order_of(topology), 0, "dissected"
+            if self.order_source != "saved":
+                orders.save(digest, rank, added)
+            self.order = orders.Order(self.node_ids[rank], added)
             self.topology = topology
         except Exception:  # the exact search keeps serving; say why once
             log.exception("building the routing hierarchy failed; using Dijkstra")
         finally:
+            self._previous = None
             self.ready.set()
 
     def _customize(self, key: object, version: int, arc_costs: np.ndarray,
@@ -166,13 +188,16 @@ class Hierarchy:
             with self._lock:
                 self._pending.discard(key)
 
-    def metric(self, key: object, version: int, arc_costs: np.ndarray,
-               max_rate: float) -> Metric | None:
+    def metric(self, key: object, version: int, arc_costs: np.ndarray, max_rate: float,
+               changed: tuple[int, np.ndarray] | None = None) -> Metric | None:
         """The metric for ``key`` at ``version``, or ``None`` (use Dijkstra) while the topology
         or the metric's first customisation is being built in the background, or when a newer
         version already owns the metric. A metric at an older version is brought to
         ``version`` here by partial customisation of the arcs whose weight changed
-        (milliseconds), so it is exact for this version before the call returns."""
+        (milliseconds), so it is exact for this version before the call returns.
+
+        ``changed``: (since, arcs): only ``arcs`` differ from version ``since``; when the
+        metric is at ``since`` only they are compared, not every arc of the network."""
         with self._lock:
             if self.topology is None:
                 if not self._scheduled:
@@ -188,14 +213,23 @@ class Hierarchy:
             self._metrics.move_to_end(key)
             if current.version >= version:
                 return current if current.version == version else None
-            weights = quantise(arc_costs, current.quantum)
-            changed = np.flatnonzero(current.weights != weights).astype(np.uint32)
             with current.lock:
-                if len(changed) > PARTIAL_LIMIT:
-                    current.cch.customize(weights)
-                elif len(changed):
-                    current.cch.update_weights(changed, weights[changed])
-                current.weights, current.version = weights, version
+                if changed is not None and changed[0] == current.version:
+                    arcs = changed[1]
+                    weights = quantise(arc_costs[arcs], current.quantum)
+                    differ = current.weights[arcs] != weights
+                    arcs, weights = arcs[differ], weights[differ]
+                else:
+                    weights = quantise(arc_costs, current.quantum)
+                    arcs = np.flatnonzero(current.weights != weights)
+                    weights = weights[arcs]
+                if len(arcs) > PARTIAL_LIMIT:
+                    current.weights[arcs] = weights
+                    current.cch.customize(current.weights)
+                elif len(arcs):
+                    current.cch.update_weights(arcs.astype(np.uint32), weights)
+                    current.weights[arcs] = weights
+                current.version = version
             return current
 
 

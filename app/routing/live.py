@@ -20,7 +20,7 @@ from app.db.notify import Subscriber, network_changes
 from app.db.session import libpq_dsn
 from app.errors import DatabaseUnavailableError
 from app.routing.costs import Cost
-from app.routing.graph import SEGMENT_COLUMNS, RoadGraph, Segments
+from app.routing.graph import SEGMENT_COLUMNS, RoadGraph, Segments, Shape
 
 log = logging.getLogger("ugvmap.routing")
 
@@ -57,7 +57,9 @@ class GraphRegistry:
         self._update = threading.RLock()  # one writer at a time: loads and patches
         self._database_url = database_url
         self._subscribed = False
-        self.stats = {"loads": 0, "patches": 0}  # for logs and tests: patches should dominate
+        # For logs and tests: patches should dominate; "waited": requests that outwaited the
+        # catch-up timeout and found the listener's patch done instead of reloading.
+        self.stats = {"loads": 0, "patches": 0, "waited": 0}
 
     # -- queries -------------------------------------------------------------------------
     def get(self, network_id: int, min_version: int) -> RoadGraph:
@@ -72,21 +74,30 @@ class GraphRegistry:
             self._changed.wait_for(
                 lambda: self._graphs[network_id].version >= min_version, CATCH_UP_TIMEOUT_S)
         graph = self._graphs[network_id]
-        return graph if graph.version >= min_version else self._reload(network_id)
+        return graph if graph.version >= min_version else self._reload(network_id, min_version)
 
-    def _reload(self, network_id: int) -> RoadGraph:
+    def _reload(self, network_id: int, min_version: int | None = None) -> RoadGraph:
         try:
-            return self._load(network_id)
+            return self._load(network_id, min_version)
         except psycopg.OperationalError as exc:
             raise DatabaseUnavailableError(f"cannot load the road graph: {exc}") from exc
 
-    def _load(self, network_id: int) -> RoadGraph:
-        with self._update, psycopg.connect(self._dsn) as conn:
-            segs, version = read_segments(conn, network_id)
+    def _load(self, network_id: int, min_version: int | None = None) -> RoadGraph:
+        """Read the whole network, unless (once the update lock is ours) the graph already is
+        at ``min_version``: a request that gave up waiting while the listener was applying a
+        slow patch (a topology change on a big network) takes that patch, not a reload."""
+        with self._update:
+            current = self._graphs.get(network_id)
+            if current is not None and min_version is not None and current.version >= min_version:
+                self.stats["waited"] += 1
+                return current
+            with psycopg.connect(self._dsn) as conn:
+                segs, version = read_segments(conn, network_id)
             current = self._graphs.get(network_id)
             if current is not None and current.version >= version:
                 return current
-            graph = RoadGraph(network_id, version, segs)
+            graph = RoadGraph(network_id, version, segs,
+                              shape=Shape.of(segs, current.shape) if current else None)
             self._publish(graph)
             self.stats["loads"] += 1
         return graph

@@ -1,0 +1,78 @@
+"""The arcs of a graph shape: every non-loop segment in both directions, in CSR order.
+
+One table serves both searches. Sorted by tail then head, it *is* the sparse structure of
+the Dijkstra matrix (``indptr`` / ``head``), and its positions are the contraction
+hierarchy's input arc ids. A cost model then only needs one weight per arc (infinite where
+a direction is not allowed), so an edit changes weights at the arcs of the edited rows
+(:meth:`Arcs.of_rows`) and never re-sorts anything. It depends only on which segments join
+which nodes, so every graph version with the same segment ends shares it.
+
+Parallel segments stay separate arcs: scipy's Dijkstra relaxes each and keeps the cheaper,
+and :meth:`Arcs.cheapest` picks the same one when a node path is turned back into segments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Arcs:
+    """Arc table of one shape, sorted by (tail, head)."""
+
+    tail: np.ndarray  # uint32 node index, ascending
+    head: np.ndarray  # uint32 node index, ascending within a tail
+    row: np.ndarray  # int64 segment row
+    way: np.ndarray  # int8: +1 along the geometry, -1 against it
+    indptr: np.ndarray  # int32, n_nodes + 1: the arcs leaving node i are indptr[i]:indptr[i+1]
+    by_row: np.ndarray  # int64 (n_rows, 2): each row's forward and backward arc, -1 for loops
+    key: np.ndarray  # int64 tail * n_nodes + head, ascending: finds the arcs joining two nodes
+
+    @classmethod
+    def of(cls, u: np.ndarray, v: np.ndarray, n_nodes: int) -> Arcs:
+        """Both directions of every segment from node ``u`` to ``v``; loops carry no route."""
+        rows = np.flatnonzero(u != v)
+        tail = np.concatenate([u[rows], v[rows]]).astype(np.uint32)
+        head = np.concatenate([v[rows], u[rows]]).astype(np.uint32)
+        order = np.lexsort((head, tail))
+        by_row = np.full((len(u), 2), -1, np.int64)
+        position = np.empty(len(order), np.int64)
+        position[order] = np.arange(len(order))
+        by_row[rows, 0], by_row[rows, 1] = position[: len(rows)], position[len(rows):]
+        way = np.concatenate([np.ones(len(rows), np.int8), -np.ones(len(rows), np.int8)])
+        tail, head = tail[order], head[order]
+        return cls(tail, head, np.concatenate([rows, rows])[order], way[order],
+                   np.searchsorted(tail, np.arange(n_nodes + 1)).astype(np.int32), by_row,
+                   tail.astype(np.int64) * n_nodes + head)
+
+    def __len__(self) -> int:
+        return len(self.tail)
+
+    @property
+    def n_nodes(self) -> int:
+        """Number of nodes (rows of the CSR structure)."""
+        return len(self.indptr) - 1
+
+    def of_rows(self, rows: np.ndarray) -> np.ndarray:
+        """The arcs of segment ``rows`` (both directions, loops have none)."""
+        arcs = self.by_row[rows].ravel()
+        return arcs[arcs >= 0]
+
+    def allowed(self, usable: np.ndarray, oneway: np.ndarray, arcs: np.ndarray | None = None
+                ) -> np.ndarray:
+        """Which arcs (all, or ``arcs``) may be driven: the row is usable and its one-way rule
+        (+1 along the geometry only, -1 against it only, 0 both) permits the direction."""
+        row = self.row if arcs is None else self.row[arcs]
+        way = self.way if arcs is None else self.way[arcs]
+        return usable[row] & np.where(way > 0, oneway[row] >= 0, oneway[row] <= 0)
+
+    def cheapest(self, nodes: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """For each step between consecutive ``nodes``, the cheapest arc joining them."""
+        steps = nodes[:-1].astype(np.int64) * self.n_nodes + nodes[1:]
+        lo = np.searchsorted(self.key, steps, side="left")
+        hi = np.searchsorted(self.key, steps, side="right")
+        for k in np.flatnonzero(hi - lo > 1).tolist():  # parallel segments: rare
+            lo[k] += int(np.argmin(weights[lo[k]:hi[k]]))
+        return lo

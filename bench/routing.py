@@ -199,23 +199,91 @@ def wait_for_hierarchy(http: httpx.Client, name: str, pair: tuple, timeout_s: fl
     return f"not detected within {timeout_s:.0f} s (timings may include Dijkstra answers)"
 
 
-def edit_to_route(http: httpx.Client, conn: psycopg.Connection, name: str, net: int,
+def _lag(http: httpx.Client, name: str, params: dict, edit, seen) -> float:
+    """Milliseconds from the start of ``edit()`` to a route response for which ``seen(body)``
+    holds; the route is asked once: the edit must be visible to the very next request."""
+    t = time.perf_counter()
+    edit()
+    body = http.get(f"/networks/{name}/route", params=params).json()
+    lag = (time.perf_counter() - t) * 1e3
+    assert seen(body), "edit not seen by the next route"
+    return lag
+
+
+def _step_of(body: dict, fid: int) -> dict:
+    return next(s for s in body["routes"][0]["legs"][0]["steps"] if fid in s["segment_ids"])
+
+
+def edit_to_route(http: httpx.Client, conn: psycopg.Connection, url: str, name: str,
                   pair: tuple) -> None:
-    """Commit an edit that changes a route, then time until a route request reflects it."""
+    """Commit edits that change a route, then time until a route request reflects each: a SQL
+    UPDATE of the speed limit, and API PATCHes (speed, lanes, class, one-way, geometry with
+    the same end nodes) as the web editor sends them, each timed from the PATCH request."""
+    from app.network.tokens import create_token
+
+    with session_scope(url) as session:
+        auth = {"Authorization": f"Bearer {create_token(session, 'bench', 'editor')}"}
     (_, ax, ay), (_, bx, by) = pair
     params = {"points": f"{ax!r},{ay!r};{bx!r},{by!r}", "cost": "time"}
-    lags = []
+    base = http.get(f"/networks/{name}/route", params=params).json()
+    ids = base["routes"][0]["legs"][0]["annotation"]["segment_ids"]
+    fid = ids[len(ids) // 2]
+    forward = base["routes"][0]["legs"][0]["annotation"]["forward"][len(ids) // 2]
+    item = f"/collections/{name}-segments/items/{fid}"
+
+    tag = {"now": http.get(item).headers["ETag"]}
+
+    def patch(body: dict) -> None:
+        r = http.patch(item, json=body, headers={**auth, "If-Match": tag["now"]})
+        assert r.status_code == 200, r.text
+        tag["now"] = r.headers["ETag"]
+
+    def duration(body: dict) -> float:
+        return body["routes"][0]["duration"]
+
+    def sql_speed(kph: int) -> None:
+        conn.execute("UPDATE road_segments SET speed_limit_kph = %s WHERE id = %s", (kph, fid))
+
+    lags: dict[str, list[float]] = {}
     for kph in (5, 150, 5, 150, 5):
-        walk = http.get(f"/networks/{name}/route", params=params).json()
-        sid = walk["routes"][0]["legs"][0]["annotation"]["segment_ids"][len(
-            walk["routes"][0]["legs"][0]["annotation"]["segment_ids"]) // 2]
-        t = time.perf_counter()
-        conn.execute("UPDATE road_segments SET speed_limit_kph = %s WHERE id = %s", (kph, sid))
-        body = http.get(f"/networks/{name}/route", params=params).json()
-        lags.append((time.perf_counter() - t) * 1e3)
-        assert body["routes"][0]["duration"] != walk["routes"][0]["duration"], "edit not seen"
-    print(f"  edit -> next route reflects it (UPDATE commit + HTTP route, hierarchy): median "
-          f"{statistics.median(lags):.0f} ms over {len(lags)} edits")
+        before = duration(http.get(f"/networks/{name}/route", params=params).json())
+        lags.setdefault("speed, SQL UPDATE", []).append(_lag(
+            http, name, params, lambda k=kph: sql_speed(k), lambda b, d=before: duration(b) != d))
+    for kph in (150, 5, 150):
+        before = duration(http.get(f"/networks/{name}/route", params=params).json())
+        lags.setdefault("speed, PATCH", []).append(_lag(
+            http, name, params, lambda k=kph: patch({"speed_limit_kph": k}),
+            lambda b, d=before: duration(b) != d))
+    lanes_key = "lanes_forward" if forward else "lanes_backward"
+    for lanes in (4, 1, 4):
+        lags.setdefault("lanes, PATCH", []).append(_lag(
+            http, name, params, lambda n=lanes: patch({lanes_key: n}),
+            lambda b, n=lanes: _step_of(b, fid)["lanes"] == n))
+    for cls in ("primary", "secondary", "primary"):
+        lags.setdefault("class, PATCH", []).append(_lag(
+            http, name, params, lambda c=cls: patch({"road_class": c}),
+            lambda b, c=cls: _step_of(b, fid)["road_class"] == c))
+    against = "backward" if forward else "forward"
+    for _ in range(2):
+        lags.setdefault("one-way against the trip, PATCH", []).append(_lag(
+            http, name, params, lambda: patch({"oneway": against}),
+            lambda b: fid not in b["routes"][0]["legs"][0]["annotation"]["segment_ids"]))
+        patch({"oneway": "none"})
+    line = http.get(item).json()["geometry"]["coordinates"]
+    (x0, y0), (x1, y1) = line[0], line[-1]
+    bulge = {"type": "LineString",
+             "coordinates": [line[0], [(x0 + x1) / 2 + 0.01, (y0 + y1) / 2 + 0.01], line[-1]]}
+    for _ in range(2):
+        before = duration(http.get(f"/networks/{name}/route", params=params).json())
+        lags.setdefault("geometry (same ends), PATCH", []).append(_lag(
+            http, name, params, lambda: patch({"geometry": bulge}),
+            lambda b, d=before: duration(b) != d))
+        patch({"geometry": {"type": "LineString", "coordinates": line}})
+    every = [x for xs in lags.values() for x in xs]
+    print(f"  edit -> next route reflects it (commit or PATCH + HTTP route): median "
+          f"{statistics.median(every):.0f} ms, max {max(every):.0f} ms over {len(every)} edits")
+    for kind, xs in lags.items():
+        print(f"    {kind:34s} median {statistics.median(xs):6.0f} ms  (n={len(xs)})")
 
 
 def country(args: argparse.Namespace, url: str, conn: psycopg.Connection) -> int:
@@ -289,7 +357,7 @@ def main() -> None:
                 pair = node_pairs(conn, net, 1, edges)[0]
                 print(f"\n{name}: server hierarchy ready {wait_for_hierarchy(http, name, pair)}")
                 compare(http, conn, name, net, n_pairs, 1)
-                edit_to_route(http, conn, name, net, pair)
+                edit_to_route(http, conn, url, name, pair)
 
 
 if __name__ == "__main__":

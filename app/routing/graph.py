@@ -34,6 +34,12 @@ from app.routing.settings import routing_settings
 
 ONEWAY_CODES = {"none": 0, "forward": 1, "backward": -1}
 MAX_COST_GRAPHS = 6  # per network: cost model × avoid-set combinations kept built
+# Right after an edit a route may wait this long (per arc of the network, at most the max) for
+# the hierarchy's update to its version rather than run Dijkstra: about a quarter of what
+# one whole-network Dijkstra costs, so waiting pays off for a side-street edit (milliseconds)
+# and costs little when a motorway edit takes longer to propagate.
+METRIC_WAIT_S_PER_ARC = 3e-8
+METRIC_WAIT_MAX_S = 0.1
 
 SEGMENT_COLUMNS = (
     "id, source_node, target_node, length_m, speed_limit_kph, oneway, lanes_forward, "
@@ -43,7 +49,7 @@ SEGMENT_COLUMNS = (
 
 def _ragged_take(offsets: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Offsets and flat gather indices selecting the variable-length runs ``idx``."""
-    lengths = np.diff(offsets)[idx]
+    lengths = offsets[idx + 1] - offsets[idx]
     new_offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     gather = np.repeat(offsets[idx] - new_offsets[:-1], lengths) + np.arange(new_offsets[-1])
     return new_offsets, gather
@@ -54,7 +60,7 @@ def _replaced(column: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np.nd
     (later versions share it), else a patched copy (earlier versions may still be searched)."""
     if np.array_equal(column[rows], values, equal_nan=column.dtype.kind == "f"):
         return column
-    out = column.copy()
+    out = column.copy(order="K")
     out[rows] = values
     return out
 
@@ -64,10 +70,10 @@ def _spliced(offsets: np.ndarray, values: np.ndarray, rows: np.ndarray,
     """A ragged array (runs delimited by ``offsets``) with the runs at ``rows`` (ascending)
     replaced by the runs of ``new_values``. Same run lengths: patched in place of a copy (or
     shared when equal); otherwise the untouched stretches are copied around the new runs."""
-    lengths, new_lengths = np.diff(offsets), np.diff(new_offsets)
-    if np.array_equal(lengths[rows], new_lengths):
+    new_lengths = np.diff(new_offsets)
+    if np.array_equal(offsets[rows + 1] - offsets[rows], new_lengths):
         return offsets, _replaced(values, _ragged_take(offsets, rows)[1], new_values)
-    lengths = lengths.copy()
+    lengths = np.diff(offsets)
     lengths[rows] = new_lengths
     pieces, after = [], 0
     for i, r in enumerate(rows.tolist()):
@@ -220,8 +226,9 @@ class CostGraph:
         (not built yet, superseded, or no path within its range): then search with Dijkstra."""
         if self.hierarchy is None:
             return None
+        wait = min(METRIC_WAIT_MAX_S, METRIC_WAIT_S_PER_ARC * len(self.arcs))
         metric = self.hierarchy.metric(self.hierarchy_key, self.version, self.arc_costs,
-                                       self.max_rate)
+                                       self.max_rate, wait_s=wait)
         found = metric.shortest(self.version, outs, ins) if metric is not None else None
         if found is None:
             return None
@@ -264,8 +271,8 @@ class CostGraph:
     def patched(self, graph: RoadGraph, rows: np.ndarray) -> CostGraph:
         """This cost model on ``graph``, a later version of the same shape that differs at
         ``rows`` only: the weights of those rows' arcs are recomputed, everything else is
-        shared or copied, and the hierarchy's metric is updated at those arcs before the
-        new version can serve (partial customisation, milliseconds)."""
+        shared or copied. The hierarchy's metric follows in the background
+        (:meth:`Hierarchy.metric`); until it has, Dijkstra answers for this version."""
         s = graph.segs
         fresh = segment_costs(self.cost, s.length_m[rows], graph.speed_kph[rows])
         seg_cost = _replaced(self.seg_cost, rows, fresh)
@@ -279,9 +286,8 @@ class CostGraph:
                      max_rate=max(self.max_rate, _max_rate(self.arcs, s, new, touched)),
                      total_cost=self.total_cost + float(finite_new.sum() - finite_old.sum()),
                      lock=threading.Lock(), _matrix=None)
-        if cg.hierarchy is not None:
-            cg.hierarchy.metric(cg.hierarchy_key, cg.version, cg.arc_costs, cg.max_rate,
-                                changed=(self.version, touched))
+        if cg.hierarchy is not None:  # starts the metric's update in the background
+            cg.hierarchy.metric(cg.hierarchy_key, cg.version, cg.arc_costs, cg.max_rate)
         return cg
 
 
@@ -314,7 +320,7 @@ class Shape:
     v: np.ndarray  # ... and target
     arcs: Arcs
     fracs: np.ndarray  # metric fraction of each vertex along its segment
-    bbox: np.ndarray  # (n, 4) per segment
+    bbox: np.ndarray  # (n, 4) per segment, column-major: patches test one column at a time
     bearing_start: np.ndarray  # compass bearing leaving the first vertex, forward
     bearing_end: np.ndarray  # ... and reaching the last
     hierarchy: Hierarchy | None  # built lazily in the background, shared while arcs stay
@@ -340,7 +346,8 @@ class Shape:
             hierarchy = Hierarchy(arcs, lonlat, node_ids, previous.hierarchy
                                   if previous is not None else None)
         fracs = vertex_fractions(s.coords, s.offsets) if len(s) else np.zeros(0)
-        return cls(node_ids, u, v, arcs, fracs, s.bboxes(), *_end_bearings(s), hierarchy)
+        return cls(node_ids, u, v, arcs, fracs, np.asfortranarray(s.bboxes()),
+                   *_end_bearings(s), hierarchy)
 
     def replaced(self, rows: np.ndarray, old: Segments, fresh: Segments) -> Shape:
         """This shape after ``rows`` of ``old`` became ``fresh`` with the same end nodes: the

@@ -4,15 +4,18 @@ Why a CCH: on a million segments one Dijkstra touches a large share of the graph
 route (~100 ms compiled, ~1.8 s in ``pgr_dijkstra``). A CCH splits the work in three:
 a *topology* (nested-dissection order + chordal supergraph; seconds, depends only on which
 arcs exist), a *metric* (the arc weights pushed up the hierarchy; seconds once, then
-milliseconds per changed arc), and *queries* (elimination-tree searches; milliseconds).
+per changed arc from milliseconds for a side street to ~1 s for a motorway on a million
+segments, as a change reaches every shortcut over it), and *queries* (elimination-tree
+searches; milliseconds).
 RoutingKit, through ``pyroutingkit``, does all three in compiled code without holding the GIL.
 
 Edits keep routes exact without any admissibility rule, because every edit that leaves the set
 of arcs alone is a *weight* change: speed limit, class, length, one-way rules and avoided
 classes are all weights here (each segment contributes both directions as arcs; a forbidden
-direction weighs :data:`pyroutingkit.INF_WEIGHT`). Such an edit updates the metric partially
-before the graph version that contains it is published, so the next route sees it whether
-the road got faster, slower, closed or one-way. An edit that changes the arcs (a segment
+direction weighs :data:`pyroutingkit.INF_WEIGHT`). Such an edit updates the metric partially,
+in the background: a metric answers only for the exact graph version it was brought to, and
+routes on a newer version use the exact Dijkstra meanwhile, so the next route sees the edit
+whether the road got faster, slower, closed or one-way. An edit that changes the arcs (a segment
 added, split, merged, or moved to other nodes) needs a new topology: that is rebuilt in a
 background thread from the previous contraction order (seconds, :mod:`app.routing.orders`)
 and, until it is ready, routes use the exact compiled Dijkstra of :mod:`app.routing.graph`
@@ -64,22 +67,39 @@ def quantise(costs: np.ndarray, quantum: float) -> np.ndarray:
     return np.where(np.isfinite(q), np.minimum(q, INF - 1), INF).astype(np.uint32)
 
 
+UPDATING = -1  # a metric's version while its weights are being changed
+
+
 @dataclass
 class Metric:
-    """One cost model's customisation, owned by the newest graph version that updated it."""
+    """One cost model's customisation, at the newest graph version it was brought to.
+
+    ``version`` is :data:`UPDATING` while a background update changes the weights, so no query
+    sees half-propagated weights; ``target`` (with ``target_costs``) is the newest version the
+    metric has been asked to reach.
+    """
 
     cch: rk.CCHMetric
     weights: np.ndarray  # uint32 per arc, as customised
     version: int
     quantum: float
-    lock: threading.Lock = field(default_factory=threading.Lock)
+    target: int = 0
+    target_costs: np.ndarray | None = None
+    syncing: bool = False  # an update is queued or running
+    lock: threading.Lock = field(default_factory=threading.Lock)  # queries vs. version changes
+    synced: threading.Condition = field(default_factory=threading.Condition)
+
+    def __post_init__(self) -> None:
+        self.target = self.version
 
     def shortest(self, version: int, outs: Sequence[tuple[int, float]],
                  ins: Sequence[tuple[int, float]]) -> tuple[int, int, np.ndarray] | None:
         """(index into ``outs``, index into ``ins``, input arc ids) of the cheapest way from
-        any departure (node, cost) to any arrival; ``None`` when this metric no longer is at
+        any departure (node, cost) to any arrival; ``None`` when this metric is not at
         ``version`` or no path lies within the quantised range (the caller then runs the exact
         search, which also tells "no route" apart)."""
+        if self.version != version:  # checked again under the lock
+            return None
         with self.lock:
             if self.version != version:
                 return None
@@ -98,6 +118,25 @@ class Metric:
         if distance >= INF:
             return None
         return int(i), int(j), np.asarray(arcs, dtype=np.int64)
+
+    def sync(self, target: int, arc_costs: np.ndarray) -> None:
+        """Bring the weights to ``arc_costs`` (version ``target``) by partial customisation of
+        the arcs whose quantised weight changed; queries are turned away meanwhile."""
+        weights = quantise(arc_costs, self.quantum)
+        changed = np.flatnonzero(self.weights != weights)
+        with self.lock:  # waits for queries in flight; later ones see UPDATING
+            self.version = UPDATING
+        try:
+            if len(changed) > PARTIAL_LIMIT:
+                self.cch.customize(weights)
+            elif len(changed):
+                self.cch.update_weights(changed.astype(np.uint32), weights[changed])
+            self.weights = weights
+        finally:
+            with self.lock:
+                self.version = target if self.weights is weights else UPDATING
+            with self.synced:
+                self.synced.notify_all()
 
 
 class Hierarchy:
@@ -125,24 +164,31 @@ class Hierarchy:
         self._scheduled = False
         self._lock = threading.Lock()
         self.answered = 0  # routes found through the hierarchy (logs, tests)
-        # Where a derived order would come from: a built order, or a hierarchy still queued
-        # for building (never one that nobody asked for, so no chain of topologies stays alive).
+        # Where a derived order would come from: a built order, or a hierarchy queued for
+        # building (never one that nobody asked for, so no chain of topologies stays alive).
         self._previous: orders.Order | Hierarchy | None = None
+        self._superseded = False
         if previous is not None:
             self._previous = previous.order or (previous if previous._scheduled
                                                 else previous._previous)
+            previous._superseded = True
 
     def _previous_order(self) -> orders.Order | None:
         previous = self._previous
-        if isinstance(previous, Hierarchy):
+        while isinstance(previous, Hierarchy):
             previous.ready.wait()  # queued before us on the same thread: already done
-            previous = previous.order
+            previous = previous.order or previous._previous
         return previous
 
-    def _build(self) -> None:
-        """The topology, from a known order when there is one (seconds), else by nested
-        dissection (minutes on a country); no GIL held either way."""
+    def build(self) -> None:
+        """Build the topology now (the background thread does, when a query first asks): from
+        a known order when there is one (seconds), else by nested dissection (minutes on a
+        country); no GIL held either way. A hierarchy already replaced by a newer shape's
+        before its turn came is skipped: one edit of several statements announces
+        intermediate shapes that no route will ever use."""
         try:
+            if self._superseded:
+                return
             digest = orders.arcs_digest(self.node_ids, self.arcs)
             known = orders.saved(digest, self.node_ids)
             previous = self._previous_order() if known is None else None
@@ -165,10 +211,10 @@ class Hierarchy:
                 orders.save(digest, rank, added)
             self.order = orders.Order(self.node_ids[rank], added)
             self.topology = topology
+            self._previous = None
         except Exception:  # the exact search keeps serving; say why once
             log.exception("building the routing hierarchy failed; using Dijkstra")
         finally:
-            self._previous = None
             self.ready.set()
 
     def _customize(self, key: object, version: int, arc_costs: np.ndarray,
@@ -189,20 +235,22 @@ class Hierarchy:
                 self._pending.discard(key)
 
     def metric(self, key: object, version: int, arc_costs: np.ndarray, max_rate: float,
-               changed: tuple[int, np.ndarray] | None = None) -> Metric | None:
-        """The metric for ``key`` at ``version``, or ``None`` (use Dijkstra) while the topology
-        or the metric's first customisation is being built in the background, or when a newer
-        version already owns the metric. A metric at an older version is brought to
-        ``version`` here by partial customisation of the arcs whose weight changed
-        (milliseconds), so it is exact for this version before the call returns.
+               wait_s: float = 0.0) -> Metric | None:
+        """The metric for ``key`` if it is at ``version``, else ``None`` (use Dijkstra).
 
-        ``changed``: (since, arcs): only ``arcs`` differ from version ``since``; when the
-        metric is at ``since`` only they are compared, not every arc of the network."""
+        Everything slow happens in the background: the topology, each metric's first
+        customisation, and bringing a metric to a newer version by partial customisation of
+        the arcs whose weight changed (milliseconds for a side street, up to a second for a
+        motorway on a million segments: a change propagates to every shortcut over it). A
+        graph version is therefore published without waiting for its metric; until the metric
+        has reached it, its routes come from the exact Dijkstra. ``wait_s``: how long a query
+        may wait for an update that is bringing the metric to its version, when that is
+        likely sooner than a Dijkstra search."""
         with self._lock:
             if self.topology is None:
                 if not self._scheduled:
                     self._scheduled = True
-                    _background.submit(self._build)
+                    _background.submit(self.build)
                 return None
             current = self._metrics.get(key)
             if current is None:
@@ -211,26 +259,38 @@ class Hierarchy:
                     _background.submit(self._customize, key, version, arc_costs, max_rate)
                 return None
             self._metrics.move_to_end(key)
-            if current.version >= version:
-                return current if current.version == version else None
-            with current.lock:
-                if changed is not None and changed[0] == current.version:
-                    arcs = changed[1]
-                    weights = quantise(arc_costs[arcs], current.quantum)
-                    differ = current.weights[arcs] != weights
-                    arcs, weights = arcs[differ], weights[differ]
-                else:
-                    weights = quantise(arc_costs, current.quantum)
-                    arcs = np.flatnonzero(current.weights != weights)
-                    weights = weights[arcs]
-                if len(arcs) > PARTIAL_LIMIT:
-                    current.weights[arcs] = weights
-                    current.cch.customize(current.weights)
-                elif len(arcs):
-                    current.cch.update_weights(arcs.astype(np.uint32), weights)
-                    current.weights[arcs] = weights
-                current.version = version
-            return current
+            if current.target < version:
+                current.target, current.target_costs = version, arc_costs
+                if not current.syncing:
+                    current.syncing = True
+                    _updates.submit(self._follow, current)
+            elif current.target > version:
+                return None
+        if current.version != version and wait_s > 0:
+            with current.synced:
+                current.synced.wait_for(lambda: current.version == version
+                                        or current.target != version, wait_s)
+        return current if current.version == version else None
+
+    def _follow(self, metric: Metric) -> None:
+        """Update ``metric`` until it reaches its newest target (edits coalesce)."""
+        while True:
+            with self._lock:
+                target, costs = metric.target, metric.target_costs
+                if metric.version == target or costs is None:
+                    metric.syncing, metric.target_costs = False, None
+                    return
+            try:
+                metric.sync(target, costs)
+            except Exception:
+                log.exception("updating the routing hierarchy failed; using Dijkstra")
+                with self._lock:  # drop it: the next query customises afresh
+                    metric.syncing = False
+                    for key in [k for k, m in self._metrics.items() if m is metric]:
+                        del self._metrics[key]
+                return
 
 
 _background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="routing-hierarchy")
+# Metric updates get their own thread: a topology build on the other one can take minutes.
+_updates = ThreadPoolExecutor(max_workers=1, thread_name_prefix="routing-metric")

@@ -40,8 +40,10 @@ def read_segments(conn: psycopg.Connection, network_id: int,
             return Segments.from_rows([]), -1
         sql = f"SELECT {SEGMENT_COLUMNS} FROM road_segments WHERE network_id = %s"
         params: tuple = (network_id,)
-        if box is not None:
-            sql += " AND geom && ST_MakeEnvelope(%s, %s, %s, %s, 4326)"
+        if box is not None:  # by the GiST index, never by network_id's: after a bulk load its
+            # statistics may say "a few rows", and the planner would scan the whole network
+            sql = (f"SELECT {SEGMENT_COLUMNS} FROM road_segments WHERE network_id + 0 = %s "
+                   "AND geom && ST_MakeEnvelope(%s, %s, %s, %s, 4326)")
             params += (box[0] - BOX_EPS, box[1] - BOX_EPS, box[2] + BOX_EPS, box[3] + BOX_EPS)
         rows = conn.execute(sql, params, binary=True).fetchall()
     return Segments.from_rows(rows), int(row[0])
@@ -57,6 +59,7 @@ class GraphRegistry:
         self._update = threading.RLock()  # one writer at a time: loads and patches
         self._database_url = database_url
         self._subscribed = False
+        self._reader: psycopg.Connection | None = None  # the listener's, under _update
         # For logs and tests: patches should dominate; "waited": requests that outwaited the
         # catch-up timeout and found the listener's patch done instead of reloading.
         self.stats = {"loads": 0, "patches": 0, "waited": 0}
@@ -131,6 +134,17 @@ class GraphRegistry:
             if self._graphs[net_id].version != version:
                 self._load(net_id)
 
+    def _read_box(self, net_id: int, box: list[float]) -> Segments:
+        """The segments meeting ``box``, on a connection kept for the listener's reads (a new
+        connection per edit costs more than the read); one reconnect if it broke."""
+        if self._reader is not None and not self._reader.closed:
+            try:
+                return read_segments(self._reader, net_id, box)[0]
+            except psycopg.OperationalError:
+                self._reader.close()
+        self._reader = psycopg.connect(self._dsn)
+        return read_segments(self._reader, net_id, box)[0]
+
     def _apply(self, note: dict) -> None:
         net_id, version, box = note["network_id"], note["version"], note.get("bbox")
         # Under the update lock: a first load in progress finishes (and publishes) before this
@@ -142,8 +156,7 @@ class GraphRegistry:
             if version != graph.version + 1 or box is None:
                 self._load(net_id)
                 return
-            with psycopg.connect(self._dsn) as conn:
-                fresh, _ = read_segments(conn, net_id, box)
+            fresh = self._read_box(net_id, box)
             wide = [box[0] - BOX_EPS, box[1] - BOX_EPS, box[2] + BOX_EPS, box[3] + BOX_EPS]
             self._publish(graph.patched(version, wide, fresh))
             self.stats["patches"] += 1

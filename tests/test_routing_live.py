@@ -15,6 +15,8 @@ import psycopg
 import pytest
 
 from app.routing import synthetic
+from app.routing.costs import Cost
+from app.routing.graph import RoadGraph
 from app.routing.live import read_segments, registry
 from app.settings import get_settings
 from tests.conftest import running_server
@@ -116,6 +118,28 @@ def test_listener_patch_equals_fresh_load(client, writer, ring, database_url) ->
                   "offsets", "coords"):
         np.testing.assert_array_equal(getattr(graph.segs, field), getattr(fresh, field))
     assert seg["e"] not in graph.segs.ids
+    assert_same_graph(graph, RoadGraph(net, version, fresh))
+
+
+def assert_same_graph(patched: RoadGraph, built: RoadGraph) -> None:
+    """Everything a patched graph derives (nodes, arcs, geometry, costs) equals a fresh build
+    (parallel arcs may be listed in another order: same key, compared as sets)."""
+    for name in ("node_ids", "u", "v", "fracs", "bbox", "bearing_start", "bearing_end",
+                 "speed_kph"):
+        np.testing.assert_array_equal(getattr(patched, name), getattr(built, name), name)
+    a, b = patched.shape.arcs, built.shape.arcs
+    oa, ob = (np.lexsort((arcs.way, arcs.row, arcs.key)) for arcs in (a, b))
+    for name in ("tail", "head", "row", "way", "key"):
+        np.testing.assert_array_equal(getattr(a, name)[oa], getattr(b, name)[ob], name)
+    np.testing.assert_array_equal(a.indptr, b.indptr)
+    for arcs in (a, b):  # each row's arcs point back at it
+        for col, way in ((0, 1), (1, -1)):
+            has = arcs.by_row[:, col] >= 0
+            assert (arcs.row[arcs.by_row[has, col]] == np.flatnonzero(has)).all()
+            assert (arcs.way[arcs.by_row[has, col]] == way).all()
+    for cost in Cost:
+        np.testing.assert_array_equal(np.sort(patched.costs(cost).arc_costs),
+                                      np.sort(built.costs(cost).arc_costs))
 
 
 @pytest.mark.slow

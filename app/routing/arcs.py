@@ -47,6 +47,25 @@ class Arcs:
                    np.searchsorted(tail, np.arange(n_nodes + 1)).astype(np.int32), by_row,
                    tail.astype(np.int64) * n_nodes + head)
 
+    def spliced(self, row_map: np.ndarray, node_map: np.ndarray, n_nodes: int, n_rows: int,
+                rows: np.ndarray, u: np.ndarray, v: np.ndarray) -> Arcs:
+        """This table after an edit: arcs of dropped rows (``row_map`` -1) removed, rows and
+        nodes renumbered (both maps keep their order, so the kept arcs stay sorted), and the
+        arcs of new ``rows`` (from node ``u`` to ``v``) inserted where they sort."""
+        keep = row_map[self.row] >= 0
+        tail, head = node_map[self.tail[keep]], node_map[self.head[keep]]
+        key = tail * n_nodes + head
+        new = Arcs.of(u, v, n_nodes)
+        at = np.searchsorted(key, new.key, side="right")
+        tail = np.insert(tail, at, new.tail).astype(np.uint32)
+        row = np.insert(row_map[self.row[keep]], at, rows[new.row])
+        way = np.insert(self.way[keep], at, new.way)
+        by_row = np.full((n_rows, 2), -1, np.int64)
+        by_row[row, (way < 0).astype(np.intp)] = np.arange(len(row))
+        return Arcs(tail, np.insert(head, at, new.head).astype(np.uint32), row, way,
+                    np.searchsorted(tail, np.arange(n_nodes + 1)).astype(np.int32), by_row,
+                    np.insert(key, at, new.key))
+
     def __len__(self) -> int:
         return len(self.tail)
 

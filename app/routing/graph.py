@@ -31,9 +31,11 @@ from app.routing.costs import Cost, effective_speed_kph, segment_costs
 from app.routing.geometry import bearings, vertex_fractions
 from app.routing.hierarchy import Hierarchy
 from app.routing.settings import routing_settings
+from app.routing.splice import Layout, ragged_take, replaced, spliced
 
 ONEWAY_CODES = {"none": 0, "forward": 1, "backward": -1}
 MAX_COST_GRAPHS = 6  # per network: cost model × avoid-set combinations kept built
+SPLICE_MAX_ROWS = 10_000  # rows an edit adds or removes beyond which a graph is rebuilt
 # Right after an edit a route may wait this long (per arc of the network, at most the max) for
 # the hierarchy's update to its version rather than run Dijkstra: about a quarter of what
 # one whole-network Dijkstra costs, so waiting pays off for a side-street edit (milliseconds)
@@ -45,42 +47,6 @@ SEGMENT_COLUMNS = (
     "id, source_node, target_node, length_m, speed_limit_kph, oneway, lanes_forward, "
     "lanes_backward, road_class, name, ST_AsBinary(geom)"
 )
-
-
-def _ragged_take(offsets: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Offsets and flat gather indices selecting the variable-length runs ``idx``."""
-    lengths = offsets[idx + 1] - offsets[idx]
-    new_offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
-    gather = np.repeat(offsets[idx] - new_offsets[:-1], lengths) + np.arange(new_offsets[-1])
-    return new_offsets, gather
-
-
-def _replaced(column: np.ndarray, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """``column`` with ``values`` at ``rows``: the very same array when nothing changes there
-    (later versions share it), else a patched copy (earlier versions may still be searched)."""
-    if np.array_equal(column[rows], values, equal_nan=column.dtype.kind == "f"):
-        return column
-    out = column.copy(order="K")
-    out[rows] = values
-    return out
-
-
-def _spliced(offsets: np.ndarray, values: np.ndarray, rows: np.ndarray,
-             new_offsets: np.ndarray, new_values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A ragged array (runs delimited by ``offsets``) with the runs at ``rows`` (ascending)
-    replaced by the runs of ``new_values``. Same run lengths: patched in place of a copy (or
-    shared when equal); otherwise the untouched stretches are copied around the new runs."""
-    new_lengths = np.diff(new_offsets)
-    if np.array_equal(offsets[rows + 1] - offsets[rows], new_lengths):
-        return offsets, _replaced(values, _ragged_take(offsets, rows)[1], new_values)
-    lengths = np.diff(offsets)
-    lengths[rows] = new_lengths
-    pieces, after = [], 0
-    for i, r in enumerate(rows.tolist()):
-        pieces += [values[offsets[after]:offsets[r]], new_values[new_offsets[i]:new_offsets[i + 1]]]
-        after = r + 1
-    pieces.append(values[offsets[after]:])
-    return np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64), np.concatenate(pieces)
 
 
 @dataclass(frozen=True)
@@ -128,7 +94,7 @@ class Segments:
 
     def take(self, idx: np.ndarray) -> Segments:
         """The rows ``idx`` (with their coordinates), for patching part of a graph."""
-        offsets, gather = _ragged_take(self.offsets, idx)
+        offsets, gather = ragged_take(self.offsets, idx)
         per_row = {name: getattr(self, name)[idx] for name in _ROW_FIELDS}
         return Segments(**per_row, offsets=offsets, coords=self.coords[gather])
 
@@ -144,9 +110,17 @@ class Segments:
     def replaced(self, rows: np.ndarray, fresh: Segments) -> Segments:
         """These segments with ``rows`` (ascending) replaced by ``fresh`` (same ids), sharing
         every column the replacement leaves unchanged."""
-        per_row = {name: _replaced(getattr(self, name), rows, getattr(fresh, name))
+        per_row = {name: replaced(getattr(self, name), rows, getattr(fresh, name))
                    for name in _ROW_FIELDS}
-        offsets, coords = _spliced(self.offsets, self.coords, rows, fresh.offsets, fresh.coords)
+        offsets, coords = spliced(self.offsets, self.coords, rows, fresh.offsets, fresh.coords)
+        return Segments(**per_row, offsets=offsets, coords=coords)
+
+    def spliced(self, layout: Layout, fresh: Segments) -> Segments:
+        """The rows of ``layout``: these segments' kept rows around ``fresh``."""
+        per_row = {name: layout.join(getattr(self, name), getattr(fresh, name))
+                   for name in _ROW_FIELDS}
+        offsets, coords = layout.join_ragged(self.offsets, self.coords, fresh.offsets,
+                                             fresh.coords)
         return Segments(**per_row, offsets=offsets, coords=coords)
 
     def bboxes(self) -> np.ndarray:
@@ -275,7 +249,7 @@ class CostGraph:
         (:meth:`Hierarchy.metric`); until it has, Dijkstra answers for this version."""
         s = graph.segs
         fresh = segment_costs(self.cost, s.length_m[rows], graph.speed_kph[rows])
-        seg_cost = _replaced(self.seg_cost, rows, fresh)
+        seg_cost = replaced(self.seg_cost, rows, fresh)
         touched = self.arcs.of_rows(rows)
         new = _arc_costs(self.arcs, s, seg_cost, self.avoid, touched)
         old = self.weights[touched]
@@ -340,24 +314,70 @@ class Shape:
         arcs = previous.arcs if same_arcs and previous is not None else \
             Arcs.of(u, v, len(node_ids))
         hierarchy = previous.hierarchy if same_arcs and previous is not None else None
-        if hierarchy is None and len(s) >= max(1, routing_settings().hierarchy_min_segments):
-            lonlat = np.zeros((len(node_ids), 2))
-            lonlat[u], lonlat[v] = s.coords[s.offsets[:-1]], s.coords[s.offsets[1:] - 1]
-            hierarchy = Hierarchy(arcs, lonlat, node_ids, previous.hierarchy
-                                  if previous is not None else None)
-        fracs = vertex_fractions(s.coords, s.offsets) if len(s) else np.zeros(0)
-        return cls(node_ids, u, v, arcs, fracs, np.asfortranarray(s.bboxes()),
+        if hierarchy is None:
+            hierarchy = _hierarchy(s, u, v, node_ids, arcs,
+                                   previous.hierarchy if previous is not None else None)
+        return cls(node_ids, u, v, arcs, _fractions(s), np.asfortranarray(s.bboxes()),
                    *_end_bearings(s), hierarchy)
+
+    def spliced(self, layout: Layout, rows: np.ndarray, old: Segments, segs: Segments,
+                fresh: Segments) -> Shape:
+        """This shape after an edit that changed which segments join which nodes (a split,
+        merge, segment added or deleted): ``rows`` of ``old`` gave way to ``fresh``, making
+        ``segs``. Node indices and arcs are renumbered and patched rather than sorted anew,
+        per-row geometry is laid out around the fresh rows, and a new hierarchy is made (built
+        in the previous one's node order)."""
+        n = len(self.node_ids)
+        degree = np.bincount(self.u, minlength=n) + np.bincount(self.v, minlength=n)
+        gone = np.concatenate([self.u[rows], self.v[rows]])
+        np.subtract.at(degree, gone, 1)
+        ends = np.unique(np.concatenate([fresh.source, fresh.target]))
+        at = np.minimum(np.searchsorted(self.node_ids, ends), max(n - 1, 0))
+        known = self.node_ids[at] == ends if n else np.zeros(len(ends), bool)
+        orphan = np.unique(gone[degree[gone] == 0])
+        orphan = orphan[~np.isin(self.node_ids[orphan], ends)]
+        added = ends[~known]
+        kept = np.delete(self.node_ids, orphan)
+        node_ids = np.insert(kept, np.searchsorted(kept, added), added)
+        everyone = np.arange(n)
+        node_map = (everyone - np.searchsorted(orphan, everyone)
+                    + np.searchsorted(added, self.node_ids))
+        u = layout.join(node_map[self.u], np.searchsorted(node_ids, fresh.source))
+        v = layout.join(node_map[self.v], np.searchsorted(node_ids, fresh.target))
+        u, v = u.astype(np.int32), v.astype(np.int32)
+        row_map, fresh_rows = layout.row_maps()
+        arcs = self.arcs.spliced(row_map, node_map, len(node_ids), len(segs), fresh_rows,
+                                 u[fresh_rows], v[fresh_rows])
+        fracs = layout.join_ragged(old.offsets, self.fracs, fresh.offsets, _fractions(fresh))[1]
+        start, end = _end_bearings(fresh)
+        return Shape(node_ids, u, v, arcs, fracs,
+                     np.asfortranarray(layout.join(self.bbox, fresh.bboxes())),
+                     layout.join(self.bearing_start, start), layout.join(self.bearing_end, end),
+                     _hierarchy(segs, u, v, node_ids, arcs, self.hierarchy))
 
     def replaced(self, rows: np.ndarray, old: Segments, fresh: Segments) -> Shape:
         """This shape after ``rows`` of ``old`` became ``fresh`` with the same end nodes: the
         arcs and hierarchy stay, the geometry of those rows is patched."""
-        fracs = vertex_fractions(fresh.coords, fresh.offsets)
-        _, fracs = _spliced(old.offsets, self.fracs, rows, fresh.offsets, fracs)
+        _, fracs = spliced(old.offsets, self.fracs, rows, fresh.offsets, _fractions(fresh))
         start, end = _end_bearings(fresh)
-        return replace(self, fracs=fracs, bbox=_replaced(self.bbox, rows, fresh.bboxes()),
-                       bearing_start=_replaced(self.bearing_start, rows, start),
-                       bearing_end=_replaced(self.bearing_end, rows, end))
+        return replace(self, fracs=fracs, bbox=replaced(self.bbox, rows, fresh.bboxes()),
+                       bearing_start=replaced(self.bearing_start, rows, start),
+                       bearing_end=replaced(self.bearing_end, rows, end))
+
+
+def _fractions(s: Segments) -> np.ndarray:
+    """Metric fraction of each vertex along its segment."""
+    return vertex_fractions(s.coords, s.offsets) if len(s) else np.zeros(0)
+
+
+def _hierarchy(s: Segments, u: np.ndarray, v: np.ndarray, node_ids: np.ndarray, arcs: Arcs,
+               previous: Hierarchy | None) -> Hierarchy | None:
+    """A new (not yet built) hierarchy for these arcs, when the network is large enough."""
+    if len(s) < max(1, routing_settings().hierarchy_min_segments):
+        return None
+    lonlat = np.zeros((len(node_ids), 2))
+    lonlat[u], lonlat[v] = s.coords[s.offsets[:-1]], s.coords[s.offsets[1:] - 1]
+    return Hierarchy(arcs, lonlat, node_ids, previous)
 
 
 def _end_bearings(s: Segments) -> tuple[np.ndarray, np.ndarray]:
@@ -432,16 +452,31 @@ class RoadGraph:
             inside[k[self.segs.ids[k] == fresh.ids]] = True
         rows = np.flatnonzero(inside)
         if not self._same_ends(rows, fresh):
-            segs = self.segs.take(np.flatnonzero(~inside)).concat(fresh)
-            return RoadGraph(self.network_id, version, segs, shape=Shape.of(segs, self.shape))
+            return self._respliced(version, rows, fresh)
         fresh_speed = effective_speed_kph(fresh.speed_limit, fresh.road_class)
         graph = RoadGraph(self.network_id, version, self.segs.replaced(rows, fresh),
                           shape=self.shape.replaced(rows, self.segs, fresh),
-                          speed_kph=_replaced(self.speed_kph, rows, fresh_speed))
+                          speed_kph=replaced(self.speed_kph, rows, fresh_speed))
         with self._lock:
             carried = list(self._costs.items())
         graph._costs = {key: cg.patched(graph, rows) for key, cg in carried}
         return graph
+
+    def _respliced(self, version: int, rows: np.ndarray, fresh: Segments) -> RoadGraph:
+        """A new graph where ``rows`` gave way to ``fresh`` and the arcs changed: laid out from
+        this one's arrays around the fresh rows (a large edit rebuilds instead). Cost models
+        are rebuilt on first use; the hierarchy is rebuilt in the background."""
+        if len(rows) + len(fresh) > SPLICE_MAX_ROWS or not len(self.segs):
+            keep = np.ones(len(self.segs), bool)
+            keep[rows] = False
+            segs = self.segs.take(np.flatnonzero(keep)).concat(fresh)
+            return RoadGraph(self.network_id, version, segs, shape=Shape.of(segs, self.shape))
+        layout = Layout.of(self.segs.ids, rows, fresh.ids)
+        segs = self.segs.spliced(layout, fresh)
+        speed = layout.join(self.speed_kph,
+                            effective_speed_kph(fresh.speed_limit, fresh.road_class))
+        return RoadGraph(self.network_id, version, segs, speed_kph=speed,
+                         shape=self.shape.spliced(layout, rows, self.segs, segs, fresh))
 
     def _same_ends(self, rows: np.ndarray, fresh: Segments) -> bool:
         """True when ``fresh`` are exactly the segments at ``rows`` with the same end nodes:

@@ -18,7 +18,7 @@ import pytest
 from app.db.session import session_scope
 from app.routing import synthetic
 from app.routing.costs import Cost
-from app.routing.graph import CostGraph, RoadGraph
+from app.routing.graph import CostGraph, RoadGraph, Shape
 from app.routing.hierarchy import Hierarchy, quantise
 from app.routing.live import GraphRegistry, read_segments, registry
 from app.routing.settings import routing_settings
@@ -26,6 +26,7 @@ from app.routing.synthetic_osm import write_country
 from app.settings import get_settings
 from tests.network_helpers import bearer
 from tests.routing_support import dsn, route, segment_walk, unique
+from tests.test_routing_live import assert_same_graph
 from tests.test_routing_oracle import check_against_pgrouting
 
 
@@ -251,6 +252,15 @@ def test_edit_sequence_patches_equal_fresh_builds(client, writer, grid, through)
         assert check_against_pgrouting(client, writer, name, net, Cost.TIME, 30, seed=8) > 20
 
 
+def assert_fresh(writer, net: int) -> None:
+    """The registry's graph, patched edit by edit, equals one built from the database now."""
+    graph = caught_up(writer, net)
+    with psycopg.connect(dsn(get_settings().database_url), autocommit=True) as conn:
+        segs, version = read_segments(conn, net)
+    assert_same_graph(graph, RoadGraph(net, version, segs,
+                                       shape=replace(Shape.of(segs), hierarchy=None)))
+
+
 def metric_at(cg: CostGraph, timeout_s: float = 30):
     """The hierarchy's metric for the cost graph once it has reached the cost graph's version
     (first customisation and background updates included)."""
@@ -297,11 +307,21 @@ def test_topology_edit_falls_back_then_rebuilds(client, writer, grid) -> None:
     split = hierarchy_ready(client, name, net, Cost.TIME)
     assert split is not new and split.order_source == "derived"
     assert split.order is not None and split.order.added == 1  # the node the split added
+    assert_fresh(writer, net)  # spliced around the new node and segment, not rebuilt
     assert oracle(client, writer, name, net, Cost.TIME, 30, seed=9) > 25
+
+    halves = [f["id"] for f in r.json()["features"]]
+    r = client.post(f"/collections/{name}-segments/merge", json={"segments": halves},
+                    headers=bearer("admin"))
+    assert r.status_code == 200, r.text
+    merged = hierarchy_ready(client, name, net, Cost.TIME)  # the arcs of `new` again
+    assert merged.order_source == "saved"
+    assert_fresh(writer, net)  # the split's node dropped
+    assert oracle(client, writer, name, net, Cost.TIME, 20, seed=10) > 15
 
     restarted = GraphRegistry(get_settings().database_url)  # another process, same data dir
     version = writer.execute("SELECT version FROM networks WHERE id = %s", (net,)).fetchone()[0]
     reloaded = restarted.get(net, version).costs(Cost.TIME).hierarchy
     assert reloaded is not None and reloaded is not split
     assert reloaded.ready.wait(60) and reloaded.order_source == "saved"
-    np.testing.assert_array_equal(reloaded.order.node_ids, split.order.node_ids)
+    np.testing.assert_array_equal(reloaded.order.node_ids, merged.order.node_ids)

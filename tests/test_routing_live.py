@@ -14,7 +14,7 @@ import numpy as np
 import psycopg
 import pytest
 
-from app.routing import synthetic
+from app.routing import live, synthetic
 from app.routing.costs import Cost
 from app.routing.graph import RoadGraph
 from app.routing.live import read_segments, registry
@@ -164,3 +164,26 @@ def test_edit_is_seen_by_every_worker(database_url, writer, ring) -> None:
         writer.execute("UPDATE road_segments SET oneway = 'backward' WHERE id = %s",
                        (seg["n"],))  # any committed change counts, not only the API's
         assert all(seg["s"] in w for w in walks(base))
+
+
+def test_request_waits_for_a_slow_patch_instead_of_reloading(client, writer, ring,
+                                                             monkeypatch) -> None:
+    """A patch slower than the catch-up timeout (a topology change on a country takes about a
+    second) is waited for while it runs: the request takes the patched graph, it does not
+    read the whole network again."""
+    seg = ring["seg"]
+    route(client, ring["name"], ring["points"])  # loaded, listener running
+    reg = registry(get_settings().database_url)
+    monkeypatch.setattr(live, "CATCH_UP_TIMEOUT_S", 0.1)
+    patched = RoadGraph.patched
+
+    def slow(self, *args):
+        time.sleep(0.6)
+        return patched(self, *args)
+
+    monkeypatch.setattr(RoadGraph, "patched", slow)
+    loads, waited = reg.stats["loads"], reg.stats["waited"]
+    writer.execute("UPDATE road_segments SET speed_limit_kph = 90 WHERE id = %s", (seg["n"],))
+    assert segment_walk(route(client, ring["name"], ring["points"])) == [seg["w"], seg["n"],
+                                                                         seg["e"]]
+    assert reg.stats["loads"] == loads and reg.stats["waited"] == waited

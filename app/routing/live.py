@@ -5,14 +5,16 @@ Each process follows channel ``network_changed`` (sent by the trigger of migrati
 :mod:`app.db.notify`. A notification whose version
 directly follows the graph's patches just the announced bounding box; a gap (missed
 notification, reconnect) reloads the network. Requests add a stronger guarantee: the snap query
-reads ``networks.version`` and :meth:`GraphRegistry.get` waits until the graph has caught up,
-so an edit is visible to the very next route query in any worker.
+reads ``networks.version`` and :meth:`GraphRegistry.get` waits until the graph has caught up
+(as long as the listener makes progress; a reload only when it stalls), so an edit is visible
+to the very next route query in any worker.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 
 import psycopg
 
@@ -26,7 +28,11 @@ log = logging.getLogger("ugvmap.routing")
 
 # Box edges are widened by this much (degrees, ~1 cm) so float rounding never drops a segment.
 BOX_EPS = 1e-7
+# A request whose graph is behind waits while the listener makes progress (one edit of
+# several statements is several versions; a topology patch of a big network takes a second);
+# it reloads when nothing moved for CATCH_UP_TIMEOUT_S, or after CATCH_UP_LIMIT_S in all.
 CATCH_UP_TIMEOUT_S = 2.0
+CATCH_UP_LIMIT_S = 30.0
 
 
 
@@ -60,6 +66,7 @@ class GraphRegistry:
         self._database_url = database_url
         self._subscribed = False
         self._reader: psycopg.Connection | None = None  # the listener's, under _update
+        self._applying: int | None = None  # network the listener is patching right now
         # For logs and tests: patches should dominate; "waited": requests that outwaited the
         # catch-up timeout and found the listener's patch done instead of reloading.
         self.stats = {"loads": 0, "patches": 0, "waited": 0}
@@ -71,13 +78,17 @@ class GraphRegistry:
         graph = self._graphs.get(network_id)
         if graph is None:
             return self._reload(network_id)
-        if graph.version >= min_version:
-            return graph
-        with self._changed:  # the listener is normally a few milliseconds behind
-            self._changed.wait_for(
-                lambda: self._graphs[network_id].version >= min_version, CATCH_UP_TIMEOUT_S)
-        graph = self._graphs[network_id]
-        return graph if graph.version >= min_version else self._reload(network_id, min_version)
+        give_up = time.monotonic() + CATCH_UP_LIMIT_S
+        while graph.version < min_version:  # the listener is normally milliseconds behind
+            seen = graph.version
+            with self._changed:
+                self._changed.wait_for(
+                    lambda s=seen: self._graphs[network_id].version > s, CATCH_UP_TIMEOUT_S)
+            graph = self._graphs[network_id]
+            stalled = graph.version == seen and self._applying != network_id
+            if graph.version < min_version and (stalled or time.monotonic() > give_up):
+                return self._reload(network_id, min_version)  # a notification was lost
+        return graph
 
     def _reload(self, network_id: int, min_version: int | None = None) -> RoadGraph:
         try:
@@ -156,9 +167,13 @@ class GraphRegistry:
             if version != graph.version + 1 or box is None:
                 self._load(net_id)
                 return
-            fresh = self._read_box(net_id, box)
-            wide = [box[0] - BOX_EPS, box[1] - BOX_EPS, box[2] + BOX_EPS, box[3] + BOX_EPS]
-            self._publish(graph.patched(version, wide, fresh))
+            self._applying = net_id
+            try:
+                fresh = self._read_box(net_id, box)
+                wide = [box[0] - BOX_EPS, box[1] - BOX_EPS, box[2] + BOX_EPS, box[3] + BOX_EPS]
+                self._publish(graph.patched(version, wide, fresh))
+            finally:
+                self._applying = None
             self.stats["patches"] += 1
 
 

@@ -33,6 +33,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -190,24 +191,26 @@ class Hierarchy:
             if self._superseded:
                 return
             digest = orders.arcs_digest(self.node_ids, self.arcs)
-            known = orders.saved(digest, self.node_ids)
-            previous = self._previous_order() if known is None else None
+            previous = self._previous_order()
             from_previous = orders.derived(previous, self.node_ids) if previous else None
-            if known is not None:
-                rank = np.searchsorted(self.node_ids, known.node_ids)
-                topology, added, self.order_source = (orders.topology_from(self.arcs, rank),
-                                                      known.added, "saved")
-            elif from_previous is not None:
-                rank, added = from_previous
+            with orders.dissecting(digest) if from_previous is None else nullcontext():
+                known = orders.saved(digest, self.node_ids)
+                if known is not None:
+                    rank, added, self.order_source = (
+                        np.searchsorted(self.node_ids, known.node_ids), known.added, "saved")
+                elif from_previous is not None:
+                    (rank, added), self.order_source = from_previous, "derived"
+                else:
+                    topology = rk.CCHTopology()
+                    topology.build(self.arcs.tail, self.arcs.head,
+                                   self.node_lonlat[:, 1].astype(np.float32),
+                                   self.node_lonlat[:, 0].astype(np.float32),
+                                   len(self.node_lonlat))
+                    rank, added, self.order_source = orders.order_of(topology), 0, "dissected"
+                    orders.save(digest, rank, added)
+            if self.order_source != "dissected":
                 topology = orders.topology_from(self.arcs, rank)
-                self.order_source = "derived"
-            else:
-                topology = rk.CCHTopology()
-                topology.build(self.arcs.tail, self.arcs.head,
-                               self.node_lonlat[:, 1].astype(np.float32),
-                               self.node_lonlat[:, 0].astype(np.float32), len(self.node_lonlat))
-                rank, added, self.order_source = orders.order_of(topology), 0, "dissected"
-            if self.order_source != "saved":
+            if self.order_source == "derived":
                 orders.save(digest, rank, added)
             self.order = orders.Order(self.node_ids[rank], added)
             self.topology = topology

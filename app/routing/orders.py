@@ -22,10 +22,13 @@ RoutingKit builds a topology from an order through its own directory format (``t
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import logging
 import os
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -84,8 +87,28 @@ def save(digest: str, order: np.ndarray, added: int) -> None:
         older = sorted(path.parent.glob("cch-order-*.npz"), key=lambda p: p.stat().st_mtime)
         for stale in older[:-KEPT_FILES]:
             stale.unlink(missing_ok=True)
+            stale.with_suffix(".lock").unlink(missing_ok=True)
     except OSError as exc:
         log.warning("could not save the routing hierarchy's order in %s: %s", path.parent, exc)
+
+
+@contextmanager
+def dissecting(digest: str) -> Iterator[None]:
+    """Hold while computing the order of these arcs: another worker process of this data dir
+    that needs the same order waits, then loads it instead of dissecting too (best effort)."""
+    path = _path(digest).with_suffix(".lock")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(path, "w")  # noqa: SIM115 - held across the yield
+    except OSError:
+        yield
+        return
+    with lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 def derived(previous: Order, node_ids: np.ndarray) -> tuple[np.ndarray, int] | None:

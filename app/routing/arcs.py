@@ -79,14 +79,6 @@ class Arcs:
         arcs = self.by_row[rows].ravel()
         return arcs[arcs >= 0]
 
-    def allowed(self, usable: np.ndarray, oneway: np.ndarray, arcs: np.ndarray | None = None
-                ) -> np.ndarray:
-        """Which arcs (all, or ``arcs``) may be driven: the row is usable and its one-way rule
-        (+1 along the geometry only, -1 against it only, 0 both) permits the direction."""
-        row = self.row if arcs is None else self.row[arcs]
-        way = self.way if arcs is None else self.way[arcs]
-        return usable[row] & np.where(way > 0, oneway[row] >= 0, oneway[row] <= 0)
-
     def cheapest(self, nodes: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """For each step between consecutive ``nodes``, the cheapest arc joining them."""
         steps = nodes[:-1].astype(np.int64) * self.n_nodes + nodes[1:]

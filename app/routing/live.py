@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from functools import partial
 
 import psycopg
 
@@ -82,13 +83,16 @@ class GraphRegistry:
         while graph.version < min_version:  # the listener is normally milliseconds behind
             seen = graph.version
             with self._changed:
-                self._changed.wait_for(
-                    lambda s=seen: self._graphs[network_id].version > s, CATCH_UP_TIMEOUT_S)
+                self._changed.wait_for(partial(self._moved, network_id, seen),
+                                       CATCH_UP_TIMEOUT_S)
             graph = self._graphs[network_id]
             stalled = graph.version == seen and self._applying != network_id
             if graph.version < min_version and (stalled or time.monotonic() > give_up):
                 return self._reload(network_id, min_version)  # a notification was lost
         return graph
+
+    def _moved(self, network_id: int, seen: int) -> bool:
+        return self._graphs[network_id].version > seen
 
     def _reload(self, network_id: int, min_version: int | None = None) -> RoadGraph:
         try:
@@ -110,8 +114,8 @@ class GraphRegistry:
             current = self._graphs.get(network_id)
             if current is not None and current.version >= version:
                 return current
-            graph = RoadGraph(network_id, version, segs,
-                              shape=Shape.of(segs, current.shape) if current else None)
+            graph = RoadGraph(network_id, version, segs, shape=Shape.of(segs, current.shape)) \
+                if current else RoadGraph(network_id, version, segs)
             self._publish(graph)
             self.stats["loads"] += 1
         return graph

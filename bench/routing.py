@@ -6,8 +6,10 @@
 ``--country`` adds the 1M-segment run (~10 min, ~3 GiB peak across processes): a synthetic
 country network (:mod:`app.routing.synthetic_osm`, 810 x 810 intersections) imported with
 ``ugvmap ingest network`` in a child process (wall time and the child's peak RSS), graph and
-hierarchy build time and memory, route p50/p95 vs ``pgr_dijkstra`` on the same pairs, and the
-time from an edit's commit to a route that reflects it.
+hierarchy build time and memory (topology by nested dissection, then again from the order it
+saved, as a restart does), route p50/p95 vs ``pgr_dijkstra`` on the same pairs, the time from
+an edit (SQL UPDATE, or API PATCH of speed, lanes, class, one-way, geometry) to the next route
+that reflects it, and what a split and a merge (arcs change) do to routes.
 
 Creates a throwaway database on the configured PostGIS (``DATABASE_URL`` or the embedded
 cluster), imports ``../shared/data/osm/andorra.osm.pbf`` with the network importer (if present)
@@ -27,6 +29,7 @@ import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 import tracemalloc
 from pathlib import Path
@@ -42,6 +45,7 @@ from app.db.session import libpq_dsn, session_scope  # noqa: E402
 from app.routing import synthetic  # noqa: E402
 from app.routing.costs import Cost, pgrouting_edges_sql  # noqa: E402
 from app.routing.graph import RoadGraph  # noqa: E402
+from app.routing.hierarchy import Hierarchy  # noqa: E402
 from app.routing.live import read_segments, registry  # noqa: E402
 from app.settings import get_settings  # noqa: E402
 from tests.conftest import running_server  # noqa: E402
@@ -139,21 +143,32 @@ def build_figures(url: str, net: int, edits: bool = True) -> None:
     cg = graph.costs(Cost.TIME)
     t3 = time.perf_counter()
     held, _ = tracemalloc.get_traced_memory()
+    cg.search([(0, 0.0)], limit=0.0)  # builds Dijkstra's CSR, which edits only need lazily
+    t4 = time.perf_counter()
+    with_csr, _ = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     print(f"\ngraph of {len(segs)} segments / {graph.n_nodes} nodes: read from PostGIS "
-          f"{(t1 - t0) * 1e3:.0f} ms, build arrays + CSR {(t3 - t2) * 1e3:.0f} ms, "
-          f"held {held / 2**20:.1f} MiB (arrays built from the rows, time cost model)")
-    if cg.hierarchy is not None:
+          f"{(t1 - t0) * 1e3:.0f} ms, build arrays + arc table + time weights "
+          f"{(t3 - t2) * 1e3:.0f} ms, held {held / 2**20:.1f} MiB; Dijkstra CSR on first use "
+          f"+{(t4 - t3) * 1e3:.0f} ms, +{(with_csr - held) / 2**20:.1f} MiB")
+    h = cg.hierarchy
+    if h is not None:
         before = rss_mib()
         t4 = time.perf_counter()
-        cg.hierarchy.ready.wait()
+        h.ready.wait()
         t5 = time.perf_counter()
-        while cg.hierarchy.metric(cg.hierarchy_key, cg.version, cg.arc_costs,
-                                  cg.max_rate) is None:
+        while h.metric(cg.hierarchy_key, cg.version, cg.arc_costs, cg.max_rate) is None:
             time.sleep(0.05)
         t6 = time.perf_counter()
-        print(f"contraction hierarchy (background thread): topology {t5 - t4:.1f} s, first "
-              f"customisation {t6 - t5:.1f} s, RSS +{rss_mib() - before:.0f} MiB")
+        print(f"contraction hierarchy (background thread): topology {t5 - t4:.1f} s "
+              f"({h.order_source} order), first customisation {t6 - t5:.1f} s, "
+              f"RSS +{rss_mib() - before:.0f} MiB")
+        again = Hierarchy(h.arcs, h.node_lonlat, h.node_ids)
+        t7 = time.perf_counter()
+        again.build()
+        print(f"  the same topology from the order saved in the data dir (restart, second "
+              f"worker): {time.perf_counter() - t7:.1f} s ({again.order_source} order)")
+        del again
     del graph, cg
     if not edits:
         return
@@ -172,7 +187,7 @@ def build_figures(url: str, net: int, edits: bool = True) -> None:
             while reg._graphs[net].version < target:
                 time.sleep(0.0005)
             lags.append((time.perf_counter() - t) * 1e3)
-    print(f"edit -> graph updated (NOTIFY + bbox patch + CSR rebuild): median "
+    print(f"edit -> graph updated (NOTIFY + bbox re-read + row patch): median "
           f"{statistics.median(lags):.0f} ms over {len(lags)} edits "
           f"(patches {reg.stats['patches']}, full loads {reg.stats['loads']})")
 
@@ -199,23 +214,159 @@ def wait_for_hierarchy(http: httpx.Client, name: str, pair: tuple, timeout_s: fl
     return f"not detected within {timeout_s:.0f} s (timings may include Dijkstra answers)"
 
 
-def edit_to_route(http: httpx.Client, conn: psycopg.Connection, name: str, net: int,
+def _settle(http: httpx.Client, name: str, params: dict, fast_ms: float) -> None:
+    """Wait until the route is answered about as fast as before any edit: the previous edit has
+    reached the hierarchy, so each edit is timed from a quiet state (at most 60 s)."""
+    deadline = time.perf_counter() + 60
+    while time.perf_counter() < deadline:
+        t = time.perf_counter()
+        http.get(f"/networks/{name}/route", params=params)
+        if (time.perf_counter() - t) * 1e3 <= 2 * fast_ms + 5:
+            return
+        time.sleep(0.2)
+
+
+def _lag(http: httpx.Client, name: str, params: dict, fast_ms: float, edit, seen
+         ) -> tuple[float, float]:
+    """Milliseconds from the start of ``edit()`` to a route response for which ``seen(body)``
+    holds, and of that the edit call itself (the database write with its triggers, or the
+    PATCH); the route is asked once: the edit must be visible to the very next request."""
+    _settle(http, name, params, fast_ms)
+    t = time.perf_counter()
+    edit()
+    written = time.perf_counter()
+    body = http.get(f"/networks/{name}/route", params=params).json()
+    lag = (time.perf_counter() - t) * 1e3
+    assert seen(body), "edit not seen by the next route"
+    return lag, (written - t) * 1e3
+
+
+def _timed_ms(http: httpx.Client, name: str, params: dict) -> float:
+    t = time.perf_counter()
+    assert http.get(f"/networks/{name}/route", params=params).status_code == 200
+    return (time.perf_counter() - t) * 1e3
+
+
+def _step_of(body: dict, fid: int) -> dict:
+    return next(s for s in body["routes"][0]["legs"][0]["steps"] if fid in s["segment_ids"])
+
+
+def edit_to_route(http: httpx.Client, conn: psycopg.Connection, url: str, name: str,
                   pair: tuple) -> None:
-    """Commit an edit that changes a route, then time until a route request reflects it."""
+    """Commit edits that change a route, then time until a route request reflects each: a SQL
+    UPDATE of the speed limit, and API PATCHes (speed, lanes, class, one-way, geometry with
+    the same end nodes) as the web editor sends them, each timed from the PATCH request."""
+    from app.network.tokens import create_token
+
+    with session_scope(url) as session:
+        auth = {"Authorization": f"Bearer {create_token(session, 'bench', 'editor')}"}
     (_, ax, ay), (_, bx, by) = pair
     params = {"points": f"{ax!r},{ay!r};{bx!r},{by!r}", "cost": "time"}
-    lags = []
+    base = http.get(f"/networks/{name}/route", params=params).json()
+    driven = base["routes"][0]["legs"][0]["segments"]
+    ids = [d["id"] for d in driven]
+    fid = ids[len(ids) // 2]
+    forward = driven[len(ids) // 2]["forward"]
+    item = f"/collections/{name}-segments/items/{fid}"
+
+    tag = {"now": http.get(item).headers["ETag"]}
+
+    def patch(body: dict) -> None:
+        r = http.patch(item, json=body, headers={**auth, "If-Match": tag["now"]})
+        assert r.status_code == 200, r.text
+        tag["now"] = r.headers["ETag"]
+
+    def duration(body: dict) -> float:
+        return body["routes"][0]["duration"]
+
+    def sql_speed(kph: int) -> None:
+        conn.execute("UPDATE road_segments SET speed_limit_kph = %s WHERE id = %s", (kph, fid))
+
+    conn.execute("UPDATE road_segments SET speed_limit_kph = 50 WHERE id = %s", (fid,))
+    fast = min(_timed_ms(http, name, params) for _ in range(3))  # (a known start, untimed)
+    lags: dict[str, list[tuple[float, float]]] = {}
+
+    def timed(kind: str, edit, seen=None) -> None:
+        """Time one edit; unless told what to look for, the route's duration must change."""
+        before = duration(http.get(f"/networks/{name}/route", params=params).json())
+        lags.setdefault(kind, []).append(_lag(http, name, params, fast, edit,
+                                              seen or (lambda b: duration(b) != before)))
+
     for kph in (5, 150, 5, 150, 5):
-        walk = http.get(f"/networks/{name}/route", params=params).json()
-        driven = walk["routes"][0]["legs"][0]["segments"]
-        sid = driven[len(driven) // 2]["id"]
+        timed("speed, SQL UPDATE", lambda k=kph: sql_speed(k))
+    for kph in (150, 5, 150):
+        timed("speed, PATCH", lambda k=kph: patch({"speed_limit_kph": k}))
+    lanes_key = "lanes_forward" if forward else "lanes_backward"
+    for lanes in (4, 1, 4):
+        timed("lanes, PATCH", lambda n=lanes: patch({lanes_key: n}),
+              lambda b, n=lanes: _step_of(b, fid)["lanes"] == n)
+    for cls in ("primary", "secondary", "primary"):
+        timed("class, PATCH", lambda c=cls: patch({"road_class": c}),
+              lambda b, c=cls: _step_of(b, fid)["road_class"] == c)
+    against = "backward" if forward else "forward"
+    for _ in range(2):
+        timed("one-way against the trip, PATCH", lambda: patch({"oneway": against}),
+              lambda b: fid not in [d["id"] for d in b["routes"][0]["legs"][0]["segments"]])
+        patch({"oneway": "none"})
+    line = http.get(item).json()["geometry"]["coordinates"]
+    (x0, y0), (x1, y1) = line[0], line[-1]
+    bulge = {"type": "LineString",
+             "coordinates": [line[0], [(x0 + x1) / 2 + 0.01, (y0 + y1) / 2 + 0.01], line[-1]]}
+    for _ in range(2):
+        timed("geometry (same ends), PATCH", lambda: patch({"geometry": bulge}))
+        patch({"geometry": {"type": "LineString", "coordinates": line}})
+    every = [x for xs in lags.values() for x, _ in xs]
+    print(f"  edit -> next route reflects it (commit or PATCH + HTTP route): median "
+          f"{statistics.median(every):.0f} ms, max {max(every):.0f} ms over {len(every)} edits")
+    for kind, xs in lags.items():
+        total, call = (statistics.median(x[i] for x in xs) for i in (0, 1))
+        print(f"    {kind:34s} median {total:6.0f} ms, of which the edit call {call:4.0f} ms "
+              f"(n={len(xs)})")
+
+
+def topology_edits(http: httpx.Client, url: str, name: str, pair: tuple) -> None:
+    """Split a segment of a route, then merge it back (each changes the arcs): time from the
+    request to the next route, routes meanwhile (Dijkstra while the hierarchy is rebuilt in
+    the previous order), and when the hierarchy answers again."""
+    from app.network.tokens import create_token
+
+    with session_scope(url) as session:
+        auth = {"Authorization": f"Bearer {create_token(session, 'bench-admin', 'admin')}"}
+    (_, ax, ay), (_, bx, by) = pair
+    params = {"points": f"{ax!r},{ay!r};{bx!r},{by!r}", "cost": "time"}
+
+    def timed() -> tuple[float, dict]:
         t = time.perf_counter()
-        conn.execute("UPDATE road_segments SET speed_limit_kph = %s WHERE id = %s", (kph, sid))
         body = http.get(f"/networks/{name}/route", params=params).json()
-        lags.append((time.perf_counter() - t) * 1e3)
-        assert body["routes"][0]["duration"] != walk["routes"][0]["duration"], "edit not seen"
-    print(f"  edit -> next route reflects it (UPDATE commit + HTTP route, hierarchy): median "
-          f"{statistics.median(lags):.0f} ms over {len(lags)} edits")
+        return (time.perf_counter() - t) * 1e3, body
+
+    fast, base = min(timed() for _ in range(3))[0], timed()[1]
+    driven = base["routes"][0]["legs"][0]["segments"]
+    ids = [d["id"] for d in driven]
+    item = f"/collections/{name}-segments/items/{ids[len(ids) // 2]}"
+    halves: list[int] = []
+    for kind in ("split", "merge"):
+        _settle(http, name, params, fast)
+        t0 = time.perf_counter()
+        if kind == "split":
+            r = http.post(f"{item}/split", json={"fraction": 0.5},
+                          headers={**auth, "If-Match": http.get(item).headers["ETag"]})
+            halves = [f["id"] for f in r.json()["features"]]
+        else:
+            tags = ", ".join(http.get(f"/collections/{name}-segments/items/{h}")
+                             .headers["ETag"] for h in halves)
+            r = http.post(f"/collections/{name}-segments/merge", json={"segments": halves},
+                          headers={**auth, "If-Match": tags})
+        assert r.status_code == 200, r.text
+        body = http.get(f"/networks/{name}/route", params=params).json()
+        lag = (time.perf_counter() - t0) * 1e3
+        assert abs(body["routes"][0]["duration"] - base["routes"][0]["duration"]) < 1e-3
+        during = statistics.median(timed()[0] for _ in range(5))
+        while time.perf_counter() - t0 < 600 and timed()[0] > (fast + during) / 2:
+            time.sleep(0.5)
+        print(f"  {kind} -> next route {lag:.0f} ms; routes meanwhile p50 {during:.0f} ms "
+              f"(Dijkstra); hierarchy answers again after {time.perf_counter() - t0:.1f} s "
+              f"(route {fast:.0f} ms before the edit)")
 
 
 def country(args: argparse.Namespace, url: str, conn: psycopg.Connection) -> int:
@@ -255,8 +406,10 @@ def main() -> None:
     args = ap.parse_args()
 
     with scratch_database("ugvmap_bench") as url, \
+            tempfile.TemporaryDirectory(prefix="ugvmap-bench-") as data, \
             psycopg.connect(libpq_dsn(url), autocommit=True) as conn:
         os.environ["DATABASE_URL"] = url
+        os.environ["UGVMAP_DATA_DIR"] = data  # hierarchy orders: measured fresh, then reused
         get_settings.cache_clear()
         t = time.perf_counter()
         grid_net = synthetic.grid(conn, "grid", args.grid, args.grid)
@@ -289,7 +442,8 @@ def main() -> None:
                 pair = node_pairs(conn, net, 1, edges)[0]
                 print(f"\n{name}: server hierarchy ready {wait_for_hierarchy(http, name, pair)}")
                 compare(http, conn, name, net, n_pairs, 1)
-                edit_to_route(http, conn, name, net, pair)
+                edit_to_route(http, conn, url, name, pair)
+                topology_edits(http, url, name, pair)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,9 @@ import numpy as np
 import psycopg
 import pytest
 
-from app.routing import synthetic
+from app.routing import live, synthetic
+from app.routing.costs import Cost
+from app.routing.graph import RoadGraph
 from app.routing.live import read_segments, registry
 from app.settings import get_settings
 from tests.conftest import running_server
@@ -116,6 +118,29 @@ def test_listener_patch_equals_fresh_load(client, writer, ring, database_url) ->
                   "offsets", "coords"):
         np.testing.assert_array_equal(getattr(graph.segs, field), getattr(fresh, field))
     assert seg["e"] not in graph.segs.ids
+    assert_same_graph(graph, RoadGraph(net, version, fresh))
+
+
+def assert_same_graph(patched: RoadGraph, built: RoadGraph) -> None:
+    """Everything a patched graph derives (nodes, arcs, geometry, costs) equals a fresh build
+    (parallel arcs may be listed in another order: same key, compared as sets)."""
+    for name in ("node_ids", "u", "v", "bbox", "bearing_start", "bearing_end", "speed_kph"):
+        np.testing.assert_array_equal(getattr(patched, name), getattr(built, name), name)
+    # Fractions come from a running sum over all vertices: equal to rounding.
+    np.testing.assert_allclose(patched.fracs, built.fracs, rtol=0, atol=1e-12)
+    a, b = patched.shape.arcs, built.shape.arcs
+    oa, ob = (np.lexsort((arcs.way, arcs.row, arcs.key)) for arcs in (a, b))
+    for name in ("tail", "head", "row", "way", "key"):
+        np.testing.assert_array_equal(getattr(a, name)[oa], getattr(b, name)[ob], name)
+    np.testing.assert_array_equal(a.indptr, b.indptr)
+    for arcs in (a, b):  # each row's arcs point back at it
+        for col, way in ((0, 1), (1, -1)):
+            has = arcs.by_row[:, col] >= 0
+            assert (arcs.row[arcs.by_row[has, col]] == np.flatnonzero(has)).all()
+            assert (arcs.way[arcs.by_row[has, col]] == way).all()
+    for cost in Cost:
+        np.testing.assert_array_equal(np.sort(patched.costs(cost).arc_costs),
+                                      np.sort(built.costs(cost).arc_costs))
 
 
 @pytest.mark.slow
@@ -139,3 +164,26 @@ def test_edit_is_seen_by_every_worker(database_url, writer, ring) -> None:
         writer.execute("UPDATE road_segments SET oneway = 'backward' WHERE id = %s",
                        (seg["n"],))  # any committed change counts, not only the API's
         assert all(seg["s"] in w for w in walks(base))
+
+
+def test_request_waits_for_a_slow_patch_instead_of_reloading(client, writer, ring,
+                                                             monkeypatch) -> None:
+    """A patch slower than the catch-up timeout (a topology change on a country takes about a
+    second) is waited for while it runs: the request takes the patched graph, it does not
+    read the whole network again."""
+    seg = ring["seg"]
+    route(client, ring["name"], ring["points"])  # loaded, listener running
+    reg = registry(get_settings().database_url)
+    monkeypatch.setattr(live, "CATCH_UP_TIMEOUT_S", 0.1)
+    patched = RoadGraph.patched
+
+    def slow(self, *args):
+        time.sleep(0.6)
+        return patched(self, *args)
+
+    monkeypatch.setattr(RoadGraph, "patched", slow)
+    loads, waited = reg.stats["loads"], reg.stats["waited"]
+    writer.execute("UPDATE road_segments SET speed_limit_kph = 90 WHERE id = %s", (seg["n"],))
+    assert segment_walk(route(client, ring["name"], ring["points"])) == [seg["w"], seg["n"],
+                                                                         seg["e"]]
+    assert reg.stats["loads"] == loads and reg.stats["waited"] == waited

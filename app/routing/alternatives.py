@@ -26,7 +26,6 @@ import threading
 from collections import defaultdict
 
 import numpy as np
-from scipy.sparse import csr_matrix
 
 from app.errors import NoRouteError
 from app.routing.engine import Leg, Router
@@ -40,13 +39,12 @@ ROUNDS_PER_ALTERNATIVE = 3
 
 
 def penalised(cg: CostGraph, factor: np.ndarray) -> CostGraph:
-    """A copy of ``cg`` with each segment's cost multiplied by ``factor[row]`` (no hierarchy)."""
-    f = np.where(cg.arc_row >= 0, factor[np.maximum(cg.arc_row, 0)], 1.0)
-    m = cg.matrix
-    matrix = csr_matrix((m.data * f, m.indices.copy(), m.indptr.copy()), shape=m.shape)
+    """A copy of ``cg`` with each segment's cost multiplied by ``factor[row]`` (no hierarchy;
+    its own Dijkstra matrix, built on first use from the penalised arc weights)."""
+    f = np.append(factor[cg.arcs.row], np.ones(cg.SLOTS))
     return dataclasses.replace(
-        cg, seg_cost=cg.seg_cost * factor, matrix=matrix, lock=threading.Lock(),
-        hierarchy=None, hierarchy_key=None, arc_costs=None,
+        cg, seg_cost=cg.seg_cost * factor, weights=cg.weights * f, lock=threading.Lock(),
+        hierarchy=None, _matrix=None,
         total_cost=cg.total_cost * float(factor.max(initial=1.0)))
 
 

@@ -4,18 +4,22 @@ Why a CCH: on a million segments one Dijkstra touches a large share of the graph
 route (~100 ms compiled, ~1.8 s in ``pgr_dijkstra``). A CCH splits the work in three:
 a *topology* (nested-dissection order + chordal supergraph; seconds, depends only on which
 arcs exist), a *metric* (the arc weights pushed up the hierarchy; seconds once, then
-milliseconds per changed arc), and *queries* (elimination-tree searches; milliseconds).
+per changed arc from milliseconds for a side street to ~1 s for a motorway on a million
+segments, as a change reaches every shortcut over it), and *queries* (elimination-tree
+searches; milliseconds).
 RoutingKit, through ``pyroutingkit``, does all three in compiled code without holding the GIL.
 
 Edits keep routes exact without any admissibility rule, because every edit that leaves the set
 of arcs alone is a *weight* change: speed limit, class, length, one-way rules and avoided
 classes are all weights here (each segment contributes both directions as arcs; a forbidden
-direction weighs :data:`pyroutingkit.INF_WEIGHT`). Such an edit updates the metric partially
-before the graph version that contains it is published, so the next route sees it whether
-the road got faster, slower, closed or one-way. An edit that changes the arcs (a segment
+direction weighs :data:`pyroutingkit.INF_WEIGHT`). Such an edit updates the metric partially,
+in the background: a metric answers only for the exact graph version it was brought to, and
+routes on a newer version use the exact Dijkstra meanwhile, so the next route sees the edit
+whether the road got faster, slower, closed or one-way. An edit that changes the arcs (a segment
 added, split, merged, or moved to other nodes) needs a new topology: that is rebuilt in a
-background thread and, until it is ready, routes use the exact compiled Dijkstra of
-:mod:`app.routing.graph` (never a stale hierarchy).
+background thread from the previous contraction order (seconds, :mod:`app.routing.orders`)
+and, until it is ready, routes use the exact compiled Dijkstra of :mod:`app.routing.graph`
+(never a stale hierarchy).
 
 Weights are integers: costs are quantised to ``quantum`` (:func:`quantum_for`), so among paths
 whose costs differ by less than ``quantum`` per arc the search may pick either; the route's
@@ -29,11 +33,14 @@ import threading
 from collections import OrderedDict
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 
 import numpy as np
 import pyroutingkit as rk
 
+from app.routing import orders
+from app.routing.arcs import Arcs
 from app.routing.geometry import haversine_m
 
 log = logging.getLogger("ugvmap.routing")
@@ -43,25 +50,6 @@ HEADROOM = 2**29  # largest quantised route cost we rely on (INF is 2**31 - 1)
 DETOUR = 8.0  # a shortest path is assumed at most this many times the network's diagonal
 PARTIAL_LIMIT = 50_000  # changed arcs beyond which a full customisation is cheaper
 MAX_METRICS = 3  # per hierarchy (cost model x avoid set), least recently used dropped
-
-
-@dataclass(frozen=True)
-class Arcs:
-    """The hierarchy's input arcs: every non-loop segment in both directions."""
-
-    tail: np.ndarray  # uint32 node index
-    head: np.ndarray
-    row: np.ndarray  # int64 segment row
-    way: np.ndarray  # int8: +1 along the geometry, -1 against it
-
-    @classmethod
-    def of(cls, u: np.ndarray, v: np.ndarray) -> Arcs:
-        """Both directions of every segment from node ``u`` to ``v``; loops carry no route."""
-        rows = np.flatnonzero(u != v)
-        return cls(np.concatenate([u[rows], v[rows]]).astype(np.uint32),
-                   np.concatenate([v[rows], u[rows]]).astype(np.uint32),
-                   np.concatenate([rows, rows]),
-                   np.concatenate([np.ones(len(rows), np.int8), -np.ones(len(rows), np.int8)]))
 
 
 def quantum_for(node_lonlat: np.ndarray, max_rate: float) -> float:
@@ -80,22 +68,39 @@ def quantise(costs: np.ndarray, quantum: float) -> np.ndarray:
     return np.where(np.isfinite(q), np.minimum(q, INF - 1), INF).astype(np.uint32)
 
 
+UPDATING = -1  # a metric's version while its weights are being changed
+
+
 @dataclass
 class Metric:
-    """One cost model's customisation, owned by the newest graph version that updated it."""
+    """One cost model's customisation, at the newest graph version it was brought to.
+
+    ``version`` is :data:`UPDATING` while a background update changes the weights, so no query
+    sees half-propagated weights; ``target`` (with ``target_costs``) is the newest version the
+    metric has been asked to reach.
+    """
 
     cch: rk.CCHMetric
     weights: np.ndarray  # uint32 per arc, as customised
     version: int
     quantum: float
-    lock: threading.Lock = field(default_factory=threading.Lock)
+    target: int = 0
+    target_costs: np.ndarray | None = None
+    syncing: bool = False  # an update is queued or running
+    lock: threading.Lock = field(default_factory=threading.Lock)  # queries vs. version changes
+    synced: threading.Condition = field(default_factory=threading.Condition)
+
+    def __post_init__(self) -> None:
+        self.target = self.version
 
     def shortest(self, version: int, outs: Sequence[tuple[int, float]],
                  ins: Sequence[tuple[int, float]]) -> tuple[int, int, np.ndarray] | None:
         """(index into ``outs``, index into ``ins``, input arc ids) of the cheapest way from
-        any departure (node, cost) to any arrival; ``None`` when this metric no longer is at
+        any departure (node, cost) to any arrival; ``None`` when this metric is not at
         ``version`` or no path lies within the quantised range (the caller then runs the exact
         search, which also tells "no route" apart)."""
+        if self.version != version:  # checked again under the lock
+            return None
         with self.lock:
             if self.version != version:
                 return None
@@ -115,35 +120,101 @@ class Metric:
             return None
         return int(i), int(j), np.asarray(arcs, dtype=np.int64)
 
+    def sync(self, target: int, arc_costs: np.ndarray) -> None:
+        """Bring the weights to ``arc_costs`` (version ``target``) by partial customisation of
+        the arcs whose quantised weight changed; queries are turned away meanwhile."""
+        weights = quantise(arc_costs, self.quantum)
+        changed = np.flatnonzero(self.weights != weights)
+        with self.lock:  # waits for queries in flight; later ones see UPDATING
+            self.version = UPDATING
+        try:
+            if len(changed) > PARTIAL_LIMIT:
+                self.cch.customize(weights)
+            elif len(changed):
+                self.cch.update_weights(changed.astype(np.uint32), weights[changed])
+            self.weights = weights
+        finally:
+            with self.lock:
+                self.version = target if self.weights is weights else UPDATING
+            with self.synced:
+                self.synced.notify_all()
+
 
 class Hierarchy:
     """The CCH topology of one graph *shape* (node set and arcs) and its metrics.
 
     Graph versions that share a shape share the hierarchy. The topology and each metric's
-    first customisation are built by one background thread (seconds on a million segments);
-    later versions update a metric in place (:meth:`metric`), and a query from an older
-    version than the metric's falls back to Dijkstra.
+    first customisation are built by one background thread; later versions update a metric in
+    place (:meth:`metric`), and a query from an older version than the metric's falls back to
+    Dijkstra. The topology's contraction order comes from disk when these exact arcs were
+    contracted before, else from ``previous`` (the hierarchy of the shape this one replaces)
+    when few nodes are new, else from nested dissection (:mod:`app.routing.orders`).
     """
 
-    def __init__(self, arcs: Arcs, node_lonlat: np.ndarray) -> None:
+    def __init__(self, arcs: Arcs, node_lonlat: np.ndarray, node_ids: np.ndarray,
+                 previous: Hierarchy | None = None) -> None:
         self.arcs = arcs
         self.node_lonlat = node_lonlat
+        self.node_ids = node_ids
         self.topology: rk.CCHTopology | None = None
+        self.order: orders.Order | None = None  # once built
+        self.order_source = ""  # "saved", "derived" or "dissected", once built (logs, tests)
         self.ready = threading.Event()  # topology built (or failed)
         self._metrics: OrderedDict[object, Metric] = OrderedDict()
         self._pending: set[object] = set()
         self._scheduled = False
         self._lock = threading.Lock()
         self.answered = 0  # routes found through the hierarchy (logs, tests)
+        # Where a derived order would come from: a built order, or a hierarchy queued for
+        # building (never one that nobody asked for, so no chain of topologies stays alive).
+        self._previous: orders.Order | Hierarchy | None = None
+        self._superseded = False
+        if previous is not None:
+            self._previous = previous.order or (previous if previous._scheduled
+                                                else previous._previous)
+            previous._superseded = True
 
-    def _build(self) -> None:
-        """Nested dissection and contraction (seconds on a million segments; no GIL held)."""
+    def _previous_order(self) -> orders.Order | None:
+        previous = self._previous
+        while isinstance(previous, Hierarchy):
+            previous.ready.wait()  # queued before us on the same thread: already done
+            previous = previous.order or previous._previous
+        return previous
+
+    def build(self) -> None:
+        """Build the topology now (the background thread does, when a query first asks): from
+        a known order when there is one (seconds), else by nested dissection (minutes on a
+        country); no GIL held either way. A hierarchy already replaced by a newer shape's
+        before its turn came is skipped: one edit of several statements announces
+        intermediate shapes that no route will ever use."""
         try:
-            topology = rk.CCHTopology()
-            topology.build(self.arcs.tail, self.arcs.head,
-                           self.node_lonlat[:, 1].astype(np.float32),
-                           self.node_lonlat[:, 0].astype(np.float32), len(self.node_lonlat))
+            if self._superseded:
+                return
+            digest = orders.arcs_digest(self.node_ids, self.arcs)
+            previous = self._previous_order()
+            from_previous = orders.derived(previous, self.node_ids) if previous else None
+            with orders.dissecting(digest) if from_previous is None else nullcontext():
+                known = orders.saved(digest, self.node_ids)
+                if known is not None:
+                    rank, added, self.order_source = (
+                        np.searchsorted(self.node_ids, known.node_ids), known.added, "saved")
+                elif from_previous is not None:
+                    (rank, added), self.order_source = from_previous, "derived"
+                else:
+                    topology = rk.CCHTopology()
+                    topology.build(self.arcs.tail, self.arcs.head,
+                                   self.node_lonlat[:, 1].astype(np.float32),
+                                   self.node_lonlat[:, 0].astype(np.float32),
+                                   len(self.node_lonlat))
+                    rank, added, self.order_source = orders.order_of(topology), 0, "dissected"
+                    orders.save(digest, rank, added)
+            if self.order_source != "dissected":
+                topology = orders.topology_from(self.arcs, rank)
+            if self.order_source == "derived":
+                orders.save(digest, rank, added)
+            self.order = orders.Order(self.node_ids[rank], added)
             self.topology = topology
+            self._previous = None
         except Exception:  # the exact search keeps serving; say why once
             log.exception("building the routing hierarchy failed; using Dijkstra")
         finally:
@@ -166,18 +237,23 @@ class Hierarchy:
             with self._lock:
                 self._pending.discard(key)
 
-    def metric(self, key: object, version: int, arc_costs: np.ndarray,
-               max_rate: float) -> Metric | None:
-        """The metric for ``key`` at ``version``, or ``None`` (use Dijkstra) while the topology
-        or the metric's first customisation is being built in the background, or when a newer
-        version already owns the metric. A metric at an older version is brought to
-        ``version`` here by partial customisation of the arcs whose weight changed
-        (milliseconds), so it is exact for this version before the call returns."""
+    def metric(self, key: object, version: int, arc_costs: np.ndarray, max_rate: float,
+               wait_s: float = 0.0) -> Metric | None:
+        """The metric for ``key`` if it is at ``version``, else ``None`` (use Dijkstra).
+
+        Everything slow happens in the background: the topology, each metric's first
+        customisation, and bringing a metric to a newer version by partial customisation of
+        the arcs whose weight changed (milliseconds for a side street, up to a second for a
+        motorway on a million segments: a change propagates to every shortcut over it). A
+        graph version is therefore published without waiting for its metric; until the metric
+        has reached it, its routes come from the exact Dijkstra. ``wait_s``: how long a query
+        may wait for an update that is bringing the metric to its version, when that is
+        likely sooner than a Dijkstra search."""
         with self._lock:
             if self.topology is None:
                 if not self._scheduled:
                     self._scheduled = True
-                    _background.submit(self._build)
+                    _background.submit(self.build)
                 return None
             current = self._metrics.get(key)
             if current is None:
@@ -186,17 +262,38 @@ class Hierarchy:
                     _background.submit(self._customize, key, version, arc_costs, max_rate)
                 return None
             self._metrics.move_to_end(key)
-            if current.version >= version:
-                return current if current.version == version else None
-            weights = quantise(arc_costs, current.quantum)
-            changed = np.flatnonzero(current.weights != weights).astype(np.uint32)
-            with current.lock:
-                if len(changed) > PARTIAL_LIMIT:
-                    current.cch.customize(weights)
-                elif len(changed):
-                    current.cch.update_weights(changed, weights[changed])
-                current.weights, current.version = weights, version
-            return current
+            if current.target < version:
+                current.target, current.target_costs = version, arc_costs
+                if not current.syncing:
+                    current.syncing = True
+                    _updates.submit(self._follow, current)
+            elif current.target > version:
+                return None
+        if current.version != version and wait_s > 0:
+            with current.synced:
+                current.synced.wait_for(lambda: current.version == version
+                                        or current.target != version, wait_s)
+        return current if current.version == version else None
+
+    def _follow(self, metric: Metric) -> None:
+        """Update ``metric`` until it reaches its newest target (edits coalesce)."""
+        while True:
+            with self._lock:
+                target, costs = metric.target, metric.target_costs
+                if metric.version == target or costs is None:
+                    metric.syncing, metric.target_costs = False, None
+                    return
+            try:
+                metric.sync(target, costs)
+            except Exception:
+                log.exception("updating the routing hierarchy failed; using Dijkstra")
+                with self._lock:  # drop it: the next query customises afresh
+                    metric.syncing = False
+                    for key in [k for k, m in self._metrics.items() if m is metric]:
+                        del self._metrics[key]
+                return
 
 
 _background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="routing-hierarchy")
+# Metric updates get their own thread: a topology build on the other one can take minutes.
+_updates = ThreadPoolExecutor(max_workers=1, thread_name_prefix="routing-metric")

@@ -311,8 +311,10 @@ def test_topology_edit_falls_back_then_rebuilds(client, writer, grid) -> None:
     assert oracle(client, writer, name, net, Cost.TIME, 30, seed=9) > 25
 
     halves = [f["id"] for f in r.json()["features"]]
+    tags = ", ".join(client.get(f"/collections/{name}-segments/items/{h}").headers["ETag"]
+                     for h in halves)
     r = client.post(f"/collections/{name}-segments/merge", json={"segments": halves},
-                    headers=bearer("admin"))
+                    headers={**bearer("admin"), "If-Match": tags})
     assert r.status_code == 200, r.text
     merged = hierarchy_ready(client, name, net, Cost.TIME)  # the arcs of `new` again
     assert merged.order_source == "saved"

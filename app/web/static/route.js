@@ -13,13 +13,25 @@ export function formatDuration(s) {
   return minutes ? `${minutes} min ${seconds} s` : `${seconds} s`;
 }
 
+/** The step's maneuver in words, as OSRM's types and modifiers read (e.g. "new name" is a
+ * road changing its name going straight: "Continue"). */
+function verbOf({ type, modifier, exit }) {
+  const turn = modifier && modifier !== 'straight' ? ` ${modifier}` : '';
+  switch (type) {
+    case 'depart': return 'Depart';
+    case 'turn': case 'end of road': case 'fork': return `Turn${turn || ' straight'}`;
+    case 'new name': case 'continue': return modifier === 'uturn' ? 'Make a U-turn' : `Continue${turn}`;
+    case 'roundabout': case 'rotary': return `Enter the roundabout${exit ? `, exit ${exit}` : ''}`;
+    case 'exit roundabout': case 'exit rotary': return 'Leave the roundabout';
+    default: return `${type[0].toUpperCase()}${type.slice(1)}${turn}`;
+  }
+}
+
 function stepText(step) {
-  const { type, modifier } = step.maneuver;
   const road = step.name ? ` on ${step.name}` : '';
   const limit = step.speed_limit_kph ? `, ${step.speed_limit_kph} km/h` : '';
-  if (type === 'arrive') return 'Arrive';
-  const verb = type === 'depart' ? 'Depart' : `${type[0].toUpperCase()}${type.slice(1)}${modifier ? ` ${modifier}` : ''}`;
-  return `${verb}${road} — ${formatDistance(step.distance)}${limit}`;
+  if (step.maneuver.type === 'arrive') return 'Arrive';
+  return `${verbOf(step.maneuver)}${road} — ${formatDistance(step.distance)}${limit}`;
 }
 
 /** Click-to-add task points and the drawn route; active only while its checkbox is ticked. */

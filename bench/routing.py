@@ -71,20 +71,24 @@ def node_pairs(conn: psycopg.Connection, net: int, n: int, edges: str) -> list:
 
 
 def time_pass(http: httpx.Client, conn: psycopg.Connection, name: str, edges: str,
-              pairs: list) -> tuple[list[float], list[float]]:
-    """Time each pair through our HTTP route and through pgr_dijkstra on the same edges."""
-    ours, pgr = [], []
+              pairs: list) -> tuple[list[float], list[float], list[float]]:
+    """Time each pair through our HTTP route and through pgr_dijkstra on the same edges, and
+    compare the answers: the relative difference of each route's cost (our ``weight``, the
+    last ``agg_cost`` of pgr_dijkstra), so every figure is of routes known to be equal."""
+    ours, pgr, diffs = [], [], []
     for (a, ax, ay), (b, bx, by) in pairs:
         t = time.perf_counter()
         r = http.get(f"/networks/{name}/route",
-                     params={"points": f"{ax!r},{ay!r};{bx!r},{by!r}"})
+                     params={"points": f"{ax!r},{ay!r};{bx!r},{by!r}", "cost": "time"})
         ours.append(time.perf_counter() - t)
         assert r.status_code == 200, r.text
         t = time.perf_counter()
-        conn.execute("SELECT * FROM pgr_dijkstra(%s, %s::bigint, %s::bigint)",
-                     (edges, a, b)).fetchall()
+        rows = conn.execute("SELECT agg_cost FROM pgr_dijkstra(%s, %s::bigint, %s::bigint) "
+                            "ORDER BY seq", (edges, a, b)).fetchall()
         pgr.append(time.perf_counter() - t)
-    return ours, pgr
+        expected, got = float(rows[-1][0]), float(r.json()["routes"][0]["weight"])
+        diffs.append(abs(got - expected) / max(expected, 1e-9))
+    return ours, pgr, diffs
 
 
 def http_floor(http: httpx.Client, n: int = 200) -> float:
@@ -104,8 +108,10 @@ def compare(http: httpx.Client, conn: psycopg.Connection, name: str, net: int,
     pairs = node_pairs(conn, net, n_pairs, edges)
     time_pass(http, conn, name, edges, pairs[:10])  # warm both sides
     stats = {"ugvmap": {"p50": [], "p95": []}, "pgr": {"p50": [], "p95": []}}
+    diffs: list[float] = []
     for _ in range(passes):
-        ours, pgr = time_pass(http, conn, name, edges, pairs)
+        ours, pgr, pass_diffs = time_pass(http, conn, name, edges, pairs)
+        diffs += pass_diffs
         for key, xs in (("ugvmap", ours), ("pgr", pgr)):
             stats[key]["p50"].append(percentile(xs, 0.5) * 1e3)
             stats[key]["p95"].append(percentile(xs, 0.95) * 1e3)
@@ -120,6 +126,11 @@ def compare(http: httpx.Client, conn: psycopg.Connection, name: str, net: int,
           f"p95 {med['pgr']['p95']:8.2f} ms")
     print(f"  ratio ugvmap/pgr    p50 {med['ugvmap']['p50'] / med['pgr']['p50']:8.3f}      "
           f"p95 {med['ugvmap']['p95'] / med['pgr']['p95']:8.3f}   (goal at 1M: <= 0.01)")
+    # The hierarchy rounds costs to whole units (a few 1e-5 s per segment): 1e-4 relative.
+    equal = sum(d <= 1e-4 for d in diffs)
+    print(f"  routes equal to pgr_dijkstra (cost within 1e-4): {equal}/{len(diffs)}, "
+          f"max relative difference {max(diffs):.2e}")
+    assert equal == len(diffs), "a route differs from pgr_dijkstra"
 
 
 def rss_mib() -> float:

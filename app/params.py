@@ -236,5 +236,23 @@ class LonLat(_Rule):
                 "description": "lon,lat in degrees (WGS 84)"}
 
 
+class Shape(_Rule):
+    """Describe a raw parameter's expected shape in the API document only (``pattern``,
+    ``enum``): the endpoint parses the text itself, so a malformed value gets that endpoint's
+    own 400/404 rather than pydantic's generic 422, while clients and property-based testers
+    read from the document which values make sense."""
+
+    def __init__(self, **schema: Any) -> None:
+        self.schema = schema
+
+    def _parse(self, value: Any) -> Any:
+        return value
+
+    def _extra(self) -> dict[str, Any]:
+        return self.schema
+
+
+TileZ = Annotated[str, Shape(pattern=r"^[0-9]{1,2}$", description="zoom level")]
+TileXY = Annotated[str, Shape(pattern=r"^[0-9]{1,8}$", description="tile column or row")]
 LayerSlug = Annotated[str, Slug("layer slug")]
 NetworkName = Annotated[str, Slug("network name")]

@@ -9,6 +9,7 @@ road down must flip the route onto the detour, which the page must show.
 from __future__ import annotations
 
 import json
+import os
 import re
 
 import cv2
@@ -20,6 +21,7 @@ from click.testing import CliRunner
 from rasterio.transform import from_bounds
 
 from cli.main import main
+from tests.conftest import running_server
 
 pytestmark = pytest.mark.slow
 
@@ -112,6 +114,44 @@ def test_opens_on_imagery_with_roads_and_keeps_the_view_in_the_url(browser, worl
     assert abs(lon - (RASTER_BOUNDS[0] + RASTER_BOUNDS[2]) / 2) < 1e-4
     assert abs(lat - (RASTER_BOUNDS[1] + RASTER_BOUNDS[3]) / 2) < 1e-4
     assert shared.evaluate("() => window.location.hash").startswith("#map=17/")
+
+
+def test_networks_that_need_a_reader_token(browser, world, request, tmp_path,
+                                           database_url: str) -> None:
+    """With ``UGVMAP_NETWORK_READ_ROLE`` set, the page says why no road network shows; once a
+    viewer token is pasted it reloads and draws the roads, its network tile requests carrying
+    the token and its raster tile requests not (they stay cacheable by the front cache)."""
+    viewer = re.search(r"\S{20,}", cli("tokens", "create", "--role", "viewer", "--name", "web-r"))
+    assert viewer, "tokens create printed no token"
+    env = {"DATABASE_URL": database_url, "UGVMAP_NETWORK_READ_ROLE": "viewer",
+           "UGVMAP_RASTER_STORE": os.environ["UGVMAP_RASTER_STORE"]}
+    with running_server(env) as base:
+        context = browser.new_context(viewport={"width": 1100, "height": 750})
+        request.addfinalizer(context.close)
+        page = context.new_page()
+        sent: list[tuple[str, str | None]] = []
+        page.on("request", lambda r: sent.append((r.url, r.headers.get("authorization"))))
+        page.goto(base + "/")
+        page.wait_for_selector("body[data-ready=true]", timeout=20_000)
+        assert "reader token" in page.locator("#status").inner_text()
+        assert page.locator("#networks li").count() == 0
+
+        page.fill("#token", viewer.group(0))
+        with page.expect_navigation():
+            page.locator("#token").blur()  # 'change': the page reloads with the token
+        page.wait_for_selector("body[data-ready=true]", timeout=20_000)
+        page.evaluate("(b) => window.ugvmap.map.fitBounds(b, {padding: 30, duration: 0})",
+                      list(RASTER_BOUNDS))
+        wait_idle(page)
+        assert page.locator("#status").inner_text() == ""
+        drawn = page.evaluate("() => window.ugvmap.map.queryRenderedFeatures("
+                              "{layers: ['net-webnet-segments']}).length")
+        assert drawn > 0, "no road drawn with the viewer token"
+        bearer = f"Bearer {viewer.group(0)}"
+        mvt = [auth for url, auth in sent if "/networks/webnet/tiles/" in url]
+        assert mvt and all(auth == bearer for auth in mvt), mvt
+        raster = [auth for url, auth in sent if url.startswith(f"{base}/tiles/")]
+        assert raster and not any(raster), "raster tiles must not carry the token"
 
 
 def plan_route(page) -> None:

@@ -17,6 +17,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
+from app import errors
 from app.db.models import JOB_STATUSES, TOKEN_ROLES
 from app.db.session import get_session, session_scope
 from app.errors import InvalidParameterValueError, InvalidValueError, NotFoundError
@@ -25,9 +26,14 @@ from app.jobs.redact import strip_paths
 from app.jobs.rows import read_jobs
 from app.network.editing_router import json_body
 from app.network.tokens import Principal, authenticate, require_role
+from app.params import Shape
 from app.settings import get_settings
 
-router = APIRouter(tags=["jobs"])
+# Any read may need a token (jobs read role) and may find the database gone; every request
+# may carry a malformed query or path value.
+router = APIRouter(tags=["jobs"], responses=errors.responses(
+    errors.InvalidParameterValueError, errors.UnauthorizedError, errors.ForbiddenError,
+    errors.InvalidValueError, errors.DatabaseUnavailableError))
 SessionDep = Annotated[Session, Depends(get_session)]
 
 
@@ -56,7 +62,8 @@ def job_view(row: Any, reader: Principal | None) -> dict[str, Any]:
 
 @router.get("/jobs")
 def list_jobs(session: SessionDep, reader: ReaderDep,
-              status: Annotated[str | None, Query(description="queued|running|...")] = None,
+              status: Annotated[str | None, Shape(enum=list(JOB_STATUSES)),
+                                Query(description="only jobs in this state")] = None,
               limit: Annotated[int, Query(ge=1, le=500)] = 50) -> dict[str, Any]:
     """Most recent jobs first."""
     if status is not None and status not in JOB_STATUSES:
@@ -65,7 +72,7 @@ def list_jobs(session: SessionDep, reader: ReaderDep,
     return {"jobs": [job_view(r, reader) for r in rows]}
 
 
-@router.get("/jobs/{job_id}")
+@router.get("/jobs/{job_id}", responses=errors.responses(errors.NotFoundError))
 def get_job(job_id: int, session: SessionDep, reader: ReaderDep) -> dict[str, Any]:
     """One job row; ids outside bigint are simply not found (never a database error)."""
     rows = read_jobs(session.connection(), job_id=job_id) if 0 < job_id < 2**63 else []
@@ -74,7 +81,8 @@ def get_job(job_id: int, session: SessionDep, reader: ReaderDep) -> dict[str, An
     return job_view(rows[0], reader)
 
 
-@router.post("/jobs", status_code=202)
+@router.post("/jobs", status_code=202, responses=errors.responses(
+    errors.PayloadTooLargeError, errors.UnsupportedMediaTypeError))
 async def post_job(request: Request,
                    admin: Annotated[Principal, Depends(require_role("admin"))]) -> JSONResponse:
     """Queue a job for ``ugvmap worker``: ``{"kind": "ingest-raster", "params": {...}}``.

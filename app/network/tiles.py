@@ -32,7 +32,7 @@ from app.grid import TILE_SIZE, parse_tile, pixel_size_m
 from app.network.collections import network_row
 from app.network.tile_cache import Bounds, shared_cache
 from app.network.tokens import SessionDep, read_access
-from app.params import NetworkName
+from app.params import NetworkName, TileXY, TileZ
 from app.settings import get_settings
 from app.tiles.versioned import cache_headers, not_modified, version_token
 
@@ -132,7 +132,7 @@ def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
 
 @router.get("/networks/{name}/tiles/{z}/{x}/{y}.mvt", response_class=Response,
             responses={200: {"content": {MVT: {}}}})
-def network_tile(name: NetworkName, z: str, x: str, y: str, session: SessionDep,
+def network_tile(name: NetworkName, z: TileZ, x: TileXY, y: TileXY, session: SessionDep,
                  request: Request) -> Response:
     """One Mapbox vector tile of the network (cached per worker until the network changes;
     immutable for HTTP caches with the network's current ``?v=`` token)."""

@@ -35,7 +35,17 @@ from app.routing.options import (
 )
 from app.routing.planner import plan_isochrone, plan_route, read_connection
 
-router = APIRouter(prefix="/networks", tags=["routing"], dependencies=[Depends(read_access)])
+# What any routing operation may answer besides 200: OSRM's 400 codes, the read role, an
+# unknown network, the body limit, value rules, unreachable points and the output caps.
+router = APIRouter(prefix="/networks", tags=["routing"], dependencies=[Depends(read_access)],
+                   responses=errors.responses(
+                       errors.InvalidParameterValueError, errors.InvalidQueryError,
+                       errors.InvalidOptionsError, errors.TooBigError, errors.InvalidUrlError,
+                       errors.InvalidVersionError, errors.NotImplementedOptionError,
+                       errors.UnauthorizedError, errors.ForbiddenError, errors.NotFoundError,
+                       errors.PayloadTooLargeError, errors.InvalidValueError,
+                       errors.NoSegmentError, errors.NoRouteError,
+                       errors.ResponseTooLargeError, errors.DatabaseUnavailableError))
 
 PROFILE = re.compile(r"[A-Za-z0-9_.-]{1,64}", re.ASCII)
 OSRM_SERVICES = ("nearest", "table", "match", "trip", "tile")

@@ -11,15 +11,16 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Request, Response
 from fastapi.responses import FileResponse, RedirectResponse
 
+from app import errors
 from app.db.session import get_engine
 from app.errors import InvalidParameterValueError, LayerNotFoundError, NotFoundError
 from app.grid import parse_tile, tile_bounds
-from app.params import LayerSlug
+from app.params import LayerSlug, Shape, TileXY, TileZ
 from app.tiles import catalog
 from app.tiles.cache import tile_cache
 from app.tiles.catalog import TileSource
@@ -29,9 +30,17 @@ from app.tiles.readers import overview_zoom
 from app.tiles.store import open_store
 from app.tiles.versioned import cache_headers, not_modified, versioned
 
-router = APIRouter(tags=["raster layers"])
+# Raster layers are public; any request may still carry a malformed slug or find the
+# database gone, and every layer-addressed one may name an unknown layer.
+router = APIRouter(tags=["raster layers"], responses=errors.responses(
+    errors.InvalidParameterValueError, errors.DatabaseUnavailableError))
+LAYER_ERRORS = errors.responses(errors.LayerNotFoundError)
 TILE_RE = re.compile(r"^(?P<y>[^@.]*)(?P<scale>@2x)?\.(?P<fmt>[A-Za-z0-9]+)$")
 FORMATS = {"png": "png", "jpg": "jpg", "jpeg": "jpg", "webp": "webp"}
+Format = Annotated[str, Shape(enum=sorted(FORMATS))]
+TileName = Annotated[str, Shape(pattern=rf"^[0-9]{{1,8}}(@2x)?\.({'|'.join(FORMATS)})$",
+                                description="{y}[@2x].{format}")]
+SourceId = Annotated[str, Shape(pattern=r"^[0-9]{1,18}$")]
 CACHE_CONTROL = "public, max-age=60"
 
 
@@ -82,7 +91,7 @@ def layers(request: Request) -> dict[str, Any]:
     return {"layers": [_layer_json(layer, request) for layer in rows]}
 
 
-@router.get("/layers/{slug}", name="layer")
+@router.get("/layers/{slug}", name="layer", responses=LAYER_ERRORS)
 def layer(slug: LayerSlug, request: Request) -> dict[str, Any]:
     """One layer with its sources (paint order: last is on top)."""
     with get_engine().connect() as conn:
@@ -101,8 +110,10 @@ def layer(slug: LayerSlug, request: Request) -> dict[str, Any]:
 
 
 @router.get("/layers/{slug}/sources/{source_id}.tif", name="source_cog", response_model=None,
-            responses={200: {"content": {"image/tiff": {}}}, 307: {}})
-def source_cog(slug: LayerSlug, source_id: str) -> Response:
+            responses={200: {"content": {"image/tiff": {}}},
+                       307: {"description": "Redirect to a presigned object-storage URL"},
+                       **errors.responses(errors.NotFoundError)})
+def source_cog(slug: LayerSlug, source_id: SourceId) -> Response:
     """The source's COG exactly as stored: with HTTP ranges from a directory store (GDAL and
     QGIS read it in place over /vsicurl/), or a redirect to a presigned URL on S3."""
     if not source_id.isascii() or not source_id.isdigit():
@@ -122,9 +133,9 @@ def source_cog(slug: LayerSlug, source_id: str) -> Response:
                         headers={"Cache-Control": "no-cache"})
 
 
-@router.get("/layers/{slug}/tilejson.json", name="tilejson")
+@router.get("/layers/{slug}/tilejson.json", name="tilejson", responses=LAYER_ERRORS)
 def tilejson(slug: LayerSlug, request: Request, response: Response,
-             format: str = "png") -> dict[str, Any]:
+             format: Format = "png") -> dict[str, Any]:
     """TileJSON 3.0.0 for the layer's XYZ tiles, whose URLs name the layer's current version
     (so they may be cached forever); the TileJSON itself is revalidated on every use."""
     fmt = _format(format)
@@ -151,8 +162,10 @@ def tilejson(slug: LayerSlug, request: Request, response: Response,
 
 
 @router.get("/tiles/{slug}/{z}/{x}/{tile}", response_model=None,
-            responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}}})
-def tile(slug: LayerSlug, z: str, x: str, tile: str, request: Request) -> Response:
+            responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}},
+                       304: {"description": "Not modified: If-None-Match holds the ETag"},
+                       **errors.responses(errors.LayerNotFoundError, errors.TileOutOfRangeError)})
+def tile(slug: LayerSlug, z: TileZ, x: TileXY, tile: TileName, request: Request) -> Response:
     """One XYZ tile (256 px, or 512 px with ``@2x``) composed from all sources meeting it."""
     match = TILE_RE.match(tile)
     if not match:

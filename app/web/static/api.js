@@ -1,10 +1,39 @@
 // Thin fetch wrappers: every API error is JSON {code, message}, so callers get one shape back.
 
+export const TOKEN_KEY = 'ugvmap.token';
+// Network data (lists, TileJSON, styles, MVT tiles, features, routes) may need a reader token
+// (UGVMAP_NETWORK_READ_ROLE); raster layers and tiles never do.
+const GUARDED = /^\/(networks|collections)(\/|$)/;
+let readsNeedToken = false;
+
+/** The token pasted in the panel, kept for this tab only, or ''. */
+export function savedToken() {
+  return sessionStorage.getItem(TOKEN_KEY) || '';
+}
+
+/**
+ * Authorization for a read of this server's network data, once the server has asked for a
+ * token (a 401): sent only then, so on a public server tile requests carry no token and the
+ * front cache (which bypasses requests with one) keeps serving them; never sent elsewhere.
+ */
+export function readHeaders(url) {
+  const target = new URL(url, window.location.href);
+  const token = savedToken();
+  if (!readsNeedToken || !token || target.origin !== window.location.origin
+      || !GUARDED.test(target.pathname)) return {};
+  return { Authorization: `Bearer ${token}` };
+}
+
 /** Fetch JSON; resolves to {ok, status, body, etag} and never throws for HTTP errors. */
 export async function request(url, options = {}) {
   let response;
+  const send = () => fetch(url, { ...options, headers: { ...readHeaders(url), ...options.headers } });
   try {
-    response = await fetch(url, options);
+    response = await send();
+    if (response.status === 401 && !readsNeedToken && savedToken()) {
+      readsNeedToken = true; // the server guards reads: from now on every read carries the token
+      response = await send();
+    }
   } catch (err) {
     return { ok: false, status: 0, body: { code: 'NetworkError', message: `server unreachable (${err.message})` } };
   }

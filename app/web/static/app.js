@@ -1,5 +1,5 @@
 // Bootstraps the map: MapLibre from the app's own /vendor route, then imagery, networks, tools.
-import { setStatus } from './api.js';
+import { readHeaders, setStatus } from './api.js';
 import { Inspector } from './inspector.js';
 import { Networks } from './networks.js';
 import { loadRasterLayers } from './rasters.js';
@@ -67,6 +67,8 @@ async function start() {
   const map = new maplibregl.Map({
     container: 'map', style: STYLE, center: [0, 0], zoom: 1, attributionControl: false,
     hash: 'map',
+    // Tiles of networks that need a reader token get it, as the JSON reads do (api.js).
+    transformRequest: (url) => ({ url, headers: readHeaders(url) }),
   });
   map.addControl(new maplibregl.NavigationControl({ showCompass: false }), 'top-right');
   map.addControl(new maplibregl.ScaleControl({ unit: 'metric', maxWidth: 120 }), 'bottom-right');
@@ -101,6 +103,12 @@ async function start() {
   map.on('mousemove', (ev) => {
     if (route.isActive()) return;
     map.getCanvas().style.cursor = networks.segmentAt(ev.point) ? 'pointer' : '';
+  });
+
+  // A server that refused the networks for want of a token: once one is pasted, reload
+  // (the token stays in this tab) so every network layer is built with it.
+  document.getElementById('token').addEventListener('change', () => {
+    if (networks.refused && document.getElementById('token').value.trim()) window.location.reload();
   });
 
   const extent = openingView(rasterBounds, networks.extents);

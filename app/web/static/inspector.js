@@ -1,7 +1,5 @@
 // Segment side panel: attributes, edit history, and editing with a bearer token (PATCH + If-Match).
-import { request, describeError } from './api.js';
-
-const TOKEN_KEY = 'ugvmap.token';
+import { TOKEN_KEY, request, describeError } from './api.js';
 
 // Editable attributes in display order; `kind` picks the input and how its value is read back.
 const FIELDS = [
@@ -140,7 +138,7 @@ export class Inspector {
     this.feature = result.body;
     this.etag = result.etag || `"${result.body.properties.version}"`;
     this.fill();
-    this.showMessage(this.token.value.trim() ? '' : 'Enter an editor token to edit.');
+    this.showMessage(this.token.value.trim() ? '' : 'Paste an editor token under Access to edit.');
     this.updateEditable();
     await this.loadHistory();
   }

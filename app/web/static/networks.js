@@ -69,14 +69,17 @@ export class Networks {
     this.tilejsonUrls = {};
     this.classColours = ['match', ['get', 'road_class'], 'other'];
     this.mode = 'road_class';
+    this.refused = false; // the server wants a token to show its networks
   }
 
   async load() {
     const list = document.getElementById('networks');
     const result = await request('/networks');
+    this.refused = result.status === 401 || result.status === 403;
     if (!result.ok) {
       list.innerHTML = '';
-      setStatus(`Networks: ${describeError(result)}`);
+      const hint = this.refused ? ' (paste a reader token under Token to see them)' : '';
+      setStatus(`Networks: ${describeError(result)}${hint}`);
       return;
     }
     const found = result.body.networks;

@@ -159,3 +159,26 @@ def test_demo_loader_ingests_samples_once(database_url: str, shared_data: Path) 
     assert ingest_sample_orthophotos(shared_data / "orthophotos") == []
     listed = run_cli("layers", "list").output
     assert all(slug in listed for slug in SAMPLE_LAYERS)
+
+
+def test_failed_cog_write_leaves_no_temporary_file(tmp_path: Path) -> None:
+    """A source whose blocks stop halfway (readable header, cut data) fails inside GDAL's
+    warp: neither our temporary COG nor GDAL's ``*.warped.tif.tmp`` (named from ours, in
+    ``CPL_TMPDIR``) may stay beside the destination."""
+    import rasterio
+    from rasterio._err import CPLE_BaseError
+    from rasterio.transform import from_bounds
+
+    from ingest.raster.cog import write_cog
+
+    src = tmp_path / "cut.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=2000, height=2000, count=3,
+                       dtype="uint8", crs="EPSG:4326",
+                       transform=from_bounds(10, 50, 10.03, 50.03, 2000, 2000)) as ds:
+        ds.write(np.random.default_rng(0).integers(0, 255, (3, 2000, 2000), dtype=np.uint8))
+    with src.open("r+b") as f:
+        f.truncate(src.stat().st_size // 2)
+    out = tmp_path / "store"
+    with pytest.raises(CPLE_BaseError, match="IReadBlock failed"):
+        write_cog(src, out / "x.tif", "uint8", 3)
+    assert list(out.iterdir()) == []

@@ -174,6 +174,11 @@ def finish(job_id: int) -> None:
                     {"id": job_id})]
                 version, replaced = register(session, written, params.layer, params.title,
                                              params.kind, params.priority, overview, store)
+                # The rest of the job's folder (files of killed attempts) goes before the job
+                # is said to have succeeded: whoever sees it done finds only registered COGs.
+                kept = {w.uri for w in written}
+                store.delete([r for r in store.refs_under(job_prefix(params.layer, job_id))
+                              if r not in kept])
                 succeed_in(session.connection(), job_id,
                            f"layer {params.layer} at version {version}")
         except BaseException:
@@ -183,8 +188,6 @@ def finish(job_id: int) -> None:
             raise
     if replaced:
         remove_files(get_engine(), [replaced], store)
-    kept = {w.uri for w in written}  # the rest of the job's folder: files of killed attempts
-    store.delete([r for r in store.refs_under(job_prefix(params.layer, job_id)) if r not in kept])
 
 
 def discard(job_id: int) -> None:

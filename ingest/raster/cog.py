@@ -63,14 +63,17 @@ def write_cog(src: str | Path | rasterio.io.DatasetReaderBase, dst: Path,
     only when complete, so a killed job never leaves a file under a name that looks final.
     """
     dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(f".{dst.name}.{os.getpid()}.tmp")
+    stem = f".{dst.name}.{os.getpid()}"
+    tmp = dst.with_name(f"{stem}.tmp")
     try:
         with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHEMAX_MB, GDAL_ERROR_ON_LIBJPEG_WARNING=True,
                           GDAL_TIFF_INTERNAL_MASK=True, CPL_TMPDIR=str(dst.parent)):
             rasterio.shutil.copy(src, tmp, driver="COG", **cog_options(dtype, band_count))
         os.replace(tmp, dst)
     finally:
-        for leftover in dst.parent.glob(f"{tmp.name}*"):
+        # GDAL's own temporaries (CPL_TMPDIR) are named from ours minus its extension:
+        # ``<stem>_<pid>_<n>.warped.tif.tmp``.
+        for leftover in dst.parent.glob(f"{stem}[._]*"):
             with contextlib.suppress(FileNotFoundError):
                 leftover.unlink()
 

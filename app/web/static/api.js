@@ -30,7 +30,8 @@ export async function request(url, options = {}) {
   const send = () => fetch(url, { ...options, headers: { ...readHeaders(url), ...options.headers } });
   try {
     response = await send();
-    if (response.status === 401 && !readsNeedToken && savedToken()) {
+    const read = (options.method || 'GET') === 'GET' && !options.headers?.Authorization;
+    if (response.status === 401 && read && !readsNeedToken && savedToken()) {
       readsNeedToken = true; // the server guards reads: from now on every read carries the token
       response = await send();
     }

@@ -78,7 +78,7 @@ export class Networks {
     this.refused = result.status === 401 || result.status === 403;
     if (!result.ok) {
       list.innerHTML = '';
-      const hint = this.refused ? ' (paste a reader token under Token to see them)' : '';
+      const hint = this.refused ? ' (paste a reader token under Access to see them)' : '';
       setStatus(`Networks: ${describeError(result)}${hint}`);
       return;
     }

@@ -177,3 +177,36 @@ def s3_endpoint() -> Iterator[str]:
                 os.environ.pop(key, None)
             else:
                 os.environ[key] = value
+
+
+@pytest.fixture()
+def s3_store(s3_endpoint: str, database_url: str) -> Iterator[str]:
+    """``UGVMAP_RASTER_STORE`` set to a fresh bucket on the local S3 server for one test.
+    Afterwards the layers the test created are deleted with their objects: the catalogue
+    holds keys relative to the configured store, so once the setting is restored they would
+    point into the local store."""
+    import uuid
+
+    from sqlalchemy import text
+
+    from app.tiles.catalog import delete_layer
+    from app.tiles.store import open_store, s3_client
+
+    def slugs() -> set[str]:
+        with get_engine().connect() as conn:
+            return set(conn.execute(text("SELECT slug FROM layers")).scalars())
+
+    before = slugs()
+    bucket = f"ugvmap-{uuid.uuid4().hex[:8]}"
+    s3_client().create_bucket(Bucket=bucket)
+    previous = os.environ["UGVMAP_RASTER_STORE"]
+    os.environ["UGVMAP_RASTER_STORE"] = f"s3://{bucket}/rasters"
+    get_settings.cache_clear()
+    try:
+        yield os.environ["UGVMAP_RASTER_STORE"]
+    finally:
+        with get_engine().begin() as conn:
+            refs = [ref for slug in slugs() - before for ref in delete_layer(conn, slug) or []]
+        open_store().delete(refs)
+        os.environ["UGVMAP_RASTER_STORE"] = previous
+        get_settings.cache_clear()

@@ -87,29 +87,15 @@ def test_gdal_reads_a_source_cog_in_place_over_http(live_server: str, tmp_path: 
         assert ds.read(3, out_shape=(64, 64)).max() > 150  # the blue source
 
 
-def test_source_cog_on_s3_redirects_to_a_presigned_url(client, s3_endpoint: str,
+def test_source_cog_on_s3_redirects_to_a_presigned_url(client, s3_endpoint: str, s3_store: str,
                                                        tmp_path: Path) -> None:
-    import os
-
-    from app.settings import get_settings
-    from app.tiles.store import s3_client
-
-    bucket = f"ugvmap-{uuid.uuid4().hex[:8]}"
-    s3_client().create_bucket(Bucket=bucket)
-    previous = os.environ["UGVMAP_RASTER_STORE"]
-    os.environ["UGVMAP_RASTER_STORE"] = f"s3://{bucket}/r"
-    get_settings.cache_clear()
-    try:
-        image, _ = synthetic_utm(tmp_path / "a.tif", width=200, height=200)
-        name = f"x-{uuid.uuid4().hex[:8]}"
-        ingest_raster([image], name)
-        link = client.get(f"/layers/{name}").json()["sources"][0]["links"]["cog"]
-        resp = client.get(link, follow_redirects=False)
-        assert resp.status_code == 307
-        target = resp.headers["location"]
-        assert target.startswith(s3_endpoint) and "Signature" in target
-        part = httpx.get(target, headers={"Range": "bytes=0-3"})
-        assert part.status_code == 206 and part.content in (b"II*\x00", b"II+\x00")
-    finally:
-        os.environ["UGVMAP_RASTER_STORE"] = previous
-        get_settings.cache_clear()
+    image, _ = synthetic_utm(tmp_path / "a.tif", width=200, height=200)
+    name = f"x-{uuid.uuid4().hex[:8]}"
+    ingest_raster([image], name)
+    link = client.get(f"/layers/{name}").json()["sources"][0]["links"]["cog"]
+    resp = client.get(link, follow_redirects=False)
+    assert resp.status_code == 307
+    target = resp.headers["location"]
+    assert target.startswith(s3_endpoint) and "Signature" in target
+    part = httpx.get(target, headers={"Range": "bytes=0-3"})
+    assert part.status_code == 206 and part.content in (b"II*\x00", b"II+\x00")

@@ -5,9 +5,7 @@ jobs leave no orphan objects, layer delete removes them."""
 
 from __future__ import annotations
 
-import os
 import uuid
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -16,35 +14,12 @@ from click.testing import CliRunner
 from sqlalchemy import text
 
 from app.db.session import get_engine
-from app.settings import get_settings
-from app.tiles.catalog import delete_layer
-from app.tiles.store import StoreError, open_store, s3_client
+from app.tiles.store import StoreError, open_store
 from cli.main import main
 from ingest.raster.cog import write_cog
 from ingest.raster.job import ingest_raster
 from ingest.raster.sources import Source
 from tests.raster_synth import decode_rgba, synthetic_utm, tiles_around
-
-
-@pytest.fixture()
-def s3_store(s3_endpoint: str, database_url: str) -> Iterator[str]:
-    bucket = f"ugvmap-{uuid.uuid4().hex[:8]}"
-    s3_client().create_bucket(Bucket=bucket)
-    previous = os.environ["UGVMAP_RASTER_STORE"]
-    os.environ["UGVMAP_RASTER_STORE"] = f"s3://{bucket}/rasters"
-    get_settings.cache_clear()
-    try:
-        yield os.environ["UGVMAP_RASTER_STORE"]
-    finally:
-        # The catalogue holds keys relative to the configured store: layers left behind would
-        # point into the local store once the setting is restored.
-        with get_engine().begin() as conn:
-            refs = [ref for (slug,) in conn.execute(text(
-                "SELECT slug FROM layers WHERE slug LIKE 's3-%'"))
-                for ref in delete_layer(conn, slug) or []]
-        open_store().delete(refs)
-        os.environ["UGVMAP_RASTER_STORE"] = previous
-        get_settings.cache_clear()
 
 
 def _objects(store_uri: str, layer: str) -> list[str]:

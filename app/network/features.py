@@ -6,6 +6,7 @@ schemas clients need to type attributes right. Editing endpoints on the same ite
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Any, Literal
 from urllib.parse import urlencode
@@ -224,6 +225,15 @@ def item(collection_id: str, fid: str, request: Request,
     return GeoJSONResponse(feature, headers=headers)
 
 
+def _schema(session: Session, collection_id: str, request: Request,
+            document: Callable[[colls.Kind, str, str], dict[str, Any]],
+            title: str) -> SchemaResponse:
+    """One of the collection's JSON Schema documents, its ``$id`` the URL asked for."""
+    c = colls.resolve(session, collection_id)
+    return SchemaResponse(document(c.kind, str(request.url.remove_query_params("f")),
+                                   f"{title} {c.id}"))
+
+
 SCHEMA_DOC = {200: {"content": {schemas.SCHEMA_JSON: {"schema": {"type": "object"}}}},
               **NOT_FOUND}
 
@@ -232,18 +242,15 @@ SCHEMA_DOC = {200: {"content": {schemas.SCHEMA_JSON: {"schema": {"type": "object
             responses=SCHEMA_DOC)
 def queryables(collection_id: str, request: Request, session: SessionDep) -> SchemaResponse:
     """The properties ``?name=value`` filters the items by (OGC API Features Part 3)."""
-    c = colls.resolve(session, collection_id)
-    return SchemaResponse(schemas.queryables_document(
-        c.kind, str(request.url.remove_query_params("f")), f"Queryables of {c.id}"))
+    return _schema(session, collection_id, request, schemas.queryables_document,
+                   "Queryables of")
 
 
 @router.get("/collections/{collection_id}/schema", response_class=SchemaResponse,
             responses=SCHEMA_DOC)
 def schema(collection_id: str, request: Request, session: SessionDep) -> SchemaResponse:
     """Every property of the items with its type (OGC API Features Part 5, draft)."""
-    c = colls.resolve(session, collection_id)
-    return SchemaResponse(schemas.part5_document(
-        c.kind, str(request.url.remove_query_params("f")), f"Schema of {c.id}"))
+    return _schema(session, collection_id, request, schemas.part5_document, "Schema of")
 
 
 @router.get("/collections/{collection_id}/feature-schema", response_class=SchemaResponse,
@@ -251,6 +258,5 @@ def schema(collection_id: str, request: Request, session: SessionDep) -> SchemaR
 def feature_schema(collection_id: str, request: Request,
                    session: SessionDep) -> SchemaResponse:
     """JSON Schema of one GeoJSON item (the collection's ``describedby`` link)."""
-    c = colls.resolve(session, collection_id)
-    return SchemaResponse(schemas.geojson_feature_document(
-        c.kind, str(request.url.remove_query_params("f")), f"A feature of {c.id}"))
+    return _schema(session, collection_id, request, schemas.geojson_feature_document,
+                   "A feature of")

@@ -156,6 +156,18 @@ class NoRouteError(ApiError):
     status, code = 422, "NoRoute"
 
 
+class NoTripsError(ApiError):
+    """A trip cannot visit every point: some cannot reach each other (OSRM's trip service)."""
+
+    status, code = 422, "NoTrips"
+
+
+class NoMatchError(ApiError):
+    """No two consecutive points of a trace could be matched to roads (OSRM's match)."""
+
+    status, code = 422, "NoMatch"
+
+
 class InvalidOptionsError(ApiError):
     """Route options that parse but do not fit together (one radius per point, ...)."""
 
@@ -169,7 +181,7 @@ class InvalidUrlError(ApiError):
 
 
 class InvalidServiceError(ApiError):
-    """An OSRM service other than ``route`` (table, nearest, match, trip, tile)."""
+    """An OSRM service not served here (``tile``, or one OSRM does not have)."""
 
     status, code = 400, "InvalidService"
 
@@ -209,6 +221,18 @@ class OsrmNoSegmentError(NoSegmentError):
 
 class OsrmNoRouteError(NoRouteError):
     """:class:`NoRouteError` on an OSRM-shaped URL."""
+
+    status = 400
+
+
+class OsrmNoTripsError(NoTripsError):
+    """:class:`NoTripsError` on an OSRM-shaped URL."""
+
+    status = 400
+
+
+class OsrmNoMatchError(NoMatchError):
+    """:class:`NoMatchError` on an OSRM-shaped URL."""
 
     status = 400
 

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import argparse
 import gc
+import itertools
+import math
 import os
 import random
 import resource
@@ -35,6 +37,8 @@ import tracemalloc
 from pathlib import Path
 
 import httpx
+import numpy as np
+import polyline
 import psycopg
 
 REPO = Path(__file__).resolve().parents[1]
@@ -70,25 +74,36 @@ def node_pairs(conn: psycopg.Connection, net: int, n: int, edges: str) -> list:
     return [tuple(rng.sample(rows, 2)) for _ in range(n)]
 
 
+OURS, OSRM_URL, PGR = "/route (our defaults)", "/route/v1 (OSRM's defaults)", "pgr_dijkstra SQL"
+
+
 def time_pass(http: httpx.Client, conn: psycopg.Connection, name: str, edges: str,
-              pairs: list) -> tuple[list[float], list[float], list[float]]:
-    """Time each pair through our HTTP route and through pgr_dijkstra on the same edges, and
-    compare the answers: the relative difference of each route's cost (our ``weight``, the
-    last ``agg_cost`` of pgr_dijkstra), so every figure is of routes known to be equal."""
-    ours, pgr, diffs = [], [], []
+              pairs: list) -> tuple[dict[str, list[float]], list[float]]:
+    """Time each pair through our HTTP route, once with our URL's defaults (GeoJSON, full
+    overview, steps) and once on OSRM's URL with OSRM's (polyline, simplified, no steps), and
+    through pgr_dijkstra on the same edges; compare the answers: the relative difference of
+    each route's cost (our ``weight``, the last ``agg_cost`` of pgr_dijkstra), so every figure
+    is of routes known to be equal."""
+    times: dict[str, list[float]] = {OURS: [], OSRM_URL: [], PGR: []}
+    diffs = []
     for (a, ax, ay), (b, bx, by) in pairs:
         t = time.perf_counter()
         r = http.get(f"/networks/{name}/route",
                      params={"points": f"{ax!r},{ay!r};{bx!r},{by!r}", "cost": "time"})
-        ours.append(time.perf_counter() - t)
+        times[OURS].append(time.perf_counter() - t)
         assert r.status_code == 200, r.text
+        t = time.perf_counter()
+        o = http.get(f"/networks/{name}/route/v1/driving/{ax!r},{ay!r};{bx!r},{by!r}")
+        times[OSRM_URL].append(time.perf_counter() - t)
+        assert o.status_code == 200, o.text
         t = time.perf_counter()
         rows = conn.execute("SELECT agg_cost FROM pgr_dijkstra(%s, %s::bigint, %s::bigint) "
                             "ORDER BY seq", (edges, a, b)).fetchall()
-        pgr.append(time.perf_counter() - t)
-        expected, got = float(rows[-1][0]), float(r.json()["routes"][0]["weight"])
-        diffs.append(abs(got - expected) / max(expected, 1e-9))
-    return ours, pgr, diffs
+        times[PGR].append(time.perf_counter() - t)
+        expected = float(rows[-1][0])
+        for got in (r.json()["routes"][0]["weight"], o.json()["routes"][0]["weight"]):
+            diffs.append(abs(float(got) - expected) / max(expected, 1e-9))
+    return times, diffs
 
 
 def http_floor(http: httpx.Client, n: int = 200) -> float:
@@ -101,24 +116,25 @@ def http_floor(http: httpx.Client, n: int = 200) -> float:
     return percentile(times, 0.5) * 1e3
 
 
-def compare(http: httpx.Client, conn: psycopg.Connection, name: str, net: int,
-            n_pairs: int, passes: int) -> None:
-    """Time both over several passes and print p50/p95 and their ratio."""
+def compare(http: httpx.Client, conn: psycopg.Connection, base: str, name: str, net: int,
+            n_pairs: int, passes: int) -> list:
+    """Time both over several passes and print p50/p95 and their ratios; the pairs."""
     edges = pgrouting_edges_sql(net, Cost.TIME)
     pairs = node_pairs(conn, net, n_pairs, edges)
-    # Warm both sides: every pair once through ours (its snaps read index pages that a cold
-    # PostGIS cache would charge to the first pass only), a few through pgr_dijkstra (each of
-    # its calls reads the whole edge table anyway, cached after the first).
+    # Warm both sides: every pair once through ours (the first request of a network loads its
+    # graph), a few through pgr_dijkstra (each of its calls reads the whole edge table anyway,
+    # cached after the first).
+    time_pass(http, conn, name, edges, pairs[:3])
     for (_, ax, ay), (_, bx, by) in pairs:
         http.get(f"/networks/{name}/route",
                  params={"points": f"{ax!r},{ay!r};{bx!r},{by!r}", "cost": "time"})
-    time_pass(http, conn, name, edges, pairs[:3])
-    stats = {"ugvmap": {"p50": [], "p95": []}, "pgr": {"p50": [], "p95": []}}
+    stats: dict[str, dict[str, list[float]]] = {k: {"p50": [], "p95": []}
+                                                for k in (OURS, OSRM_URL, PGR)}
     diffs: list[float] = []
     for _ in range(passes):
-        ours, pgr, pass_diffs = time_pass(http, conn, name, edges, pairs)
+        times, pass_diffs = time_pass(http, conn, name, edges, pairs)
         diffs += pass_diffs
-        for key, xs in (("ugvmap", ours), ("pgr", pgr)):
+        for key, xs in times.items():
             stats[key]["p50"].append(percentile(xs, 0.5) * 1e3)
             stats[key]["p95"].append(percentile(xs, 0.95) * 1e3)
     med = {k: {q: statistics.median(v) for q, v in d.items()} for k, d in stats.items()}
@@ -126,17 +142,147 @@ def compare(http: httpx.Client, conn: psycopg.Connection, name: str, net: int,
                         (net,)).fetchone()[0]
     print(f"\n{name}: {segs} segments, {len(pairs)} OD pairs, cost=time, "
           f"median of {passes} pass(es)")
-    print(f"  ugvmap HTTP route   p50 {med['ugvmap']['p50']:8.2f} ms   "
-          f"p95 {med['ugvmap']['p95']:8.2f} ms")
-    print(f"  pgr_dijkstra SQL    p50 {med['pgr']['p50']:8.2f} ms   "
-          f"p95 {med['pgr']['p95']:8.2f} ms")
-    print(f"  ratio ugvmap/pgr    p50 {med['ugvmap']['p50'] / med['pgr']['p50']:8.3f}      "
-          f"p95 {med['ugvmap']['p95'] / med['pgr']['p95']:8.3f}   (goal at 1M: <= 0.01)")
+    for key in (OURS, OSRM_URL, PGR):
+        print(f"  {key:30s} p50 {med[key]['p50']:8.2f} ms   p95 {med[key]['p95']:8.2f} ms")
+    for key in (OURS, OSRM_URL):
+        print(f"  ratio {key:24s} p50 {med[key]['p50'] / med[PGR]['p50']:8.3f}      "
+              f"p95 {med[key]['p95'] / med[PGR]['p95']:8.3f}   (to pgr_dijkstra, same run)")
     # The hierarchy rounds costs to whole units (a few 1e-5 s per segment): 1e-4 relative.
     equal = sum(d <= 1e-4 for d in diffs)
     print(f"  routes equal to pgr_dijkstra (cost within 1e-4): {equal}/{len(diffs)}, "
           f"max relative difference {max(diffs):.2e}")
     assert equal == len(diffs), "a route differs from pgr_dijkstra"
+    cpu_per_request(http, conn, base, name, edges, pairs)
+    return pairs
+
+
+def _cpu_s(pids: list[int]) -> float:
+    """CPU seconds (user + system) the processes ``pids`` have used so far."""
+    total = 0
+    for pid in pids:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # ended meanwhile
+        total += int(fields[11]) + int(fields[12])
+    return total / os.sysconf("SC_CLK_TCK")
+
+
+def server_pids(base: str, conn: psycopg.Connection) -> list[int]:
+    """The server process listening at ``base`` and the database backends of its
+    connections (its version reads and the change listener)."""
+    port = base.rsplit(":", 1)[1]
+    ours = [int(p.name) for p in Path("/proc").iterdir() if p.name.isdigit()
+            and f"--port\x00{port}\x00" in _cmdline(p)]
+    backends = [row[0] for row in conn.execute(
+        "SELECT pid FROM pg_stat_activity WHERE datname = current_database() "
+        "AND pid <> pg_backend_pid() AND backend_type = 'client backend'").fetchall()]
+    return ours + backends
+
+
+def _cmdline(proc: Path) -> str:
+    try:
+        return (proc / "cmdline").read_bytes().decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def cpu_per_request(http: httpx.Client, conn: psycopg.Connection, base: str, name: str,
+                    edges: str, pairs: list) -> None:
+    """CPU milliseconds per request, of the server and the database backends it uses, against
+    the CPU of the backend that runs pgr_dijkstra: unlike wall time, it does not count the
+    waits for a CPU that other jobs on a shared box add to every hop (HTTP, thread pool,
+    database) a request makes, so it is steadier from run to run."""
+    ours = server_pids(base, conn)
+    mine = [conn.execute("SELECT pg_backend_pid()").fetchone()[0]]
+    urls = {
+        OURS: lambda a, b: (f"/networks/{name}/route",
+                            {"points": f"{a[1]!r},{a[2]!r};{b[1]!r},{b[2]!r}"}),
+        OSRM_URL: lambda a, b: (f"/networks/{name}/route/v1/driving/"
+                                f"{a[1]!r},{a[2]!r};{b[1]!r},{b[2]!r}", {}),
+    }
+    cpu = {}
+    for key, url in urls.items():
+        before = _cpu_s(ours)
+        for a, b in pairs:
+            path, params = url(a, b)
+            http.get(path, params=params)
+        cpu[key] = (_cpu_s(ours) - before) / len(pairs) * 1e3
+    before = _cpu_s(mine)
+    for a, b in pairs:
+        conn.execute("SELECT agg_cost FROM pgr_dijkstra(%s, %s::bigint, %s::bigint)",
+                     (edges, a[0], b[0])).fetchall()
+    cpu[PGR] = (_cpu_s(mine) - before) / len(pairs) * 1e3
+    for key in (OURS, OSRM_URL, PGR):
+        print(f"  CPU per request {key:30s} {cpu[key]:7.2f} ms"
+              + (f"   ratio {cpu[key] / cpu[PGR]:6.3f}" if key != PGR else ""))
+
+
+def _p50_ms(call, runs: int) -> float:
+    times = []
+    for _ in range(runs):
+        t = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times) * 1e3
+
+
+def table_and_match(http: httpx.Client, name: str, pairs: list, runs: int = 7) -> None:
+    """Table of 100 x 100 points and the match of a 1,000-point trace, on one network."""
+    pts = [(x, y) for pair in pairs for _, x, y in pair][:100]
+    coords = ";".join(f"{x!r},{y!r}" for x, y in pts)
+    for wanted in ("duration", "duration,distance"):
+        def table(wanted: str = wanted) -> None:
+            r = http.get(f"/networks/{name}/table/v1/driving/{coords}",
+                         params={"annotations": wanted})
+            assert r.status_code == 200, r.text
+        table()
+        print(f"  table {len(pts)} x {len(pts)} (annotations={wanted}): p50 "
+              f"{_p50_ms(table, runs):.1f} ms over {runs} runs   (goal < 100 ms)")
+    trace, driven = _trace(http, name, pts, 1000)
+    encoded = polyline.encode([(y, x) for x, y in trace], 6)
+    stamps = ";".join(str(2 * k) for k in range(len(trace)))
+    answers: dict[str, dict] = {}
+    for label, params in (("OSRM's defaults", {}),
+                          ("steps, full GeoJSON", {"steps": "true", "overview": "full",
+                                                   "geometries": "geojson"})):
+        def matched(params: dict = params, label: str = label) -> None:
+            r = http.get(f"/networks/{name}/match/v1/driving/polyline6({encoded})",
+                         params={"timestamps": stamps, **params})
+            assert r.status_code == 200, r.text
+            answers[label] = r.json()
+        matched()
+        print(f"  match of a {len(trace)}-point trace ({label}): p50 "
+              f"{_p50_ms(matched, 3):.0f} ms over 3 runs   (goal < 1 s)")
+    body = answers["OSRM's defaults"]
+    found = {s["id"] for m in body["matchings"] for leg in m["legs"] for s in leg["segments"]}
+    print(f"    {len(body['matchings'])} matching(s), "
+          f"{sum(t is not None for t in body['tracepoints'])} points matched, "
+          f"{len(found & driven) / len(driven):.1%} of the driven segments recovered")
+
+
+def _trace(http: httpx.Client, name: str, pts: list, n: int) -> tuple[list, set[int]]:
+    """A GNSS-like trace of ``n`` points along routes through ``pts`` (every ~15 m, 4 m of
+    noise), and the segments those routes drive."""
+    rng = random.Random(3)
+    line: list[list[float]] = []
+    driven: set[int] = set()
+    for a, b in itertools.pairwise(pts):
+        r = http.get(f"/networks/{name}/route/v1/driving/{a[0]!r},{a[1]!r};{b[0]!r},{b[1]!r}",
+                     params={"overview": "full", "geometries": "geojson"}).json()
+        line += r["routes"][0]["geometry"]["coordinates"]
+        driven |= {s["id"] for leg in r["routes"][0]["legs"] for s in leg["segments"]}
+        if len(line) > 3 * n:
+            break
+    xy = np.array(line)
+    m_per_deg = np.array([111_320 * math.cos(math.radians(xy[0, 1])), 111_320])
+    step = np.hypot(*((np.diff(xy, axis=0)) * m_per_deg).T)
+    along = np.concatenate([[0.0], np.cumsum(step)])
+    at = np.linspace(0, along[-1], n)
+    trace = [(float(np.interp(s, along, xy[:, 0])) + rng.gauss(0, 4) / m_per_deg[0],
+              float(np.interp(s, along, xy[:, 1])) + rng.gauss(0, 4) / m_per_deg[1])
+             for s in at]
+    return trace, driven
 
 
 def rss_mib() -> float:
@@ -453,7 +599,8 @@ def main() -> None:
                 httpx.Client(base_url=base, timeout=60) as http:
             print(f"\nHTTP floor (GET /healthz, same server) p50 {http_floor(http):.2f} ms")
             if OSM.is_file():
-                compare(http, conn, "andorra", osm_net, args.pairs, args.passes)
+                pairs = compare(http, conn, base, "andorra", osm_net, args.pairs, args.passes)
+                table_and_match(http, "andorra", pairs)
             for name, net, n_pairs in (("grid", grid_net, args.grid_pairs),
                                        ("country", country_net, args.country_pairs)):
                 if net is None:
@@ -461,7 +608,7 @@ def main() -> None:
                 edges = pgrouting_edges_sql(net, Cost.TIME)
                 pair = node_pairs(conn, net, 1, edges)[0]
                 print(f"\n{name}: server hierarchy ready {wait_for_hierarchy(http, name, pair)}")
-                compare(http, conn, name, net, n_pairs, 1)
+                compare(http, conn, base, name, net, n_pairs, 1)
                 edit_to_route(http, conn, url, name, pair)
                 topology_edits(http, url, name, pair)
 

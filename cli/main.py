@@ -42,7 +42,7 @@ def ingest() -> None:
 
 def _register_capabilities() -> None:
     """Each capability owns its commands; this is the table of contents (one line each)."""
-    from cli import backup, db, demo, ipm, jobs, layers, network, roads, routing, tokens
+    from cli import backup, db, demo, ipm, jobs, layers, network, roads, routing, tokens, vehicle
 
     for command in (db.db, backup.backup, backup.restore, demo.demo, demo.serve,
                     jobs.jobs, jobs.worker, tokens.tokens, network.export, network.network,
@@ -52,6 +52,7 @@ def _register_capabilities() -> None:
     for command in (network.ingest_network, layers.ingest_raster_cmd, roads.ingest_roads,
                     ipm.ingest_ipm_cmd):
         ingest.add_command(command)
+    network.export.add_command(vehicle.export_package)
 
 
 _register_capabilities()

@@ -1,4 +1,4 @@
-"""``ugvmap`` commands for road networks: import, export, validate, delete.
+"""``ugvmap`` commands for road networks: import, export, validate, settings, delete.
 
 Registered in :mod:`cli.main`. Bad input (unreadable file, unknown network, bad name) is a
 :class:`~app.errors.UserError` from the code below, shown as one line by the CLI root.
@@ -6,14 +6,19 @@ Registered in :mod:`cli.main`. Bad input (unreadable file, unknown network, bad 
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import click
+from sqlalchemy import text
 from tqdm import tqdm
 
 from app.errors import UserError
+from app.network.settings import DEFAULT_SPEEDS_KPH, AttributeRules
 from cli.jobs import absolute, enqueue_job, queue_option
+from cli.rules import given_rules, rule_options
 
 
 @click.command("network")
@@ -56,20 +61,47 @@ def export() -> None:
 
 @export.command("network")
 @click.argument("name")
-@click.option("--format", "fmt", type=click.Choice(["geojson", "gpkg", "osm"]), required=True)
+@click.option("--format", "fmt", type=click.Choice(["geojson", "gpkg", "osm", "lanelet2"]),
+              required=True)
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="Output file (for osm: .osm or .osm.pbf; for geojson: x.geojson writes "
-                   "x.segments.geojson and x.nodes.geojson).")
-def export_network(name: str, fmt: str, out: Path) -> None:
+                   "x.segments.geojson and x.nodes.geojson; for lanelet2: an .osm file, with "
+                   "map_projector_info.yaml written beside it).")
+@click.option("--bbox", help="W,S,E,N in degrees: only the segments meeting it (whole).")
+@click.option("--origin", help="lanelet2: LAT,LON of the map origin (default: the centre of "
+                               "the exported roads, rounded to 1e-4°).")
+def export_network(name: str, fmt: str, out: Path, bbox: str | None,
+                   origin: str | None) -> None:
     """Export network NAME losslessly (import of the file gives the same network; for
-    GeoJSON, import the .segments file: its .nodes file is read with it)."""
+    GeoJSON, import the .segments file: its .nodes file is read with it), or as a lane-level
+    Lanelet2 map (every lanelet tagged segment_id) for Autoware-style stacks."""
+    from app.lanelet2.export import parse_area, parse_origin
+
+    area = parse_area(bbox)
+    if fmt == "lanelet2":
+        _export_lanelet2(name, out, area, parse_origin(origin))
+        return
+    if origin is not None:
+        raise UserError("--origin applies to --format lanelet2 only")
     from app.db.session import session_scope
     from ingest.network.exporter import export_network as export_file
 
     with session_scope() as session:
-        summary = export_file(session, name, out, fmt)
+        summary = export_file(session, name, out, fmt, area)
     click.echo(f"wrote {summary.segments} segments and {summary.nodes} nodes of {name} to "
                + " and ".join(str(f) for f in summary.files))
+
+
+def _export_lanelet2(name: str, out: Path, area: tuple[float, float, float, float] | None,
+                     origin: tuple[float, float] | None) -> None:
+    from app.lanelet2.export import export_lanelet2
+    from app.lanelet2.roads import snapshot
+    from cli.vehicle import lanelet2_report, progress_bar
+
+    with progress_bar(f"lanelet2 {name}") as progress, snapshot() as conn:
+        result = export_lanelet2(conn, name, out, bbox=area, origin=origin, progress=progress)
+    for line in lanelet2_report(result):
+        click.echo(line)
 
 
 @click.group("network")
@@ -79,18 +111,80 @@ def network() -> None:
 
 @network.command("validate")
 @click.argument("name")
-def validate(name: str) -> None:
-    """Check NAME's topology invariants; exit 1 if any is broken."""
+@click.option("--json", "as_json", is_flag=True,
+              help="Print everything as JSON (every piece and dead end).")
+def validate(name: str, as_json: bool) -> None:
+    """Check NAME's topology invariants, list its connected pieces (size, bounding box) and
+    dead ends (lon/lat); exit 1 if an invariant is broken."""
     from app.db.session import session_scope
     from app.network.integrity import check_network
 
     with session_scope() as session:
         report = check_network(session, name)
-    for line in report.lines()[:-1]:
+    if as_json:
+        click.echo(json.dumps(report.as_json(), indent=1))
+        if not report.ok:
+            raise SystemExit(1)
+        return
+    lines = report.lines()
+    for line in lines[:-1]:
         click.echo(line)
     if not report.ok:
-        raise UserError(report.lines()[-1])
-    click.echo(report.lines()[-1])
+        raise UserError(lines[-1])
+    click.echo(lines[-1])
+
+
+@network.command("settings")
+@click.argument("name")
+@rule_options
+@click.option("--reset", is_flag=True, help="Forget the network's overrides first.")
+@click.option("--json", "as_json", is_flag=True, help="Print the rules as JSON.")
+def settings(name: str, reset: bool, as_json: bool, **options: Any) -> None:
+    """Show (and with options, change) the attribute rules road extraction applies to NAME.
+
+    Options given are stored as the network's overrides (a new network is created empty);
+    `ugvmap ingest roads` applies them unless its own rule options override them again.
+    """
+    from app.db.session import session_scope
+    from ingest.roads.rules import effective_rules, network_rules, save_network_rules
+
+    changes = given_rules(options)
+    with session_scope() as session:
+        if reset or changes.overrides():
+            stored = save_network_rules(session, name, changes, reset=reset)
+        else:
+            if session.execute(text("SELECT 1 FROM networks WHERE name = :n"),
+                               {"n": name}).first() is None:
+                raise UserError(f"network {name[:100]!r} does not exist (give a rule option to "
+                                "create it with these rules)")
+            stored = network_rules(session, name)
+        rules = effective_rules(session, name)
+    if as_json:
+        click.echo(json.dumps({"network": name, "overrides": stored.overrides(),
+                               "rules": rules.model_dump(mode="json"),
+                               "default_speeds_kph": DEFAULT_SPEEDS_KPH}, indent=1))
+        return
+    for line in rules_lines(rules, stored):
+        click.echo(line)
+
+
+def rules_lines(rules: AttributeRules, stored: AttributeRules) -> list[str]:
+    """The rules as printed by ``network settings``, each marked with where it comes from."""
+    mark = {True: "network", False: "default"}
+    given = stored.model_fields_set
+    out = [f"lane width: {rules.lane_width_m:g} m ({mark['lane_width_m' in given]})",
+           f"junction segments: at most {rules.junction_length_m:g} m between two junctions "
+           f"({mark['junction_length_m' in given]})",
+           f"classes ({mark['classes' in given]}), first match wins:"]
+    out += [f"  {row.road_class}: width >= {row.min_width_m:g} m, through >= "
+            f"{row.min_through:g}" for row in rules.classes]
+    out.append("  otherwise: unclassified")
+    out.append("speeds (km/h):")
+    for cls in dict.fromkeys([*DEFAULT_SPEEDS_KPH, *rules.speed_kph]):
+        speed = rules.speed(cls)
+        out.append(f"  {cls}: {'no limit' if speed is None else f'{speed:g}'} "
+                   f"({mark[cls in stored.speed_kph]})")
+    return out
 
 
 @network.command("delete")

@@ -18,6 +18,7 @@ import click
 
 from app.errors import UserError
 from cli.jobs import absolute, enqueue_job, queue_option
+from cli.rules import RULE_OPTIONS, given_rules, rule_options
 
 if TYPE_CHECKING:
     from app.jobs.kinds import Classifier
@@ -57,8 +58,9 @@ def extraction_options(command: Callable[..., Any]) -> Callable[..., Any]:
                      help="Spectral: keep pixels within k x mean training distance to the "
                           "colour line."),
         click.option("--work-resolution", type=float, default=0.5, show_default=True,
-                     help="learned/spectral: average finer images down to this many metres "
-                          "per pixel (0 = keep source); the road model uses its own."),
+                     help="learned/spectral (and ipm-mosaic layers): average finer images down "
+                          "to this many metres per pixel (0 = keep source); the road model "
+                          "uses its own."),
         click.option("--spur-max", type=float, default=15.0, show_default=True,
                      help="Longest hair (m) pruned from the skeleton."),
         click.option("--simplify", type=float, default=0.5, show_default=True,
@@ -184,20 +186,26 @@ def _lonlat_box(ctx: click.Context, param: click.Parameter, values: tuple[str, .
 @click.option("--line-width", type=float, default=6.0, show_default=True,
               help="Road width (m) around --train-lines centerlines.")
 @extraction_options
+@rule_options
 @click.option("--replace", is_flag=True, help="Replace the network if it exists.")
 @queue_option
 def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: list,
                  train_lines: Path | None, line_width: float, replace: bool, queued: bool,
-                 **tuning: Any) -> None:
+                 **options: Any) -> None:
     """Extract the roads of raster layer SLUG into road network NETWORK (PostGIS).
 
-    The road model runs zero-shot without a sample and adapts to one when given.
+    The road model runs zero-shot without a sample and adapts to one when given; on an
+    ipm-mosaic layer the drive's own trajectory is the sample. Attributes (lanes, class,
+    speed, junctions, confidence) follow the network's rules (`ugvmap network settings`),
+    overridden for this job by the rule options.
     """
+    rules = given_rules(options)
+    tuning = {k: v for k, v in options.items() if k not in RULE_OPTIONS}
     if queued:
         enqueue_job("ingest-roads", {
             "layer": slug, "network": network, "replace": replace, "train_boxes": train_boxes,
             "not_road_boxes": not_road_boxes, "train_lines": absolute(train_lines),
-            "line_width": line_width, **tuning})
+            "line_width": line_width, "rules": rules.overrides(), **tuning})
         return
     from app.db.session import session_scope
     from app.jobs.recorder import JobRecorder
@@ -207,19 +215,38 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
         lines = read_sample_lines(train_lines) if train_lines else []
         sample = (GeoSample(train_boxes, not_road_boxes, lines, line_width)
                   if train_boxes or not_road_boxes or lines else None)
-        with JobRecorder("ingest-roads", network, {"layer": slug, **tuning}), \
+        with JobRecorder("ingest-roads", network,
+                         {"layer": slug, **tuning, "rules": rules.overrides()}), \
                 session_scope() as session:
-            extraction, summary = ingest_layer_roads(
-                session, slug, network, sample, extract_params(**tuning), replace=replace,
-                progress=sys.stderr.isatty())
-    click.echo(f"network {summary.network}: {summary.segments} segments, {summary.nodes} nodes, "
-               f"{summary.total_length_m / 1000:.3f} km extracted from layer {slug} "
-               f"({extraction.classifier} classifier)")
+            done = ingest_layer_roads(session, slug, network, sample, extract_params(**tuning),
+                                      rules=rules, replace=replace,
+                                      progress=sys.stderr.isatty())
+    for line in done.lines():
+        click.echo(line)
 
 
 @click.group("roads")
 def roads() -> None:
     """The road model: train it (needs the ``train`` extra: torch)."""
+
+
+def _augment_option(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
+                    ) -> dict[str, float]:
+    from dataclasses import fields
+
+    from ingest.roads.model.data import Augment
+
+    known = {f.name for f in fields(Augment)}
+    out = {}
+    for value in values:
+        name, _, number = value.partition("=")
+        try:
+            out[name] = float(number)
+        except ValueError:
+            raise click.BadParameter(f"{value!r}: expected NAME=NUMBER") from None
+        if name not in known:
+            raise click.BadParameter(f"{name!r}: not one of {', '.join(sorted(known))}")
+    return out
 
 
 @roads.command("train")
@@ -231,36 +258,53 @@ def roads() -> None:
               type=click.Path(path_type=Path, file_okay=False, exists=True),
               help="Never train on images byte-identical to one under this folder "
                    "(the validation set; repeatable).")
-@click.option("--epochs", type=int, default=32, show_default=True)
-@click.option("--steps-per-epoch", type=int, default=80, show_default=True)
+@click.option("--arch", type=click.Choice(["lite0", "unet"]), default="lite0", show_default=True,
+              help="lite0: pretrained EfficientNet-Lite0 encoder (v2); unet: v1's, from scratch.")
+@click.option("--scratch", is_flag=True, help="lite0: random encoder weights (the ablation).")
+@click.option("--epochs", type=int, default=30, show_default=True)
+@click.option("--steps-per-epoch", type=int, default=100, show_default=True)
 @click.option("--batch", type=int, default=8, show_default=True)
-@click.option("--crop", type=int, default=224, show_default=True, help="Crop side in pixels.")
-@click.option("--resolution", type=float, default=1.0, show_default=True,
+@click.option("--crop", type=int, default=256, show_default=True, help="Crop side in pixels.")
+@click.option("--resolution", type=float, default=0.5, show_default=True,
               help="Ground resolution (m/px) the model works at.")
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--hue-jitter", type=float, default=0.0, show_default=True,
-              help="Random hue rotation, as a fraction of the colour wheel.")
-@click.option("--grey-p", type=float, default=0.05, show_default=True,
-              help="Share of training crops turned grey.")
+@click.option("--augment", "augment", multiple=True, callback=_augment_option,
+              metavar="NAME=VALUE",
+              help="Change one augmentation (probability or range; repeatable), e.g. "
+                   "jpeg_p=0 switches JPEG artefacts off.")
 @click.option("--max-scenes", type=int, help="Use only the first N scenes (quick runs).")
-def roads_train(data: Path, out_dir: Path, exclude_dirs: tuple[Path, ...], epochs: int,
-                steps_per_epoch: int, batch: int, crop: int, resolution: float, seed: int,
-                hue_jitter: float, grey_p: float, max_scenes: int | None) -> None:
+@click.option("--threads", type=int, default=2, show_default=True,
+              help="CPU threads (1 trains faster on a machine busy with other work).")
+@click.option("--resume", is_flag=True,
+              help="Carry on from OUT/checkpoint.pt (a run cut off; same options).")
+@click.option("--time-limit", type=float, metavar="MINUTES",
+              help="Stop after the first epoch that ends past this (carry on with --resume).")
+def roads_train(data: Path, out_dir: Path, exclude_dirs: tuple[Path, ...], arch: str,
+                scratch: bool, epochs: int, steps_per_epoch: int, batch: int, crop: int,
+                resolution: float, seed: int, augment: dict[str, float],
+                max_scenes: int | None, threads: int, resume: bool,
+                time_limit: float | None) -> None:
     """Train the road segmentation model and export it to ONNX with its model card."""
     try:
         from ingest.roads.model.train import TrainConfig, train
     except ImportError as exc:
         raise UserError(f"training needs torch: pip install -e '.[train]' ({exc})") from exc
-    from ingest.roads.model.data import image_hashes
+    from dataclasses import replace
+
+    from ingest.roads.model.data import Augment, image_hashes
+    from ingest.roads.model.net import Arch
 
     if crop % 16:
         raise UserError("--crop must be a multiple of 16 (the network's grid)")
     with _memory_hint():
         exclude = sorted(set().union(*(image_hashes(d) for d in exclude_dirs)))
-        config = TrainConfig(resolution_m=resolution, crop_px=crop, batch=batch, epochs=epochs,
+        config = TrainConfig(arch=cast(Arch, arch), pretrained=not scratch, resolution_m=resolution,
+                             crop_px=crop, batch=batch, epochs=epochs,
                              steps_per_epoch=steps_per_epoch, seed=seed, max_scenes=max_scenes,
-                             hue_jitter=hue_jitter, grey_p=grey_p, exclude=exclude)
-        report = train(data, out_dir, config, progress=True)
+                             threads=threads, augment=replace(Augment(), **augment),
+                             exclude=exclude)
+        report = train(data, out_dir, config, progress=True, resume=resume,
+                       time_limit_min=time_limit)
     click.echo(f"best epoch {report['best_epoch']}: hold-out F1 {report['holdout']['f1']:.3f} "
                f"at threshold {report['threshold']:.2f}; {report['train_minutes']:.1f} min -> "
                f"{out_dir / 'model.onnx'}")

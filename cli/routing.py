@@ -10,9 +10,11 @@ import json
 
 import click
 
+from app.errors import DatabaseUnavailableError
 from app.routing.costs import Cost
 from app.routing.options import FORMATS, GEOMETRIES, parse, parse_points
-from app.routing.planner import plan_route, read_connection
+from app.routing.planner import plan_route
+from app.routing.reads import read_connection
 
 
 @click.command("route")
@@ -41,8 +43,12 @@ def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geom
         raw["radius"] = radius
     pts = parse_points(points)  # option errors (ApiError): one line from cli.main
     opts = parse(raw, "ugvmap", len(pts))
-    with read_connection() as conn:
-        body = plan_route(conn, network, pts, opts)
+    try:
+        with read_connection() as conn:
+            body = plan_route(conn, network, pts, opts)
+    except DatabaseUnavailableError as exc:  # said like every other command says it
+        raise click.ClickException(f"cannot reach the database ({exc.message}); "
+                                   "`ugvmap db start`?") from exc
     if fmt != "summary":
         click.echo(json.dumps(body))
         return

@@ -72,9 +72,9 @@ def _extracted(name: str, layer: str, say: Say, sample: GeoSample | None = None,
         say(f"network {name}: already there")
         return
     with session_scope() as session:
-        _, summary = ingest_layer_roads(session, layer, name, sample,
-                                        ExtractParams(classifier=classifier))
-    say(f"network {name}: {summary.segments} segments extracted from layer {layer}")
+        done = ingest_layer_roads(session, layer, name, sample,
+                                  ExtractParams(classifier=classifier))
+    say(f"network {name}: {done.summary.segments} segments extracted from layer {layer}")
 
 
 def load_shared(data: Path, say: Say) -> None:

@@ -7,6 +7,7 @@ import uuid
 
 from app.db.session import libpq_dsn
 from app.routing.geometry import local_frame
+from tests.osrm_schema import check
 
 
 @functools.lru_cache(maxsize=8)
@@ -33,7 +34,10 @@ def route(client, name: str, points: list[tuple[float, float]], **params) -> dic
     q = ";".join(f"{lon!r},{lat!r}" for lon, lat in points)
     r = client.get(f"/networks/{name}/route", params={"points": q, **params})
     assert r.status_code == 200, r.text
-    return r.json()
+    body = r.json()
+    if params.get("format") != "waypoints":  # else not an OSRM answer
+        check(body, "route")
+    return body
 
 
 def segment_walk(body: dict) -> list[int]:

@@ -77,7 +77,7 @@ def test_wrong_method_is_405_with_allow(client, names) -> None:
     # item live in different routers).
     item = client.put(f"/collections/{names['network']}-segments/items/1")
     _problem(item, 405, "MethodNotAllowed")
-    assert item.headers["allow"] == "GET, HEAD, PATCH"
+    assert item.headers["allow"] == "DELETE, GET, HEAD, PATCH"
     # Ours (a nodes collection is read-only) answers the same code.
     _problem(client.patch(f"/collections/{names['network']}-nodes/items/1", json={},
                           headers={**bearer("editor"), "If-Match": '"1"'}), 405,

@@ -12,6 +12,7 @@ from pathlib import Path
 import mapbox_vector_tile
 import morecantile
 import pytest
+from sqlalchemy import text
 
 from app.db.session import session_scope
 from ingest.network import RoadAttributes, RoadLine, write_network
@@ -24,15 +25,19 @@ ZOOM = 16
 
 @pytest.fixture(scope="module")
 def network(database_url: str) -> str:
-    """Two roads with every attribute set, so each tile field is present in the tile."""
+    """Two roads with every attribute set (confidence too), so each tile field is present in
+    the tile."""
     name = f"disc-{uuid.uuid4().hex[:8]}"
     lon, lat = ORIGIN
     full = RoadAttributes(2, 1, 50.0, "none", "primary", False, "Main street", "asphalt", 7.5,
                           "w1")
     with session_scope() as session:
-        write_network(session, name, [
+        summary = write_network(session, name, [
             RoadLine([(lon, lat), (lon + 0.002, lat)], full),
             RoadLine([(lon + 0.001, lat), (lon + 0.001, lat + 0.001)], full)])
+        # As road extraction writes it (the importer has no confidence to give).
+        session.execute(text("UPDATE road_segments SET confidence = 0.8 WHERE network_id = :n"),
+                        {"n": summary.network_id})
     return name
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+from sqlalchemy import text
 
 from app.db.session import session_scope
 from cli.main import main
@@ -37,22 +38,23 @@ def snapshot(network: str) -> tuple[list, list]:
 
 
 def varied_network(osm_safe: bool) -> str:
-    """Every attribute type, nulls, unicode, a one-way, a bridge crossing without a junction,
-    a loop and two traffic lights (one without an external id). OSM stores 1e-7 degree fixed
-    point and tags are strings, so the OSM variant has 7-decimal coordinates and string attrs."""
+    """Every attribute type (extraction's confidence too), nulls, unicode, a one-way, a bridge
+    crossing without a junction, a loop and two traffic lights (one without an external id).
+    OSM stores 1e-7 degree fixed point and tags are strings, so the OSM variant has 7-decimal
+    coordinates and string attrs."""
     name = f"varied-{uuid.uuid4().hex[:8]}"
     attrs = {"bridge": "yes", "layer": "1"} if osm_safe else {"bridge": True, "n": [1, {"a": 2}]}
     fine = 24.9012346 if osm_safe else 24.9012345678901
     lines = [
         RoadLine([(24.9, 60.1), (fine, 60.1), (24.9024, 60.1001)],
                  RoadAttributes(3, 0, 60.0, "forward", "primary", False, "Mannerheimintie ä'\"",
-                                "asphalt", 12.5, "w1", {"ref": "1"})),
+                                "asphalt", 12.5, "w1", {"ref": "1"}, confidence=0.8125)),
         RoadLine([(24.9024, 60.1001), (24.903, 60.1005), (24.9024, 60.101), (24.9024, 60.1001)],
                  RoadAttributes(1, 1, None, "none", "residential", True, None, None, None, None,
                                 {})),
         RoadLine([(24.9012, 60.0995), (24.9012, 60.1005)],  # crosses the first: a bridge
                  RoadAttributes(0, 2, 30.5, "backward", "secondary", False, "Silta", None, None,
-                                "w3", attrs)),
+                                "w3", attrs, confidence=0.0)),
     ]
     with session_scope() as s:
         write_network(s, name, lines, node_crossings=False,
@@ -169,3 +171,18 @@ def test_josm_file_with_new_objects_imports(database_url: str, tmp_path: Path) -
     assert sorted((seg.attributes.road_class, seg.attributes.external_id) for seg in segments) \
         == [("residential", "w200"), ("service", None)]
     assert len(nodes) == 3  # joined at node 101
+
+
+def test_confidence_outside_zero_to_one_is_refused(database_url: str, tmp_path: Path) -> None:
+    """A hand-edited export with a confidence of 1.5 is a clear error, not a database one."""
+    path = tmp_path / "bad.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {"road_class": "residential", "confidence": 1.5},
+        "geometry": {"type": "LineString", "coordinates": [[24.9, 60.1], [24.901, 60.1]]}}]}))
+    name = f"bad-{uuid.uuid4().hex[:6]}"
+    result = CliRunner().invoke(main, ["ingest", "network", str(path), "--network", name])
+    assert result.exit_code == 1, result.output
+    assert "confidence must be a number from 0 to 1" in result.output
+    with session_scope() as s:
+        assert s.execute(text("SELECT count(*) FROM networks WHERE name = :n"),
+                         {"n": name}).scalar() == 0

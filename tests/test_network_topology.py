@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import uuid
 
 import pytest
@@ -170,3 +171,35 @@ def test_every_write_needs_a_current_if_match(client) -> None:
     assert r.status_code == 200 and r.json()["properties"]["version"] == 3
     r = writes["merge"]({**admin, "If-Match": '"3", "1"'})
     assert r.status_code == 200, r.text
+
+
+def test_validate_lists_pieces_and_dead_ends(database_url: str) -> None:
+    """Two pieces: an L of two segments and a separate straight road; four dead ends."""
+    name = f"pieces-{uuid.uuid4().hex[:6]}"
+    lines = [RoadLine([(7.0, 5.0), (7.001, 5.0)]), RoadLine([(7.001, 5.0), (7.001, 5.002)]),
+             RoadLine([(7.01, 5.0), (7.011, 5.0)])]
+    with session_scope() as s:
+        write_network(s, name, lines, node_crossings=False)
+    code, out = _validate(name)
+    assert code == 0, out
+    assert "3 segments, 5 nodes, 4 dead ends, 2 connected components" in out
+    assert "piece 1: 2 segments, 0.332 km, bbox 7.000000,5.000000,7.001000,5.002000" in out
+    assert "piece 2: 1 segments, 0.111 km, bbox 7.010000,5.000000,7.011000,5.000000" in out
+    assert "dead end: node" in out and "at 7.0010000,5.0020000" in out
+    result = CliRunner().invoke(main, ["network", "validate", name, "--json"])
+    report = json.loads(result.output)
+    assert result.exit_code == 0 and report["ok"] and report["components"] == 2
+    assert [p["segments"] for p in report["pieces"]] == [2, 1]
+    assert sorted((d["lon"], d["lat"]) for d in report["dead_ends"]) == [
+        (7.0, 5.0), (7.001, 5.002), (7.01, 5.0), (7.011, 5.0)]
+
+
+def test_validate_json_of_a_broken_network_exits_1(database_url: str) -> None:
+    net = grid_network()
+    with session_scope() as s:
+        s.execute(text("UPDATE road_nodes SET kind = 'endpoint' WHERE network_id = :n"),
+                  {"n": net.network_id})
+    result = CliRunner().invoke(main, ["network", "validate", net.network, "--json"])
+    assert result.exit_code == 1
+    report = json.loads(result.output)
+    assert not report["ok"] and "node kind does not match its degree" in report["errors"]

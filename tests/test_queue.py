@@ -95,6 +95,12 @@ def test_post_jobs_needs_an_admin_token(client) -> None:
      "params.train_boxes.0"),
     ({"kind": "ingest-roads", "params": {"layer": "a", "network": "b", "k": "nan"}},
      "params.k"),
+    ({"kind": "ingest-roads", "params": {"layer": "a", "network": "b",
+                                         "rules": {"speed_kph": {"residential": 400}}}},
+     "params.rules.speed_kph.residential"),
+    ({"kind": "ingest-roads", "params": {"layer": "a", "network": "b",
+                                         "rules": {"classes": [{"road_class": "highway"}]}}},
+     "params.rules.classes.0.road_class"),
     ({"kind": "ingest-network", "params": ["/x.geojson"]}, "params"),
     ({"kind": "ingest-network", "params": {}, "priority": 9}, "body"),
 ])

@@ -2,18 +2,22 @@
 
 from __future__ import annotations
 
+import json
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 from click.testing import CliRunner
-from pyproj import Transformer
+from pyproj import Geod, Transformer
 from rasterio.transform import from_origin
 from sqlalchemy import text
 
 from app.db.session import session_scope
+from app.network.settings import DEFAULT_SPEEDS_KPH
 from cli.main import main
+from ingest.queue import tasks
 from ingest.raster.job import ingest_raster
+from ingest.roads.attributes import lanes
 from ingest.roads.synthetic import Scene, grid_scene, render
 from tests.raster_synth import UTM33, utm_origin, write_tif
 
@@ -68,6 +72,106 @@ def test_ingest_roads_from_layer_writes_topology(database_url: str, tmp_path: Pa
 
     check = runner.invoke(main, ["network", "validate", "scene-roads"])
     assert check.exit_code == 0, check.output
+    assert "1 connected components" in check.output and "piece 1: 6 segments" in check.output
+    report = json.loads(runner.invoke(main, ["network", "validate", "scene-roads",
+                                             "--json"]).output)
+    assert report["ok"] and [p["segments"] for p in report["pieces"]] == [6]
+    # The five road ends, where the scene's lines end (the skeleton stops short of a road's
+    # end by up to its half width, 3 m).
+    ends = [to_lonlat(x, y) for x, y in [(20, 150), (380, 150), (200, 20), (200, 280),
+                                         (60, 280)]]
+    found = [(d["lon"], d["lat"]) for d in report["dead_ends"]]
+    assert len(found) == 5
+    for lon, lat in ends:
+        assert min(metres(lon, lat, x, y) for x, y in found) < 5.0
+    west, _, east, _ = report["pieces"][0]["bbox"]
+    assert west < ends[0][0] + 5e-5 and east > ends[1][0] - 5e-5
+
+
+def metres(lon0: float, lat0: float, lon1: float, lat1: float) -> float:
+    return float(Geod(ellps="WGS84").inv(lon0, lat0, lon1, lat1)[2])
+
+
+def stored(network: str) -> list:
+    with session_scope() as session:
+        return session.execute(text(
+            "SELECT s.road_class, s.speed_limit_kph, s.lanes_forward, s.lanes_backward, "
+            "s.width_m, s.confidence, s.is_junction, s.attrs FROM road_segments s "
+            "JOIN networks n ON n.id = s.network_id WHERE n.name = :n"), {"n": network}).all()
+
+
+def test_attribute_rules_apply_and_override_per_network_and_job(database_url: str,
+                                                                tmp_path: Path) -> None:
+    to_lonlat = _layer(tmp_path, "roads-rules")
+    runner = CliRunner()
+    extract = ["ingest", "roads", "--layer", "roads-rules", "--network", "rules-net",
+               "--train-box", _box(to_lonlat, 100, 146, 140, 154), "--classifier", "spectral",
+               "--replace"]
+    result = runner.invoke(main, extract)
+    assert result.exit_code == 0, result.output
+    assert "classes: " in result.output and "confidence mean" in result.output
+    rows = stored("rules-net")
+    assert len(rows) == 6
+    for road_class, speed, forward, backward, width, confidence, junction, attrs in rows:
+        assert forward == backward == lanes(width, 3.5)[0]  # symmetric, from the width
+        assert speed == DEFAULT_SPEEDS_KPH[road_class]
+        assert 0.5 < confidence <= 1.0 and not junction
+        assert 0 <= attrs["through"] <= 1 and attrs["classifier"] == "spectral"
+    # The segment between the two junctions carries every through route: the busiest.
+    assert max(r.attrs["through"] for r in rows) == 1.0
+
+    speeds = tmp_path / "speeds.csv"
+    speeds.write_text("road_class,speed_kph\nresidential,25\ntertiary,35\nservice,12\n")
+    classes = tmp_path / "classes.json"
+    classes.write_text(json.dumps([{"road_class": "track"}]))
+    settings = runner.invoke(main, ["network", "settings", "rules-net", "--lane-width", "2",
+                                    "--speed-table", str(speeds)])
+    assert settings.exit_code == 0 and "lane width: 2 m (network)" in settings.output
+    assert "residential: 25 (network)" in settings.output
+    assert runner.invoke(main, extract).exit_code == 0
+    rows = stored("rules-net")
+    assert {r.speed_limit_kph for r in rows} <= {25.0, 35.0, 12.0}
+    assert all(r.lanes_forward == lanes(r.width_m, 2.0)[0] for r in rows)
+    assert any(r.attrs.get("lanes:both_ways") == 1 for r in rows) \
+        == any(lanes(r.width_m, 2.0)[2] for r in rows)
+
+    # The job's options win over the network's, which stay stored.
+    result = runner.invoke(main, [*extract, "--lane-width", "1.5", "--class-table",
+                                  str(classes), "--speed-table", str(speeds)])
+    assert result.exit_code == 0, result.output
+    rows = stored("rules-net")
+    assert {(r.road_class, r.speed_limit_kph) for r in rows} == {("track", 15.0)}
+    assert all(r.lanes_forward == lanes(r.width_m, 1.5)[0] for r in rows)
+    shown = json.loads(runner.invoke(main, ["network", "settings", "rules-net",
+                                            "--json"]).output)
+    assert shown["overrides"] == {"lane_width_m": 2.0, "speed_kph": {
+        "residential": 25.0, "tertiary": 35.0, "service": 12.0}}
+
+    bad = tmp_path / "bad.csv"
+    bad.write_text("road_class,speed_kph\nhighway,30\n")
+    before = stored("rules-net")
+    result = runner.invoke(main, [*extract, "--speed-table", str(bad)])
+    assert result.exit_code == 1 and "'highway' is not a road class" in result.output
+    assert stored("rules-net") == before
+
+
+def test_queued_extraction_applies_the_job_rules(database_url: str, tmp_path: Path) -> None:
+    to_lonlat = _layer(tmp_path, "roads-queued")
+    speeds = tmp_path / "speeds.json"
+    speeds.write_text(json.dumps({"residential": 22, "tertiary": 22, "service": 22,
+                                  "secondary": 22}))
+    result = CliRunner().invoke(main, [
+        "ingest", "roads", "--layer", "roads-queued", "--network", "queued-rules",
+        "--train-box", _box(to_lonlat, 100, 146, 140, 154), "--classifier", "spectral",
+        "--speed-table", str(speeds), "--queue"])
+    assert result.exit_code == 0 and "queued job" in result.output, result.output
+    job_id = int(result.output.split()[2])
+    tasks.run_job(job_id)
+    with session_scope() as session:
+        status, message = session.execute(text(
+            "SELECT status, message FROM ingest_jobs WHERE id = :id"), {"id": job_id}).one()
+    assert status == "succeeded" and "6 segments" in message, message
+    assert {r.speed_limit_kph for r in stored("queued-rules")} == {22.0}
 
 
 def test_ingest_roads_bad_input_changes_nothing(database_url: str, tmp_path: Path) -> None:
@@ -91,7 +195,7 @@ def test_ingest_roads_zero_shot_uses_the_road_model(database_url: str, tmp_path:
     result = CliRunner().invoke(main, ["ingest", "roads", "--layer", "roads-scene-3",
                                        "--network", "zero-shot"])
     assert result.exit_code == 0, result.output
-    assert "(model classifier)" in result.output
+    assert "(model classifier, sample: none)" in result.output
     with session_scope() as session:
         rows = session.execute(text(
             "SELECT s.attrs->>'classifier', sum(s.length_m) FROM road_segments s "

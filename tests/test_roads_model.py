@@ -1,8 +1,10 @@
 """The road model: training (CI-sized), ONNX export, tiled inference, zero-shot extraction.
 
-Training and the ONNX-vs-torch check run on synthetic scenes made here (known roads), so they
-need no shared data; the shipped model (``models/roads-v1``) is exercised on synthetic towns
-and, in ``tests/test_roads_real.py``, on the shared validation imagery.
+Training (with the pretrained encoder), resuming a cut-off run and the ONNX-vs-torch check run
+on synthetic scenes made here (known roads), so they need no shared data; the shipped model
+(``models/roads-v2``) is exercised on synthetic towns at ground resolutions from 0.05 to 1.2 m,
+on images smaller than one tile and along image borders and, in ``tests/test_roads_real.py``,
+on the shared validation imagery.
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-TINY = {"crop_px": 64, "batch": 4, "epochs": 3, "steps_per_epoch": 10, "lr": 3e-3}
+TINY = {"crop_px": 64, "batch": 4, "epochs": 3, "steps_per_epoch": 10, "lr": 3e-3, "threads": 1}
 
 
 @pytest.fixture(scope="module")
@@ -71,14 +73,15 @@ def test_tiny_training_run_lowers_the_loss_and_writes_a_model(tiny_run: tuple[Pa
     card = (out / "README.md").read_text()
     assert "research use only" in card and "Per-epoch hold-out report" in card
     model = load_model(out / "model.onnx")
-    assert model.resolution_m == 1.0 and model.threshold == report["threshold"]
+    assert model.resolution_m == 0.5 and model.threshold == report["threshold"]
+    assert report["config"]["arch"] == "lite0" and report["config"]["pretrained"]
 
 
 def test_onnx_and_torch_agree(tiny_run: tuple[Path, dict]) -> None:
-    from ingest.roads.model.net import RoadUNet
+    from ingest.roads.model.net import build
 
     out, _ = tiny_run
-    net = RoadUNet()
+    net = build("lite0", pretrained=False)
     net.load_state_dict(torch.load(out / "weights.pt"))
     net.eval()
     x = np.random.default_rng(1).random((2, 3, 96, 160), dtype=np.float32)
@@ -102,6 +105,26 @@ def test_training_is_reproducible(dataset: Path, tiny_run: tuple[Path, dict],
     np.testing.assert_array_equal(a, b)
 
 
+def test_a_cut_off_run_resumes_to_the_same_model(dataset: Path, tiny_run: tuple[Path, dict],
+                                                 tmp_path: Path) -> None:
+    """Stopped after its first epoch (a time limit of 0), then resumed: the same losses,
+    hold-out scores and weights as the run that was never cut."""
+    from ingest.roads.model.train import TrainConfig, train
+
+    out, uncut = tiny_run
+    cut = train(dataset, tmp_path, TrainConfig(**TINY), progress=False, time_limit_min=0)
+    assert [h["epoch"] for h in cut["history"]] == [1]
+    assert (tmp_path / "model.onnx").is_file()  # usable already
+    resumed = train(dataset, tmp_path, TrainConfig(**TINY), progress=False, resume=True)
+    assert [h["loss"] for h in resumed["history"]] == [h["loss"] for h in uncut["history"]]
+    assert resumed["holdout"] == uncut["holdout"]
+    a, b = torch.load(out / "weights.pt"), torch.load(tmp_path / "weights.pt")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    with pytest.raises(RoadsInputError, match="other settings"):
+        train(dataset, tmp_path, TrainConfig(**{**TINY, "lr": 1e-3}), progress=False,
+              resume=True)
+
+
 def test_validation_images_are_kept_out_of_training(dataset: Path) -> None:
     keep_out = file_sha16(dataset / "s1.png")
     names = [p["image"] for p in training_pairs(dataset, {keep_out})]
@@ -113,7 +136,7 @@ def test_validation_images_are_kept_out_of_training(dataset: Path) -> None:
 @pytest.fixture(scope="module")
 def shipped() -> object:
     path = MODEL_DIR / "model.onnx"
-    assert path.is_file(), "models/roads-v1/model.onnx is part of the repository"
+    assert path.is_file(), "models/roads-v2/model.onnx is part of the repository"
     return load_model(path)
 
 
@@ -138,13 +161,14 @@ def synthetic_image(rgb: np.ndarray, resolution_m: float = 1.0) -> Image:
                  resolution_m)
 
 
-def recall_of(result, road: np.ndarray) -> float:
-    """Share of drawn road centre pixels within 3 px of an extracted edge."""
+def recall_of(result, road: np.ndarray, radius_px: int = 3) -> float:
+    """Share of drawn road centre pixels within ``radius_px`` of an extracted edge."""
     from ingest.roads.evaluate import rasterize_lines
     from ingest.roads.skeleton import thin
 
     pred = rasterize_lines(result.source_lines(), road.shape)
-    near = cv2.dilate(pred.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    side = 2 * radius_px + 1
+    near = cv2.dilate(pred.astype(np.uint8), np.ones((side, side), np.uint8)).astype(bool)
     centre = thin(road)
     return float((near & centre).sum() / centre.sum())
 
@@ -182,7 +206,41 @@ def test_a_resolution_far_from_the_model_is_refused(shipped: object) -> None:
         extract_roads(synthetic_image(rgb, resolution_m=5.0))
     # Far finer is fine: averaged down to the model's grid.
     fine = cv2.resize(rgb, (1600, 1600), interpolation=cv2.INTER_LINEAR)
-    assert extract_roads(synthetic_image(fine, 0.25)).frame.resolution_m == pytest.approx(1.0)
+    result = extract_roads(synthetic_image(fine, 0.125))
+    assert result.frame.resolution_m == pytest.approx(shipped.resolution_m)
+
+
+@pytest.mark.parametrize("resolution_m", [0.05, 0.2, 1.2])
+def test_roads_are_found_from_005_to_12_m_per_pixel(shipped: object, resolution_m: float
+                                                   ) -> None:
+    """The same 7 m wide roads drawn at three ground resolutions: enlarged (1.2 m) or averaged
+    down (0.05 m) to the model's grid, each is found."""
+    size_m, spacing_m, width_m = 240, 80, 7
+    px = round(size_m / resolution_m)
+    scene = grid_scene(px, round(spacing_m / resolution_m), max(2, round(width_m / resolution_m)),
+                       seed=5)
+    rgb, road = render(scene)
+    result = extract_roads(synthetic_image(rgb, resolution_m))
+    assert recall_of(result, road, max(3, round(1.5 / resolution_m))) > 0.8, resolution_m
+
+
+def test_an_image_smaller_than_one_tile_is_reflected_not_zero_padded(shipped: object) -> None:
+    """A 90 x 70 m image (far under the network's receptive field): the road across it is
+    found end to end, edge to edge."""
+    rgb, road = render(Scene((140, 180), roads=[[(0, 70), (179, 62)]], road_width_px=14,
+                             seed=2))
+    result = extract_roads(synthetic_image(rgb, 0.5))
+    assert recall_of(result, road) > 0.8
+    xs = np.concatenate([line[:, 0] for line in result.source_lines()])
+    assert xs.min() < 15 and xs.max() > 165, (xs.min(), xs.max())
+
+
+def test_a_road_along_the_image_border_is_found(shipped: object) -> None:
+    """A road whose edge is the image's top edge: half of its cross-section is outside."""
+    rgb, road = render(Scene((300, 400), roads=[[(0, 2), (399, 2)], [(200, 2), (200, 299)]],
+                             road_width_px=14, seed=4))
+    result = extract_roads(synthetic_image(rgb, 0.5))
+    assert recall_of(result, road) > 0.75
 
 
 def test_adapted_needs_a_sample(shipped: object) -> None:

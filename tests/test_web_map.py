@@ -40,6 +40,8 @@ A, B = at(0, 0), at(0.002, 0)
 DIRECT = [A, B]
 DETOUR = [A, at(0, 0.001), at(0.002, 0.001), B]
 SPUR = [at(0.001, 0.001), at(0.001, 0.0016)]
+# A road extraction left unconnected: unclassified (as extracted roads are), on the imagery.
+ISLAND = [at(0.0021, -0.0004), at(0.0025, -0.0004)]
 
 
 def cli(*args: str) -> str:
@@ -69,7 +71,7 @@ def world(live_server: str, tmp_path_factory: pytest.TempPathFactory) -> dict[st
     roads = folder / "roads.geojson"
     roads.write_text(json.dumps({"type": "FeatureCollection", "features": [
         road(DIRECT, "Direct road", "residential"), road(DETOUR, "Detour road", "tertiary"),
-        road(SPUR, "Spur", "service")]}))
+        road(SPUR, "Spur", "service"), road(ISLAND, "Island track", "unclassified")]}))
     cli("ingest", "network", str(roads), "--network", "webnet")
     token = re.search(r"\S{20,}", cli("tokens", "create", "--role", "editor", "--name", "web"))
     assert token, "tokens create printed no token"
@@ -186,11 +188,16 @@ def colour_pixels(page, rgb: tuple[int, int, int], tolerance: int = 30) -> int:
     return int((diff <= tolerance).sum())
 
 
-def click_lonlat(page, lon: float, lat: float) -> None:
+def screen(page, lon: float, lat: float) -> tuple[float, float]:
+    """Page coordinates of a lon/lat on the map."""
     x, y = page.evaluate("([lon, lat]) => { const p = window.ugvmap.map.project([lon, lat]); "
                          "const r = window.ugvmap.map.getContainer().getBoundingClientRect(); "
                          "return [r.left + p.x, r.top + p.y]; }", [lon, lat])
-    page.mouse.click(x, y)
+    return x, y
+
+
+def click_lonlat(page, lon: float, lat: float) -> None:
+    page.mouse.click(*screen(page, lon, lat))
 
 
 def route_distance_m(page) -> float:
@@ -386,9 +393,7 @@ def test_optimize_order_and_drag_a_point(browser, world, request, tmp_path) -> N
     before = page.locator(".distance").inner_text()
     box = page.locator(".task-point").nth(3).bounding_box()
     x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
-    tx, ty = page.evaluate("([lon, lat]) => { const p = window.ugvmap.map.project([lon, lat]);"
-                           " const r = window.ugvmap.map.getContainer().getBoundingClientRect();"
-                           " return [r.left + p.x, r.top + p.y]; }", at(0.002, 0.0008))
+    tx, ty = screen(page, *at(0.002, 0.0008))
     page.mouse.move(x, y)
     page.mouse.down()
     page.mouse.move(tx, ty, steps=8)
@@ -396,3 +401,313 @@ def test_optimize_order_and_drag_a_point(browser, world, request, tmp_path) -> N
     wait_route_change(page, before)
     assert page.locator(".task-point").count() == 4
     assert route_distance_m(page) > float(before.split()[0]) + 30
+
+
+# -- review of an extracted network ------------------------------------------------------
+# A network as road extraction leaves it, away from the A/B scene: short unclassified
+# segments with a confidence each. Rows (metres north of REVIEW at 50 N: 0.0004 deg = 44 m):
+# A (confidences 0.1, 0.3, 0.7, 0.9) for colouring and filtering, B (4) for a box edit,
+# C (3) for a conflict, D (a chain of 3) for a box delete, E one one-way road (not extracted).
+REVIEW = (7.790, 50.0)
+
+
+def rv(east_deg: float, north_deg: float) -> tuple[float, float]:
+    return (round(REVIEW[0] + east_deg, 7), round(REVIEW[1] + north_deg, 7))
+
+
+REVIEW_BOUNDS = (*rv(-0.0002, -0.0002), *rv(0.002, 0.0018))
+ROWS = {
+    "A": (0.0, [0.1, 0.3, 0.7, 0.9]),
+    "B": (0.0004, [0.2, 0.4, 0.6, 0.8]),
+    "C": (0.0008, [0.5, 0.5, 0.5]),
+}
+D_CHAIN = [rv(0, 0.0012), rv(0.0005, 0.0012), rv(0.001, 0.0012), rv(0.0015, 0.0012)]
+E_ONEWAY = [rv(0, 0.0016), rv(0.0008, 0.0016)]
+
+
+def row_segment(north: float, k: int) -> list[tuple[float, float]]:
+    """The k-th 21 m segment of a row (0.0005 deg apart, so none touches the next)."""
+    return [rv(0.0005 * k, north), rv(0.0005 * k + 0.0003, north)]
+
+
+@pytest.fixture(scope="module")
+def review(world: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """Import the extracted-looking network 'webrev' and set its confidences in the database
+    as extraction writes them; returns segment ids by row ({"A": [...], ..., "E": [id]})."""
+    from sqlalchemy import text
+
+    from app.db.session import session_scope
+
+    roads = [(row_segment(north, k), f"{row}{k}", c, {})
+             for row, (north, confs) in ROWS.items() for k, c in enumerate(confs)]
+    roads += [(D_CHAIN[k:k + 2], f"D{k}", 0.3, {}) for k in range(3)]
+    roads.append((E_ONEWAY, "E0", None, {"oneway": "forward", "lanes_backward": 0}))
+    path = tmp_path_factory.mktemp("web-review") / "extracted.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": [
+        {"type": "Feature", "geometry": {"type": "LineString", "coordinates": coords},
+         "properties": {"name": name, "road_class": "unclassified", "lanes_forward": 1,
+                        "lanes_backward": 1, **props}}
+        for coords, name, _, props in roads]}))
+    cli("ingest", "network", str(path), "--network", "webrev")
+    ids: dict[str, list[int]] = {}
+    with session_scope() as s:
+        for _, name, confidence, _ in roads:
+            fid = s.execute(text(
+                "UPDATE road_segments SET confidence = :c WHERE name = :name AND network_id = "
+                "(SELECT id FROM networks WHERE name = 'webrev') RETURNING id"),
+                {"c": confidence, "name": name}).scalar_one()
+            ids.setdefault(name[0], []).append(fid)
+    return {**world, "ids": ids}
+
+
+def open_review(browser, review, request, tmp_path):
+    page = open_map(browser, review, request, tmp_path, fit=False)
+    page.evaluate("(b) => window.ugvmap.map.fitBounds(b, {padding: 20, duration: 0})",
+                  list(REVIEW_BOUNDS))
+    wait_idle(page)
+    return page
+
+
+def drawn(page, layer: str = "net-webrev-segments") -> dict[int, dict]:
+    """Properties of the segments drawn on a layer, by id."""
+    return {f["id"]: f["properties"] for f in page.evaluate(
+        "(layer) => window.ugvmap.map.queryRenderedFeatures({layers: [layer]})"
+        ".map((f) => ({id: f.id, properties: f.properties}))", layer)}
+
+
+def pixel(page, lon: float, lat: float) -> tuple[int, int, int]:
+    """The RGB colour the map canvas shows at a lon/lat."""
+    x, y = page.evaluate("([lon, lat]) => { const p = window.ugvmap.map.project([lon, lat]); "
+                         "return [Math.round(p.x), Math.round(p.y)]; }", [lon, lat])
+    png = page.locator("#map canvas").screenshot()
+    bgr = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    b, g, r = (int(v) for v in bgr[y, x])
+    return r, g, b
+
+
+def box_select(page, corner_a: tuple[float, float], corner_b: tuple[float, float]) -> None:
+    """Shift-drag a box between two lon/lat corners."""
+    (x0, y0), (x1, y1) = screen(page, *corner_a), screen(page, *corner_b)
+    page.keyboard.down("Shift")
+    page.mouse.move(x0, y0)
+    page.mouse.down()
+    page.mouse.move(x1, y1, steps=6)
+    page.mouse.up()
+    page.keyboard.up("Shift")
+
+
+def middle(coords) -> tuple[float, float]:
+    (a, b), (c, d) = coords[0], coords[-1]
+    return (a + c) / 2, (b + d) / 2
+
+
+def stored(ids: list[int]) -> dict[int, tuple]:
+    """(version, speed, class, lanes_forward, name) per segment id, from the database."""
+    from sqlalchemy import text
+
+    from app.db.session import session_scope
+
+    with session_scope() as s:
+        rows = s.execute(text("SELECT id, version, speed_limit_kph, road_class, lanes_forward, "
+                              "name FROM road_segments WHERE id = ANY(:ids)"),
+                         {"ids": ids}).all()
+    return {r[0]: tuple(r[1:]) for r in rows}
+
+
+def history_rows(ids: list[int]) -> list[tuple]:
+    """(segment, action, version_from, version_to) of the segments' edits, in order."""
+    from sqlalchemy import text
+
+    from app.db.session import session_scope
+
+    with session_scope() as s:
+        return [tuple(r) for r in s.execute(text(
+            "SELECT segment_id, action, version_from, version_to FROM segment_edits "
+            "WHERE segment_id = ANY(:ids) ORDER BY id"), {"ids": ids})]
+
+
+def close(rgb: tuple[int, int, int], expected: tuple[int, int, int], tolerance: int = 30) -> bool:
+    return max(abs(a - b) for a, b in zip(rgb, expected, strict=True)) <= tolerance
+
+
+def test_confidence_colours_filter_and_one_way_arrows(browser, review, request,
+                                                      tmp_path) -> None:
+    page = open_review(browser, review, request, tmp_path)
+    a_ids = review["ids"]["A"]
+    # One-way arrows on the one-way road only.
+    arrows = drawn(page, "net-webrev-oneway")
+    assert set(arrows) == set(review["ids"]["E"]), arrows
+    # Colour by confidence: red where the model was unsure (0.1), green where sure (0.9),
+    # interpolated through the legend's stops (0 #d7191c, 0.5 #fdae61, 0.75 #ffffbf, 1 #1a9641).
+    page.select_option("#net-style", "confidence")
+    wait_idle(page)
+    assert "not extracted" in page.locator("#legend").inner_text()
+    low = pixel(page, *middle(row_segment(0.0, 0)))
+    high = pixel(page, *middle(row_segment(0.0, 3)))
+    assert close(low, (223, 55, 42)), low
+    assert close(high, (118, 192, 115)), high
+    # The filter: only extracted segments below 0.5 stay drawn (Row A's 0.1 and 0.3, ...);
+    # the not-extracted one-way road goes too.
+    page.locator("#conf-max").fill("0.5")
+    assert page.locator("#conf-filter").is_checked()
+    assert page.locator("#conf-value").inner_text() == "0.50"
+    wait_idle(page)
+    shown = drawn(page)
+    assert shown and all(p["confidence"] < 0.5 for p in shown.values()), shown
+    assert {a_ids[0], a_ids[1]} <= set(shown) and not {a_ids[2], a_ids[3]} & set(shown)
+    assert not drawn(page, "net-webrev-oneway")
+    page.locator("#conf-max").fill("0.95")
+    wait_idle(page)
+    assert set(a_ids) <= set(drawn(page))
+    page.uncheck("#conf-filter")
+    wait_idle(page)
+    assert set(review["ids"]["E"]) <= set(drawn(page))
+
+
+def test_bulk_edit_of_a_box_selection(browser, review, request, tmp_path) -> None:
+    """Shift-drag a box over Row B, set speed and class on all four: each segment gets its
+    own new version and history row; the map redraws them; 'hide edited' then hides them."""
+    page = open_review(browser, review, request, tmp_path)
+    page.fill("#token", review["token"])
+    b_ids = review["ids"]["B"]
+    box_select(page, rv(-0.0001, 0.0003), rv(0.0019, 0.0005))
+    page.locator("#bulk").wait_for(state="visible")
+    assert page.locator("#bulk-title").inner_text().startswith("4 segments selected")
+    assert sorted(page.evaluate("window.ugvmap.selection.list().map((s) => s.id)")) == b_ids
+    page.fill("#b-speed_limit_kph", "30")
+    page.fill("#b-road_class", "residential")
+    page.click("#bulk-apply")
+    page.wait_for_function("document.querySelector('#bulk-message').textContent"
+                           ".startsWith('Saved 4 of 4')")
+    assert stored(b_ids) == {fid: (2, 30.0, "residential", 1, f"B{k}")
+                             for k, fid in enumerate(b_ids)}
+    # Four requests in flight at once: their rows come in any order, one per segment.
+    assert sorted(history_rows(b_ids)) == [(fid, "update", 1, 2) for fid in b_ids]
+    # The tiles were reloaded: the drawn segments carry the new values and versions.
+    page.wait_for_function(
+        "(ids) => { const f = window.ugvmap.map.queryRenderedFeatures("
+        "{layers: ['net-webrev-segments']}).filter((f) => ids.includes(f.id));"
+        " return f.length >= ids.length && f.every((x) => x.properties.speed_limit_kph === 30"
+        " && x.properties.version === 2); }", arg=b_ids)
+    page.check("#hide-edited")
+    wait_idle(page)
+    shown = drawn(page)
+    assert not set(b_ids) & set(shown) and set(review["ids"]["A"]) <= set(shown)
+    page.uncheck("#hide-edited")
+
+
+def test_bulk_edit_reports_a_conflict_and_keeps_the_rest(browser, review, request,
+                                                         tmp_path) -> None:
+    """Ctrl-click Row C's three segments and the one-way road E0; someone else edits C1
+    meanwhile. Making them 2-lane backward one-ways saves C0 and C2, names C1 (412, Reload
+    offered) and E0 (422: it has no backward lane). After Reload, and E0 ctrl-clicked out of
+    the selection, applying again saves C1 on top of the other edit."""
+    page = open_review(browser, review, request, tmp_path)
+    page.fill("#token", review["token"])
+    c_ids, (e_id,) = review["ids"]["C"], review["ids"]["E"]
+    page.keyboard.down("Control")
+    for k in range(3):
+        click_lonlat(page, *middle(row_segment(0.0008, k)))
+    click_lonlat(page, *middle(E_ONEWAY))
+    page.keyboard.up("Control")
+    page.locator("#bulk").wait_for(state="visible")
+    assert page.locator("#bulk-title").inner_text().startswith("4 segments selected")
+    url = f"{review['base']}/collections/webrev-segments/items/{c_ids[1]}"
+    meanwhile = httpx.patch(url, json={"name": "Renamed meanwhile"},
+                            headers={"Authorization": f"Bearer {review['token']}",
+                                     "If-Match": httpx.get(url).headers["ETag"]})
+    assert meanwhile.status_code == 200, meanwhile.text
+
+    page.fill("#b-lanes_forward", "2")
+    page.select_option("#b-oneway", "backward")
+    page.click("#bulk-apply")
+    page.wait_for_function("document.querySelector('#bulk-message').textContent"
+                           ".startsWith('Saved 2 of 4')")
+    message = page.locator("#bulk-message").inner_text()
+    assert f"segment {c_ids[1]} changed since you selected it" in message
+    assert f"Segment {e_id}: lanes_backward a backward one-way road needs at least one " \
+        "backward lane" in message
+    marks = {fid: page.locator(f"#bulk-list li[data-segment='{fid}']").get_attribute("class")
+             for fid in (*c_ids, e_id)}
+    assert marks == {c_ids[0]: "ok", c_ids[1]: "conflict", c_ids[2]: "ok", e_id: "error"}
+    assert stored([e_id])[e_id][0] == 1
+    assert stored(c_ids) == {c_ids[0]: (2, None, "unclassified", 2, "C0"),
+                             c_ids[1]: (2, None, "unclassified", 1, "Renamed meanwhile"),
+                             c_ids[2]: (2, None, "unclassified", 2, "C2")}
+    page.click("#bulk-reload")
+    page.wait_for_function("document.querySelector('#bulk-message').textContent"
+                           ".startsWith('Reloaded segment')")
+    page.keyboard.down("Control")
+    click_lonlat(page, *middle(E_ONEWAY))
+    page.keyboard.up("Control")
+    assert page.locator("#bulk-title").inner_text().startswith("3 segments selected")
+    page.click("#bulk-apply")
+    page.wait_for_function("document.querySelector('#bulk-message').textContent"
+                           ".startsWith('Saved 3 of 3')")
+    assert stored([c_ids[1]])[c_ids[1]] == (3, None, "unclassified", 2, "Renamed meanwhile")
+    assert history_rows([c_ids[1]]) == [(c_ids[1], "update", 1, 2), (c_ids[1], "update", 2, 3)]
+    # The two saved the first time were already at 2 lanes: no empty versions were written.
+    assert stored([c_ids[0]])[c_ids[0]][0] == 2
+
+
+def test_bulk_delete_of_a_box_selection(browser, review, request, tmp_path) -> None:
+    """Box-select the two eastern links of the D chain and delete them: both go with their
+    own history rows, the nodes they orphan go too, the map stops drawing them."""
+    from sqlalchemy import text
+
+    from app.db.session import session_scope
+    from app.network.integrity import check_network
+
+    page = open_review(browser, review, request, tmp_path)
+    page.fill("#token", review["token"])
+    d_ids = review["ids"]["D"]
+    box_select(page, rv(0.0007, 0.0011), rv(0.0017, 0.0013))
+    page.locator("#bulk").wait_for(state="visible")
+    assert sorted(page.evaluate("window.ugvmap.selection.list().map((s) => s.id)")) == \
+        d_ids[1:]
+    page.click("#bulk-delete")
+    assert "Delete 2 segments" in page.locator("#bulk-confirm").inner_text()
+    page.click("#bulk-delete-yes")
+    page.wait_for_function("document.querySelector('#bulk-message').textContent"
+                           ".startsWith('Deleted 2 of 2')")
+    assert set(stored(d_ids)) == {d_ids[0]}
+    assert sorted(history_rows(d_ids)) == [(fid, "delete", 1, None) for fid in d_ids[1:]]
+    with session_scope() as s:
+        nodes = s.execute(text(
+            "SELECT kind FROM road_nodes WHERE network_id = (SELECT id FROM networks "
+            "WHERE name = 'webrev') AND ST_DWithin(geom, ST_MakeEnvelope(:w, :s, :e, :n, "
+            "4326), 0)"), dict(zip("wsen", (*rv(-0.0001, 0.0011), *rv(0.0016, 0.0013)),
+                                   strict=True))).scalars().all()
+        assert sorted(nodes) == ["endpoint", "endpoint"]
+        assert check_network(s, "webrev").ok
+    page.wait_for_function("(ids) => !window.ugvmap.map.queryRenderedFeatures("
+                           "{layers: ['net-webrev-segments']}).some((f) => ids.includes(f.id))",
+                           arg=d_ids[1:])
+
+
+def test_route_follows_the_network_on_screen_and_names_the_pieces(browser, review, request,
+                                                                  tmp_path) -> None:
+    """With several networks the route tool uses the one on screen; a route to a road that
+    joins nothing says, in the server's words, which piece each numbered point is on. The
+    unclassified island is drawn white over the imagery (it used to be a faint slate)."""
+    page = open_map(browser, review, request, tmp_path)
+    assert page.locator("#route-network").input_value() == "webnet"
+    page.evaluate("(b) => window.ugvmap.map.fitBounds(b, {padding: 20, duration: 0})",
+                  list(REVIEW_BOUNDS))
+    wait_idle(page)
+    assert page.locator("#route-network").input_value() == "webrev"
+    page.evaluate("(b) => window.ugvmap.map.fitBounds(b, {padding: 30, duration: 0})",
+                  list(RASTER_BOUNDS))
+    wait_idle(page)
+    assert page.locator("#route-network").input_value() == "webnet"
+    assert close(pixel(page, *middle(ISLAND)), (255, 255, 255), tolerance=12)
+
+    page.check("#route-active")
+    click_lonlat(page, *at(0.0005, 0))
+    click_lonlat(page, *middle(ISLAND))
+    error = page.locator("#route-result .route-error")
+    error.wait_for()
+    assert re.fullmatch(r"No route from point 1 to point 2: point 1 is on a piece of the "
+                        r"network of 4 segments \(\d+ m\) and point 2 on another of 1 segment "
+                        r"\(\d+ m\): no road joins them\.", error.inner_text()), \
+        error.inner_text()

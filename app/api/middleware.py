@@ -20,7 +20,7 @@ from app.settings import Settings
 SAFE = ("GET", "HEAD")
 WRITES = ("GET", "HEAD", "POST", "PATCH", "PUT", "DELETE")
 # Response headers a cross-origin script may read (the rest of the safelist is implicit).
-EXPOSED = ("ETag", "Retry-After", "WWW-Authenticate", "X-Tile-Cache")
+EXPOSED = ("ETag", "Retry-After", "WWW-Authenticate", "X-Tile-Cache", "X-Lanelet2-Origin")
 GZIP_MIN_BYTES = 500
 GZIP_LEVEL = 6  # zlib's default: most of level 9's gain at a third of its CPU on big pages
 

@@ -76,6 +76,23 @@ class Layer(Base):
     updated_at: Mapped[datetime] = _now()
 
 
+class LayerTrajectory(Base):
+    """The path a vehicle drove while recording an ``ipm-mosaic`` layer (migration 0008): a road
+    sample for extraction that needs no hand labels."""
+    __tablename__ = "layer_trajectories"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    layer_id: Mapped[int] = mapped_column(
+        ForeignKey("layers.id", ondelete="CASCADE"), nullable=False, index=True
+    )
+    name: Mapped[str] = mapped_column(Text, nullable=False)
+    geom: Mapped[Any] = mapped_column(
+        Geometry("LINESTRING", srid=4326, spatial_index=True), nullable=False
+    )
+    meta: Mapped[dict[str, Any]] = mapped_column(JSONB, nullable=False, server_default="{}")
+    created_at: Mapped[datetime] = _now()
+
+
 class RasterSource(Base):
     """One COG of a layer, with the footprint tiles are matched against and its paint priority."""
     __tablename__ = "raster_sources"
@@ -116,6 +133,8 @@ class Network(Base):
     title: Mapped[str | None] = mapped_column(Text)
     description: Mapped[str | None] = mapped_column(Text)
     version: Mapped[int] = mapped_column(BigInteger, nullable=False, server_default="0")
+    settings: Mapped[dict[str, Any]] = mapped_column(JSONB, nullable=False, server_default="{}")
+    """Attribute rules extraction applies to this network (migration 0008); {} = defaults."""
     created_at: Mapped[datetime] = _now()
     updated_at: Mapped[datetime] = _now()
 
@@ -150,6 +169,8 @@ class RoadSegment(Base):
         CheckConstraint("length_m >= 0", name="road_segments_length_nonneg"),
         CheckConstraint("width_m IS NULL OR width_m > 0", name="road_segments_width_pos"),
         CheckConstraint("version >= 1", name="road_segments_version_pos"),
+        CheckConstraint("confidence IS NULL OR confidence BETWEEN 0 AND 1",
+                        name="road_segments_confidence_range"),
         Index("ix_road_segments_network_class", "network_id", "road_class"),
     )
 
@@ -178,6 +199,8 @@ class RoadSegment(Base):
     width_m: Mapped[float | None] = mapped_column(Float)
     external_id: Mapped[str | None] = mapped_column(Text)
     attrs: Mapped[dict[str, Any]] = mapped_column(JSONB, nullable=False, server_default="{}")
+    confidence: Mapped[float | None] = mapped_column(Float)
+    """How sure road extraction was of this segment (0..1); NULL when not extracted."""
     version: Mapped[int] = mapped_column(Integer, nullable=False, server_default="1")
     updated_at: Mapped[datetime] = _now()
     updated_by: Mapped[str | None] = mapped_column(Text)

@@ -32,6 +32,7 @@ from pyproj.exceptions import CRSError
 
 from app.db.models import LAYER_KINDS, SLUG_RE
 from app.errors import InvalidValueError
+from app.network.settings import AttributeRules
 
 #: The road extraction classifiers (``ingest.roads.pipeline`` runs them).
 Classifier = Literal["auto", "model", "adapted", "learned", "spectral"]
@@ -136,6 +137,8 @@ class RoadsParams(JobParams):
     work_resolution: float | None = Field(default=None, ge=0, le=100)
     spur_max: float | None = Field(default=None, ge=0, le=1000)
     simplify: float | None = Field(default=None, ge=0, le=100)
+    rules: AttributeRules | None = None
+    """Attribute rules for this job on top of the network's (speed_kph, classes, ...)."""
 
     @property
     def target(self) -> str:

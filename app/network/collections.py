@@ -25,13 +25,19 @@ KINDS: tuple[Kind, ...] = ("segments", "nodes")
 SEGMENT_ATTRIBUTES = ("lanes_forward", "lanes_backward", "speed_limit_kph", "oneway",
                       "road_class", "is_junction", "name", "surface", "width_m", "external_id",
                       "attrs")
+# ``confidence`` is written by road extraction only: edits cannot set it (422 read-only).
 SEGMENT_READONLY = ("source_node", "target_node", "length_m", "version", "updated_at",
-                    "updated_by")
+                    "updated_by", "confidence")
 SEGMENT_SELECT = ", ".join(("id", *SEGMENT_READONLY, *SEGMENT_ATTRIBUTES,
                             "ST_AsGeoJSON(geom, 15) AS geometry"))
+# Segment ends at node ``n`` (a loop counts twice), and the node kind a ``degree`` implies:
+# the one rule the API, deletions and ``ugvmap network validate`` share.
+NODE_DEGREE = ("(SELECT count(*) FROM road_segments s WHERE s.source_node = n.id) + "
+               "(SELECT count(*) FROM road_segments s WHERE s.target_node = n.id)")
+KIND_OF_DEGREE = ("CASE WHEN degree >= 3 THEN 'junction' WHEN degree = 1 THEN 'endpoint' "
+                  "ELSE 'node' END")
 NODE_SELECT = ("id, kind, traffic_light, external_id, ST_AsGeoJSON(geom, 15) AS geometry, "
-               "(SELECT count(*) FROM road_segments s WHERE s.source_node = n.id) + "
-               "(SELECT count(*) FROM road_segments s WHERE s.target_node = n.id) AS degree")
+               f"{NODE_DEGREE} AS degree")
 
 
 @dataclass(frozen=True)

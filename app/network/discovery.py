@@ -149,7 +149,8 @@ def network_style(name: NetworkName, request: Request, session: SessionDep) -> J
                         headers=NO_CACHE)
 
 
-def _integer_ranges(session: Session, network_id: int) -> dict[str, tuple[int, int]]:
+def integer_ranges(session: Session, network_id: int) -> dict[str, tuple[int, int]]:
+    """Min and max of the integer fields of the network's vector tiles (for ``tilestats``)."""
     props = by_name("segments")
     fields = [f for layer in tj.TILE_LAYERS if layer.kind == "segments"
               for f in layer.fields if props[f].type == "integer"]
@@ -170,7 +171,7 @@ def network_tiles_metadata(name: NetworkName, session: SessionDep) -> JSONRespon
     """MBTiles-style metadata next to the tiles, for ``ogrinfo MVT:.../networks/{name}/tiles``.
     """
     row = _one(session, name)
-    return JSONResponse(tj.mbtiles_metadata(_info(row), _integer_ranges(session, row.id)),
+    return JSONResponse(tj.mbtiles_metadata(_info(row), integer_ranges(session, row.id)),
                         headers=NO_CACHE)
 
 

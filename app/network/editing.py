@@ -182,12 +182,14 @@ def patch_segment(session: Session, c: colls.Collection, fid: int, expected: int
 
 
 def history(session: Session, c: colls.Collection, fid: int) -> list[dict[str, Any]]:
-    """The segment's edits, oldest first (404 if the segment is not in the collection)."""
-    colls.get_item(session, c, fid)
+    """The segment's edits, oldest first; a deleted segment's too (its last edit is the
+    deletion, with the whole segment as ``old``). 404 if the collection never had it."""
     rows = session.execute(text(
         "SELECT action, version_from, version_to, edited_by, edited_at, old, new "
         "FROM segment_edits WHERE network_id = :n AND segment_id = :s ORDER BY id"),
         {"n": c.network_id, "s": fid}).all()
+    if not rows:
+        colls.get_item(session, c, fid)
     return [{**r._mapping, "edited_at": r.edited_at.isoformat()} for r in rows]
 
 

@@ -1,7 +1,8 @@
-"""HTTP side of editing: PATCH (JSON merge patch), history, revert, and admin split/merge.
+"""HTTP side of editing: PATCH (JSON merge patch), DELETE, history, revert, and admin
+split/merge.
 
-Every write needs ``Authorization: Bearer`` with role editor (attributes) or admin (topology
-changes); reads are public unless ``UGVMAP_NETWORK_READ_ROLE`` is set.
+Every write needs ``Authorization: Bearer`` with role editor (attributes, deleting a segment)
+or admin (split and merge); reads are public unless ``UGVMAP_NETWORK_READ_ROLE`` is set.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from collections.abc import Callable
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Request
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
@@ -23,7 +24,7 @@ from app.errors import (
     UnsupportedMediaTypeError,
 )
 from app.network import collections as colls
-from app.network import editing, schemas, topology_edits
+from app.network import editing, schemas, segment_deletion, topology_edits
 from app.network.features import GEOJSON, READ_ERRORS, GeoJSONResponse, etag, parse_fid
 from app.network.tokens import Principal, SessionDep, read_access, require_role
 from app.params import Int
@@ -91,14 +92,17 @@ BODY_ERRORS = (errors.InvalidParameterValueError, errors.PayloadTooLargeError,
 PRECONDITIONS = (errors.PreconditionFailedError, errors.PreconditionRequiredError)
 
 
-async def _in_session(work: Callable[[Session], dict[str, Any]]) -> JSONResponse:
-    """Run blocking DB work in the thread pool, in one transaction; answer with its result."""
+async def _in_session(work: Callable[[Session], dict[str, Any] | None]) -> Response:
+    """Run blocking DB work in the thread pool, in one transaction; answer with its result
+    (204 No Content when it has none: a deletion)."""
 
-    def run() -> dict[str, Any]:
+    def run() -> dict[str, Any] | None:
         with session_scope() as session:
             return work(session)
 
     result = await run_in_threadpool(run)
+    if result is None:
+        return Response(status_code=204)
     if result.get("type") == "Feature":
         return feature_response(result)
     return JSONResponse(result, media_type=GEOJSON)
@@ -109,7 +113,7 @@ async def _in_session(work: Callable[[Session], dict[str, Any]]) -> JSONResponse
               responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS,
                                                            *PRECONDITIONS)})
 async def patch_item(collection_id: str, fid: str, request: Request,
-                     principal: EditorDep) -> JSONResponse:
+                     principal: EditorDep) -> Response:
     """Edit a segment's attributes or geometry (editor; ``If-Match`` required)."""
     if_match = request.headers.get("if-match")
     body = await json_body(request)
@@ -119,6 +123,25 @@ async def patch_item(collection_id: str, fid: str, request: Request,
     return await _in_session(lambda s: editing.patch_segment(
         s, _segments(s, collection_id), parse_fid(fid), editing.parse_if_match(if_match)[0],
         body, principal))
+
+
+@router.delete("/collections/{collection_id}/items/{fid}", status_code=204,
+               response_class=Response,
+               openapi_extra={"security": [{"bearer": []}], "parameters": [IF_MATCH]},
+               responses={204: {"description": "Deleted; its end nodes left without segments "
+                                               "are deleted too"},
+                          **errors.responses(errors.UnauthorizedError, errors.ForbiddenError,
+                                             errors.NotFoundError,
+                                             errors.MethodNotAllowedError,
+                                             errors.DatabaseUnavailableError, *PRECONDITIONS)})
+async def delete_item(collection_id: str, fid: str, request: Request,
+                      principal: EditorDep) -> Response:
+    """Delete a segment (editor; ``If-Match`` required): orphaned end nodes go with it, the
+    others are re-kinded by degree, and the history keeps the whole segment."""
+    if_match = request.headers.get("if-match")
+    return await _in_session(lambda s: segment_deletion.delete_segment(
+        s, _segments(s, collection_id), parse_fid(fid), editing.parse_if_match(if_match)[0],
+        principal))
 
 
 @router.get("/collections/{collection_id}/items/{fid}/history",
@@ -137,7 +160,7 @@ def item_history(collection_id: str, fid: str,
              responses={**FEATURE_200, **errors.responses(
                  *WRITE_ERRORS, errors.InvalidParameterValueError, *PRECONDITIONS)})
 async def revert_item(collection_id: str, fid: str, to: Version, request: Request,
-                      principal: EditorDep) -> JSONResponse:
+                      principal: EditorDep) -> Response:
     """Restore a segment to an earlier version, as a new version (editor; ``If-Match``
     required: reverting over an edit the client has not seen would silently undo it)."""
     if_match = request.headers.get("if-match")
@@ -152,7 +175,7 @@ async def revert_item(collection_id: str, fid: str, to: Version, request: Reques
                  "$ref": "#/components/schemas/FeatureCollection"}}}},
                  **errors.responses(*WRITE_ERRORS, *BODY_ERRORS, *PRECONDITIONS)})
 async def split_item(collection_id: str, fid: str, request: Request,
-                     principal: AdminDep) -> JSONResponse:
+                     principal: AdminDep) -> Response:
     """Split a segment at a fraction or point into two, adding a node (admin; ``If-Match``)."""
     if_match = request.headers.get("if-match")
     body = await json_body(request, ("application/json",))
@@ -168,7 +191,7 @@ async def split_item(collection_id: str, fid: str, request: Request,
              responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS,
                                                           *PRECONDITIONS)})
 async def merge_items(collection_id: str, request: Request,
-                      principal: AdminDep) -> JSONResponse:
+                      principal: AdminDep) -> Response:
     """Merge two segments that meet at a node only they share (admin; ``If-Match`` names both
     segments' ETags in the order of ``segments``, e.g. ``"3", "5"``)."""
     if_match = request.headers.get("if-match")

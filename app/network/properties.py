@@ -95,6 +95,10 @@ PROPERTIES: dict[Kind, tuple[Property, ...]] = {
         Property("version", "integer", "Edit version; the item's ETag"),
         Property("updated_at", "string", "When the segment last changed", format="date-time"),
         Property("updated_by", "string", "Who changed it last", nullable=True),
+        Property("confidence", "number", "How sure road extraction was of the segment, 0..1 "
+                 "(e.g. the mean road probability along it); null when it was not extracted "
+                 "from imagery. Set by extraction only; a human edit keeps it (the history "
+                 "says who reviewed the segment)", nullable=True, queryable=True),
         _editable("lanes_forward", "integer", "Lanes in the direction of the geometry",
                   queryable=True),
         _editable("lanes_backward", "integer", "Lanes against the direction of the geometry",

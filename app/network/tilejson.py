@@ -21,11 +21,14 @@ MINZOOM = 0
 MAXZOOM = 18
 OTHER_COLOUR = "#5a6b7a"
 # Road class -> line colour (the class and its *_link share one), in legend order.
+# Unclassified is white: every extracted road starts unclassified, and white on the dark
+# casing stands out over any imagery (the slate of "other" was faint over asphalt and soil).
 ROAD_CLASS_COLOURS = (
     ("motorway", "#e8308a"), ("trunk", "#f0642a"), ("primary", "#f5a623"),
     ("secondary", "#e6d23c"), ("tertiary", "#8fd14f"), ("residential", "#4fb5d1"),
-    ("service", "#9b8fd1"), ("track", "#a0764a"),
+    ("service", "#9b8fd1"), ("track", "#a0764a"), ("unclassified", "#ffffff"),
 )
+CASING_COLOUR = "#1d2329"
 
 
 @dataclass(frozen=True)
@@ -42,8 +45,10 @@ class TileLayer:
 TILE_LAYERS = (
     TileLayer("segments", "segments",
               ("name", "road_class", "oneway", "lanes_forward", "lanes_backward",
-               "speed_limit_kph", "is_junction", "surface", "width_m", "length_m", "version"),
-              MINZOOM, "Road segments (feature id = segment id); simplified below z14"),
+               "speed_limit_kph", "is_junction", "surface", "width_m", "length_m", "version",
+               "confidence"),
+              MINZOOM, "Road segments (feature id = segment id); simplified below z14; "
+                       "confidence only where the segment was extracted from imagery"),
     TileLayer("nodes", "nodes", ("kind", "traffic_light"), NODES_MINZOOM,
               "Topology nodes (feature id = node id)"),
 )
@@ -107,10 +112,17 @@ def _by_node(light: Any, junction: Any, other: Any) -> list[Any]:
             ["==", ["get", "kind"], "junction"], junction, other]
 
 
+def _line_width(extra: float) -> list[Any]:
+    """Road line width by zoom, ``extra`` pixels wider (a casing is the line plus a rim)."""
+    return ["interpolate", ["linear"], ["zoom"], 10, 1.5 + extra, 16, 5 + extra, 19, 10 + extra]
+
+
 def style(network: NetworkInfo, tilejson_url: str) -> dict[str, Any]:
-    """A MapLibre style drawing the network: roads coloured by class, junctions orange,
-    traffic lights red (plain nodes from z16). No glyphs or sprites, so it loads offline."""
+    """A MapLibre style drawing the network: roads coloured by class over a dark casing (so a
+    road of any colour shows over imagery), junctions orange, traffic lights red (plain nodes
+    from z16). No glyphs or sprites, so it loads offline."""
     source = network.name
+    line = {"line-cap": "round", "line-join": "round"}
     return {
         "version": 8,
         "name": f"ugvmap network {network.name}",
@@ -118,11 +130,13 @@ def style(network: NetworkInfo, tilejson_url: str) -> dict[str, Any]:
         "zoom": _center(network)[2],
         "sources": {source: {"type": "vector", "url": tilejson_url}},
         "layers": [
+            {"id": "segments-casing", "type": "line", "source": source,
+             "source-layer": "segments", "layout": line,
+             "paint": {"line-color": CASING_COLOUR, "line-opacity": 0.85,
+                       "line-width": _line_width(2.5)}},
             {"id": "segments", "type": "line", "source": source, "source-layer": "segments",
-             "layout": {"line-cap": "round", "line-join": "round"},
-             "paint": {"line-color": _class_colour(),
-                       "line-width": ["interpolate", ["linear"], ["zoom"],
-                                      10, 1.5, 16, 5, 19, 10]}},
+             "layout": line, "paint": {"line-color": _class_colour(),
+                                       "line-width": _line_width(0)}},
             {"id": "nodes", "type": "circle", "source": source, "source-layer": "nodes",
              "minzoom": NODES_MINZOOM,
              "paint": {

@@ -13,6 +13,11 @@ holds depends on the zoom, so that a low-zoom tile of a country-sized network st
   class and 20 km cell, kept current by a trigger in each edit's transaction), so a z6 tile of
   a country reads a few dozen rows, not every main-road segment.
 
+Features go into a tile ordered by id (lines merged from ``road_overview`` by their cell), not
+in whatever order the scan returns the rows: a restored database, an UPDATE or a VACUUM FULL
+stores them in another physical order, and the same network must give the same tile bytes
+(``tests/test_backup.py`` compares them). The sort is over one tile's rows only.
+
 HTTP caching follows :mod:`app.tiles.versioned`: ``?v=<network_token>`` (the network's current
 version) makes a tile immutable; without it, or with an older token, ``no-cache`` as before.
 """
@@ -70,7 +75,8 @@ TILE_SQL = f"""{_BOUNDS}, segments AS (
     SELECT ST_AsMVTGeom(ST_Simplify(ST_Transform(s.geom, 3857), :tolerance), b.tile,
                         {EXTENT}, {BUFFER}, true) AS geom,
            s.id, s.name, s.road_class, s.oneway, s.lanes_forward, s.lanes_backward,
-           s.speed_limit_kph, s.is_junction, s.surface, s.width_m, s.length_m, s.version
+           s.speed_limit_kph, s.is_junction, s.surface, s.width_m, s.length_m, s.version,
+           s.confidence
       FROM road_segments s, bounds b
      WHERE s.network_id = :network_id AND s.geom && b.q AND {_CLASS_FILTER}
 ), nodes AS (
@@ -79,15 +85,16 @@ TILE_SQL = f"""{_BOUNDS}, segments AS (
       FROM road_nodes n, bounds b
      WHERE n.network_id = :network_id AND n.geom && b.q AND :z >= {NODES_MINZOOM}
 )
-SELECT COALESCE((SELECT ST_AsMVT(segments, 'segments', {EXTENT}, 'geom', 'id')
+SELECT COALESCE((SELECT ST_AsMVT(segments, 'segments', {EXTENT}, 'geom', 'id' ORDER BY id)
                    FROM segments WHERE geom IS NOT NULL), '')
-    || COALESCE((SELECT ST_AsMVT(nodes, 'nodes', {EXTENT}, 'geom', 'id')
+    || COALESCE((SELECT ST_AsMVT(nodes, 'nodes', {EXTENT}, 'geom', 'id' ORDER BY id)
                    FROM nodes WHERE geom IS NOT NULL), '')
 """
 
 OVERVIEW_SQL = f"""{_BOUNDS}, merged AS (
     SELECT o.road_class, sum(o.segments)::int AS segments,
-           ST_Simplify(ST_LineMerge(ST_CollectionExtract(ST_Collect(o.geom), 2)), :tolerance) AS g
+           ST_Simplify(ST_LineMerge(ST_CollectionExtract(
+               ST_Collect(o.geom ORDER BY o.cx, o.cy), 2)), :tolerance) AS g
       FROM road_overview o, bounds b
      WHERE o.network_id = :network_id AND o.geom && ST_Expand(b.tile, :margin)
        AND o.road_class = ANY(CAST(:classes AS text[]))
@@ -97,7 +104,7 @@ OVERVIEW_SQL = f"""{_BOUNDS}, merged AS (
            row_number() OVER (ORDER BY m.road_class) AS id, m.road_class, m.segments
       FROM merged m, bounds b
 )
-SELECT COALESCE((SELECT ST_AsMVT(overview, 'segments', {EXTENT}, 'geom', 'id')
+SELECT COALESCE((SELECT ST_AsMVT(overview, 'segments', {EXTENT}, 'geom', 'id' ORDER BY id)
                    FROM overview WHERE geom IS NOT NULL), '')
 """
 
@@ -119,6 +126,14 @@ def network_token(network: Any) -> str:
     """The version token of the network's tile URLs (a :func:`network_row` row): what a
     network TileJSON appends as ``?v=``."""
     return version_token("network", network.id, network.version, network.created_at)
+
+
+def render_tile(session: Session, network_id: int, z: int, x: int, y: int) -> bytes:
+    """Vector tile z/x/y of a network, as served (uncompressed MVT; empty when nothing is in
+    it). The offline package writes the same bytes."""
+    return bytes(session.execute(text(OVERVIEW_SQL if z < MERGE_BELOW else TILE_SQL),
+                                 {**zoom_params(z), "x": x, "y": y,
+                                  "network_id": network_id}).scalar_one())
 
 
 def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
@@ -151,8 +166,6 @@ def network_tile(name: NetworkName, z: TileZ, x: TileXY, y: TileXY, session: Ses
     status = "hit"
     if tile is None:
         status = "miss"
-        tile = bytes(session.execute(text(OVERVIEW_SQL if zi < MERGE_BELOW else TILE_SQL),
-                                     {**zoom_params(zi), "x": xi, "y": yi,
-                                      "network_id": network.id}).scalar_one())
+        tile = render_tile(session, network.id, zi, xi, yi)
         cache.put(key, network.version, tile_bounds(session, zi, xi, yi), tile)
     return Response(tile, media_type=MVT, headers={**headers, "X-Tile-Cache": status})

@@ -67,7 +67,7 @@ def split_segment(session: Session, c: colls.Collection, fid: int, expected: int
     old_target = feature["properties"]["target_node"]
     kept = write_change(session, c, feature, {"geometry": first, "target_node": node},
                         principal, "split")
-    columns = ", ".join(colls.SEGMENT_ATTRIBUTES)
+    columns = ", ".join((*colls.SEGMENT_ATTRIBUTES, "confidence"))  # both parts as sure
     new_id: int = session.execute(text(
         f"INSERT INTO road_segments (network_id, source_node, target_node, geom, length_m, "
         f"updated_by, {columns}) SELECT network_id, :node, :target, "
@@ -87,6 +87,16 @@ def _flipped(props: dict[str, Any]) -> dict[str, Any]:
     return {**props, "oneway": FLIPPED_ONEWAY[props["oneway"]],
             "lanes_forward": props["lanes_backward"], "lanes_backward": props["lanes_forward"],
             "source_node": props["target_node"], "target_node": props["source_node"]}
+
+
+def merged_confidence(a: dict[str, Any], b: dict[str, Any]) -> float | None:
+    """The confidence of two segments joined into one: their length-weighted mean, over the
+    ones extraction measured (None when neither was extracted)."""
+    known = [(p["confidence"], max(p["length_m"], 1e-9)) for p in (a, b)
+             if p["confidence"] is not None]
+    if not known:
+        return None
+    return sum(c * length for c, length in known) / sum(length for _, length in known)
 
 
 def merge_segments(session: Session, c: colls.Collection, body: Any, expected: list[int],
@@ -134,7 +144,8 @@ def merge_segments(session: Session, c: colls.Collection, body: Any, expected: l
     log_edit(session, c, b["id"], "merge", pb["version"], None, principal,
              {**pb, "geometry": b["geometry"]}, {"merged_into": a["id"]})
     merged = write_change(session, c, a, {"geometry": {"type": "LineString",
-                                                       "coordinates": coords}, **new_ends},
+                                                       "coordinates": coords}, **new_ends,
+                                          "confidence": merged_confidence(pa, pb)},
                           principal, "merge")
     session.execute(text("DELETE FROM road_nodes WHERE id = :n"), {"n": node})
     return merged

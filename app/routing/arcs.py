@@ -79,9 +79,10 @@ class Arcs:
         arcs = self.by_row[rows].ravel()
         return arcs[arcs >= 0]
 
-    def cheapest(self, nodes: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        """For each step between consecutive ``nodes``, the cheapest arc joining them."""
-        steps = nodes[:-1].astype(np.int64) * self.n_nodes + nodes[1:]
+    def cheapest(self, tails: np.ndarray, heads: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """For each pair ``tails[k] -> heads[k]`` of joined nodes, the cheapest arc from one to
+        the other (consecutive nodes of a path, or each node and its search predecessor)."""
+        steps = tails.astype(np.int64) * self.n_nodes + heads
         lo = np.searchsorted(self.key, steps, side="left")
         hi = np.searchsorted(self.key, steps, side="right")
         for k in np.flatnonzero(hi - lo > 1).tolist():  # parallel segments: rare

@@ -20,6 +20,8 @@ import numpy as np
 from app.errors import NoRouteError
 from app.routing.geometry import haversine_m, point_at
 from app.routing.graph import CostGraph, RoadGraph
+from app.routing.params import point
+from app.routing.pieces import Pieces
 from app.routing.snap import Snap
 
 AT_NODE_M = 0.01
@@ -63,7 +65,8 @@ def place(graph: RoadGraph, snap: Snap) -> Place:
     at the node, so no zero-length piece is produced."""
     row = graph.row_of(snap.segment_id)
     if row is None:  # deleted between snapping and routing
-        raise NoRouteError(f"segment {snap.segment_id} under point {snap.index} no longer exists")
+        raise NoRouteError(f"segment {snap.segment_id} under {point(snap.index)} no longer "
+                           "exists")
     length = float(graph.segs.length_m[row])
     u, v, f = int(graph.u[row]), int(graph.v[row]), snap.fraction
     at = u if f * length <= AT_NODE_M else v if (1 - f) * length <= AT_NODE_M else None
@@ -133,22 +136,13 @@ class Router:
     def __init__(self, graph: RoadGraph, cg: CostGraph, snaps: Sequence[Snap]) -> None:
         self.graph, self.cg = graph, cg
         self.places = [place(graph, s) for s in snaps]
+        self._pieces: Pieces | None = None
 
-    def costs_from(self, i: int, targets: Sequence[int]) -> list[float]:
-        """Cheapest cost from place i to each target place (inf where unreachable)."""
-        a = self.places[i]
-        outs = departures(self.graph, self.cg, a)
-        if not outs:
-            return [float(np.inf)] * len(targets)
-        dist, _ = self.cg.search((n, c) for n, c, _ in outs)
-        out = []
-        for j in targets:
-            b = self.places[j]
-            best = min((dist[n] + c for n, c, _ in arrivals(self.graph, self.cg, b)),
-                       default=np.inf)
-            straight = direct(self.graph, self.cg, a, b)
-            out.append(min(best, straight[0]) if straight else float(best))
-        return out
+    def _no_route(self, a: Place, b: Place) -> NoRouteError:
+        """Why no route joins places a and b, in words (pieces found once per request)."""
+        if self._pieces is None:
+            self._pieces = Pieces.of(self.graph, self.cg)
+        return self._pieces.no_route(a.snap.index, a.row, b.snap.index, b.row)
 
     def _first_limit(self, a: Place, b: Place) -> float:
         """A cost bound that usually covers the route: a few times the straight-line cost."""
@@ -168,8 +162,7 @@ class Router:
         if not (outs and ins):
             if straight:
                 return Leg(a.snap, b.snap, straight[0], [straight[1]])
-            raise NoRouteError(f"no route from point {a.snap.index} to point {b.snap.index} "
-                               "in the allowed directions")
+            raise self._no_route(a, b)
         found = self.cg.fast_path([(n, c) for n, c, _ in outs], [(n, c) for n, c, _ in ins])
         if found is not None:
             k, m, rows, ways = found
@@ -180,8 +173,7 @@ class Router:
         if straight and straight[0] <= weight:
             return Leg(a.snap, b.snap, straight[0], [straight[1]])
         if not np.isfinite(weight):
-            raise NoRouteError(f"no route from point {a.snap.index} to point {b.snap.index} "
-                               "in the allowed directions")
+            raise self._no_route(a, b)
         pieces = [first] if first is not None else []
         pieces.extend(Piece(row, 0.0, 1.0) if way > 0 else Piece(row, 1.0, 0.0)
                       for row, way in zip(rows.tolist(), ways.tolist(), strict=True))
@@ -211,8 +203,8 @@ class Router:
                     if in_way not in nxt or cost + leg.weight < nxt[in_way][0]:
                         nxt[in_way] = (cost + leg.weight, [*done, leg])
             if not nxt:
-                raise NoRouteError(f"no route from point {i} to point {j} that keeps going "
-                                   "straight at the points (continue_straight=true)")
+                raise NoRouteError(f"no route from {point(i)} to {point(j)} that keeps "
+                                   "going straight at the points (continue_straight=true)")
             best = nxt
         return best[None][1]
 

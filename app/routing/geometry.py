@@ -45,20 +45,20 @@ def point_at(coords: np.ndarray, fracs: np.ndarray, f: float) -> tuple[float, fl
 
 def cut(coords: np.ndarray, fracs: np.ndarray, f_from: float, f_to: float) -> list[list[float]]:
     """The part of a line between two fractions, in travel order (reversed if f_from > f_to)."""
-    return cut_with_fractions(coords, fracs, f_from, f_to)[0]
+    return cut_with_fractions(coords, fracs, f_from, f_to)[0].tolist()
 
 
 def cut_with_fractions(coords: np.ndarray, fracs: np.ndarray, f_from: float, f_to: float
-                       ) -> tuple[list[list[float]], np.ndarray]:
-    """:func:`cut`, plus the fraction along the line of each returned point (travel order), which
-    prices each coordinate pair of a route exactly (fractions are metric)."""
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cut` as an array, plus the fraction along the line of each returned point (travel
+    order), which prices each coordinate pair of a route exactly (fractions are metric)."""
     lo, hi = sorted((f_from, f_to))
     if lo == 0.0 and hi == 1.0:  # a whole segment: most pieces of a route
-        pts, fr = coords.tolist(), fracs
+        pts, fr = coords, fracs
     else:
         keep = (fracs > lo) & (fracs < hi)
-        pts = [list(point_at(coords, fracs, lo)), *coords[keep].tolist(),
-               list(point_at(coords, fracs, hi))]
+        pts = np.concatenate([[point_at(coords, fracs, lo)], coords[keep],
+                              [point_at(coords, fracs, hi)]])
         fr = np.concatenate([[lo], fracs[keep], [hi]])
     return (pts, fr) if f_from <= f_to else (pts[::-1], fr[::-1])
 

@@ -29,7 +29,8 @@ from scipy.sparse.csgraph import dijkstra
 from app.routing.arcs import Arcs
 from app.routing.costs import Cost, effective_speed_kph, segment_costs
 from app.routing.geometry import bearings, vertex_fractions
-from app.routing.hierarchy import Hierarchy
+from app.routing.hierarchy import Hierarchy, Metric
+from app.routing.nearby import SegmentIndex
 from app.routing.settings import routing_settings
 from app.routing.splice import Layout, ragged_take, replaced, spliced
 
@@ -43,9 +44,12 @@ SPLICE_MAX_ROWS = 10_000  # rows an edit adds or removes beyond which a graph is
 METRIC_WAIT_S_PER_ARC = 3e-8
 METRIC_WAIT_MAX_S = 0.1
 
+# The last two are OSM tags kept in ``attrs`` that steps need (a road's ``ref``, and whether it
+# is part of a roundabout): loaded with the rest, so shaping steps never reads the database.
 SEGMENT_COLUMNS = (
     "id, source_node, target_node, length_m, speed_limit_kph, oneway, lanes_forward, "
-    "lanes_backward, road_class, name, ST_AsBinary(geom)"
+    "lanes_backward, road_class, name, ST_AsBinary(geom), attrs->>'ref', "
+    "COALESCE(attrs->>'junction' IN ('roundabout', 'circular'), false)"
 )
 
 
@@ -63,13 +67,15 @@ class Segments:
     lanes_backward: np.ndarray
     road_class: np.ndarray  # object (str)
     name: np.ndarray  # object (str | None)
+    ref: np.ndarray  # object (str | None): OSM ref, for steps
+    roundabout: np.ndarray  # bool: OSM junction=roundabout|circular, for steps
     offsets: np.ndarray  # int64, len = n + 1
     coords: np.ndarray  # float64 (n_vertices, 2), lon/lat
 
     @classmethod
     def from_rows(cls, rows: Sequence[tuple[Any, ...]]) -> Segments:
         """From rows of :data:`SEGMENT_COLUMNS`."""
-        cols = list(zip(*rows, strict=True)) if rows else [()] * 11
+        cols = list(zip(*rows, strict=True)) if rows else [()] * 13
         geoms = shapely.from_wkb(np.array(cols[10], dtype=object))
         coords, owner = shapely.get_coordinates(geoms, return_index=True)
         counts = np.bincount(owner, minlength=len(rows))
@@ -84,6 +90,8 @@ class Segments:
             lanes_backward=np.array(cols[7], dtype=np.int16),
             road_class=np.array(cols[8], dtype=object),
             name=np.array(cols[9], dtype=object),
+            ref=np.array(cols[11], dtype=object),
+            roundabout=np.array(cols[12], dtype=bool),
             offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
             coords=coords.reshape(-1, 2).astype(np.float64),
         )
@@ -134,7 +142,7 @@ class Segments:
 
 
 _ROW_FIELDS = ("ids", "source", "target", "length_m", "speed_limit", "oneway", "lanes_forward",
-               "lanes_backward", "road_class", "name")
+               "lanes_backward", "road_class", "name", "ref", "roundabout")
 
 
 @dataclass
@@ -185,6 +193,10 @@ class CostGraph:
         with self.lock:
             return self._csr()
 
+    def matrix_unlocked(self) -> csr_matrix:
+        """:attr:`matrix` for a caller that holds ``lock`` (searches from real nodes)."""
+        return self._csr()
+
     def _csr(self) -> csr_matrix:
         if self._matrix is None:  # callers hold the lock
             n, pad = self.arcs.n_nodes, self.SLOTS
@@ -198,17 +210,23 @@ class CostGraph:
         """Through the hierarchy: (departure index, arrival index, segment rows, directions)
         of the cheapest way, or ``None`` when the hierarchy cannot answer for this version
         (not built yet, superseded, or no path within its range): then search with Dijkstra."""
-        if self.hierarchy is None:
-            return None
-        wait = min(METRIC_WAIT_MAX_S, METRIC_WAIT_S_PER_ARC * len(self.arcs))
-        metric = self.hierarchy.metric(self.hierarchy_key, self.version, self.arc_costs,
-                                       self.max_rate, wait_s=wait)
+        metric = self.metric()
         found = metric.shortest(self.version, outs, ins) if metric is not None else None
         if found is None:
             return None
         i, j, arcs = found
+        assert self.hierarchy is not None
         self.hierarchy.answered += 1
         return i, j, self.arcs.row[arcs], self.arcs.way[arcs]
+
+    def metric(self) -> Metric | None:
+        """The hierarchy's metric for this cost model at this version, when it can answer
+        (waiting briefly for an update that is bringing it here), else ``None``."""
+        if self.hierarchy is None:
+            return None
+        wait = min(METRIC_WAIT_MAX_S, METRIC_WAIT_S_PER_ARC * len(self.arcs))
+        return self.hierarchy.metric(self.hierarchy_key, self.version, self.arc_costs,
+                                     self.max_rate, wait_s=wait)
 
     def search(self, departures: Iterable[tuple[int, float]],
                limit: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
@@ -225,7 +243,8 @@ class CostGraph:
 
     def path_arcs(self, nodes: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """(segment rows, directions) of the cheapest arcs joining consecutive graph nodes."""
-        arcs = self.arcs.cheapest(np.asarray(nodes, dtype=np.int64), self.weights)
+        path = np.asarray(nodes, dtype=np.int64)
+        arcs = self.arcs.cheapest(path[:-1], path[1:], self.weights)
         return self.arcs.row[arcs], self.arcs.way[arcs]
 
     @classmethod
@@ -400,6 +419,7 @@ class RoadGraph:
     speed_kph: np.ndarray = None  # type: ignore[assignment]  # effective speed per row
     _costs: dict[tuple[Cost, frozenset[str]], CostGraph] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
+    _index: SegmentIndex | None = None
 
     def __post_init__(self) -> None:
         shape = self.shape = self.shape or Shape.of(self.segs)
@@ -424,6 +444,23 @@ class RoadGraph:
         """Coordinates and vertex fractions of one segment."""
         lo, hi = self.segs.offsets[row], self.segs.offsets[row + 1]
         return self.segs.coords[lo:hi], self.fracs[lo:hi]
+
+    @property
+    def index(self) -> SegmentIndex:
+        """The spatial index snapping searches (built on first use, then carried over to
+        later versions by :meth:`patched`)."""
+        with self._lock:
+            if self._index is None:
+                self._index = SegmentIndex.of(self)
+            return self._index
+
+    def _carry_index(self, graph: RoadGraph, changed: np.ndarray) -> RoadGraph:
+        """``graph`` (the next version, where segments ``changed`` were added or edited) with
+        this version's spatial index carried over."""
+        with self._lock:
+            index = self._index
+        graph._index = index.after(changed, len(graph.segs)) if index is not None else None
+        return graph
 
     def costs(self, cost: Cost, avoid: frozenset[str] = frozenset()) -> CostGraph:
         """The cost graph for a cost model and avoided road classes (a few kept, LRU)."""
@@ -452,7 +489,7 @@ class RoadGraph:
             inside[k[self.segs.ids[k] == fresh.ids]] = True
         rows = np.flatnonzero(inside)
         if not self._same_ends(rows, fresh):
-            return self._respliced(version, rows, fresh)
+            return self._carry_index(self._respliced(version, rows, fresh), fresh.ids)
         fresh_speed = effective_speed_kph(fresh.speed_limit, fresh.road_class)
         graph = RoadGraph(self.network_id, version, self.segs.replaced(rows, fresh),
                           shape=self.shape.replaced(rows, self.segs, fresh),
@@ -460,7 +497,7 @@ class RoadGraph:
         with self._lock:
             carried = list(self._costs.items())
         graph._costs = {key: cg.patched(graph, rows) for key, cg in carried}
-        return graph
+        return self._carry_index(graph, fresh.ids)
 
     def _respliced(self, version: int, rows: np.ndarray, fresh: Segments) -> RoadGraph:
         """A new graph where ``rows`` gave way to ``fresh`` and the arcs changed: laid out from

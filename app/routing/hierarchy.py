@@ -120,6 +120,18 @@ class Metric:
             return None
         return int(i), int(j), np.asarray(arcs, dtype=np.int64)
 
+    def many_to_many(self, version: int, sources: np.ndarray, targets: np.ndarray
+                     ) -> np.ndarray | None:
+        """Costs from every node of ``sources`` to every node of ``targets`` (inf where none
+        lies within the quantised range), or ``None`` when this metric is not at ``version``."""
+        with self.lock:
+            if self.version != version:
+                return None
+            d = self.cch.distances_many_to_many(sources.astype(np.uint32),
+                                                targets.astype(np.uint32)).astype(np.float64)
+        d[d >= INF] = np.inf
+        return d * self.quantum
+
     def sync(self, target: int, arc_costs: np.ndarray) -> None:
         """Bring the weights to ``arc_costs`` (version ``target``) by partial customisation of
         the arcs whose quantised weight changed; queries are turned away meanwhile."""

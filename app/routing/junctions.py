@@ -32,17 +32,35 @@ class Road:
 
 
 class Junctions:
-    """Roads per node of one graph shape."""
+    """Roads per node of one graph shape, as arrays sorted by node, then clockwise from north
+    (bearing, row, end): a step's intersection is read off a slice, not rebuilt per node."""
 
     def __init__(self, shape: Shape) -> None:
         self.shape = shape  # held so the cache key (its id) cannot be reused
         m = len(shape.u)
         ends = np.concatenate([shape.u, shape.v])
-        order = np.argsort(ends, kind="stable")
-        self.row = (order % max(m, 1)).astype(np.int32)
-        self.at_target = order >= m
+        at_target = np.arange(2 * m) >= m
+        row = np.arange(2 * m) % max(m, 1)
+        away = np.where(at_target, shape.bearing_end[row] + 180.0, shape.bearing_start[row])
+        bearing = np.round(away).astype(np.int64) % 360  # half to even, like round()
+        order = np.lexsort((at_target, row, bearing, ends))
+        self.row = row[order].astype(np.int64)
+        self.at_target = at_target[order]
+        self.bearing = bearing[order]
         self.offsets = np.concatenate(
             [[0], np.cumsum(np.bincount(ends, minlength=len(shape.node_ids)))])
+        # Per node asked for: (rows, at_target, bearings) as lists; a node has a handful of
+        # roads, where Python lists beat numpy slices (a city route passes ~70 junctions).
+        self._lists: dict[int, tuple[list[int], list[bool], list[int]]] = {}
+
+    def _at(self, node: int) -> tuple[list[int], list[bool], list[int]]:
+        found = self._lists.get(node)
+        if found is None:
+            lo, hi = int(self.offsets[node]), int(self.offsets[node + 1])
+            found = self._lists[node] = (self.row[lo:hi].tolist(),
+                                         self.at_target[lo:hi].tolist(),
+                                         self.bearing[lo:hi].tolist())
+        return found
 
     def degree(self, node: int) -> int:
         """How many segment ends meet at ``node``."""
@@ -50,15 +68,7 @@ class Junctions:
 
     def roads(self, node: int) -> list[Road]:
         """The roads at ``node`` (a graph node index), clockwise from north."""
-        lo, hi = int(self.offsets[node]), int(self.offsets[node + 1])
-        s = self.shape
-        out = []
-        for k in range(lo, hi):
-            row, at_target = int(self.row[k]), bool(self.at_target[k])
-            away = ((float(s.bearing_end[row]) + 180.0) if at_target
-                    else float(s.bearing_start[row]))
-            out.append(Road(row, at_target, round(away) % 360))
-        return sorted(out, key=lambda r: (r.bearing, r.row, r.at_target))
+        return [Road(r, t, b) for r, t, b in zip(*self._at(node), strict=True)]
 
     @staticmethod
     def enterable(graph: RoadGraph, road: Road, avoid: frozenset[str]) -> bool:
@@ -74,13 +84,14 @@ class Junctions:
                      avoid: frozenset[str]) -> dict[str, Any]:
         """OSRM's intersection object at ``node``: ``came``/``leaves`` are (row, at_target) of the
         road arrived on and the road taken."""
-        roads = self.roads(node)
-        keys = [(r.row, r.at_target) for r in roads]
-        out: dict[str, Any] = {
-            "location": location,
-            "bearings": [r.bearing for r in roads],
-            "entry": [self.enterable(graph, r, avoid) for r in roads],
-        }
+        rows, at_target, bearings = self._at(node)
+        oneway, road_class = graph.segs.oneway, graph.segs.road_class
+        entry = [(oneway[r] <= 0 if t else oneway[r] >= 0)
+                 and not (avoid and str(road_class[r]) in avoid)
+                 for r, t in zip(rows, at_target, strict=True)]
+        out: dict[str, Any] = {"location": location, "bearings": bearings,
+                               "entry": [bool(e) for e in entry]}
+        keys = list(zip(rows, at_target, strict=True))
         if came is not None and came in keys:
             out["in"] = keys.index(came)
         if leaves is not None and leaves in keys:

@@ -122,6 +122,7 @@ class GraphRegistry:
 
     def _publish(self, graph: RoadGraph) -> None:
         graph.costs(Cost.TIME)  # warm the default cost model off the request path
+        _ = graph.index  # ... and the snapping index (carried over by patches)
         with self._changed:
             self._graphs[graph.network_id] = graph
             self._changed.notify_all()

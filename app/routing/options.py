@@ -52,6 +52,7 @@ ROAD_CLASS = re.compile(r"[A-Za-z0-9_:.-]{1,64}", re.ASCII)
 HINT = re.compile(r"[A-Za-z0-9+/=_-]{0,512}", re.ASCII)
 MAX_CLASSES = 32
 MAX_OPTION_CHARS = 2048  # any one option's value, before it is split
+MATCH_SIGMA_M = 5.0  # match's default GPS precision (OSRM's DEFAULT_GPS_PRECISION)
 POINT_CHARS = 64  # per point in points= / radiuses= / bearings= ...; hints get HINT's 512
 
 Profile = Literal["ugvmap", "osrm"]
@@ -112,15 +113,32 @@ DEFAULTS: dict[Profile, dict[str, str]] = {
     "ugvmap": {"geometries": "geojson", "overview": "full", "steps": "true"},
     "osrm": {"geometries": "polyline", "overview": "simplified", "steps": "false"},
 }
-# Option name -> the URL families that take it; ``points`` is the path on OSRM's URLs, and
-# format/spacing shape answers that are not OSRM's.
-OPTIONS: dict[str, tuple[Profile, ...]] = {
-    **{name: ("ugvmap",) for name in ("points", "format", "spacing")},
-    **{name: ("ugvmap", "osrm") for name in (
-        "cost", "avoid", "exclude", "optimize", "geometries", "overview", "steps", "annotations",
-        "alternatives", "continue_straight", "radius", "radiuses", "bearings", "approaches",
-        "hints", "generate_hints", "skip_waypoints", "snapping", "waypoints")},
+Service = Literal["route", "nearest", "table", "match", "trip"]
+SERVICES: tuple[Service, ...] = ("route", "nearest", "table", "match", "trip")
+_COMMON = ("cost", "avoid", "exclude", "radius", "radiuses", "bearings", "approaches", "hints",
+           "generate_hints", "skip_waypoints", "snapping")
+_SHAPE = ("geometries", "overview", "steps", "annotations")
+# The options of each service on both URL families (OSRM's, then ours: cost, avoid, radius,
+# optimize). Match's ``radiuses`` are GPS precisions, not snap radii, so it has no ``radius``.
+SERVICE_OPTIONS: dict[Service, tuple[str, ...]] = {
+    "route": (*_COMMON, *_SHAPE, "alternatives", "continue_straight", "waypoints", "optimize"),
+    "nearest": (*_COMMON, "number"),
+    "table": (*_COMMON, "sources", "destinations", "annotations", "fallback_speed",
+              "fallback_coordinate", "scale_factor"),
+    "match": (*(n for n in _COMMON if n != "radius"), *_SHAPE, "timestamps", "gaps", "tidy",
+              "waypoints"),
+    "trip": (*_COMMON, *_SHAPE, "roundtrip", "source", "destination"),
 }
+# Ours only: the points (the path on OSRM's URLs), and dense waypoints instead of OSRM's answer.
+OWN_URL_OPTIONS: dict[Service, tuple[str, ...]] = {
+    "route": ("points", "format", "spacing"), "nearest": ("point",), "table": ("points",),
+    "match": ("points",), "trip": ("points",)}
+
+
+def option_names(service: Service, profile: Profile) -> tuple[str, ...]:
+    """Every option a service takes on URL family ``profile``."""
+    return (*(OWN_URL_OPTIONS[service] if profile == "ugvmap" else ()),
+            *SERVICE_OPTIONS[service])
 
 
 DOCS: dict[str, str] = {
@@ -146,21 +164,54 @@ DOCS: dict[str, str] = {
     "waypoints": "not implemented (400 NotImplemented): every point ends a leg",
     "format": "osrm | waypoints (dense points in a local metric frame)",
     "spacing": "metres between dense waypoints (format=waypoints)",
+    "point": "lon,lat",
+    "number": "how many nearest segments (1..max_nearest_number)",
+    "sources": "all | i;j;...: indices of the points the rows start from",
+    "destinations": "all | i;j;...: indices of the points the columns end at",
+    "fallback_speed": "m/s > 0: crow-flies estimate for cells with no route",
+    "fallback_coordinate": "input | snapped: where the crow-flies estimate is measured from",
+    "scale_factor": "> 0: multiplies every duration",
+    "timestamps": "per point: UNIX seconds, non-decreasing",
+    "gaps": "split | ignore: split the trace where samples are far apart in time",
+    "tidy": "true | false: drop points within 15 m / 5 s of the previous one first",
+    "roundtrip": "true | false: return to the first point",
+    "source": "any | first: where the trip starts",
+    "destination": "any | last: where the trip ends",
+}
+# What an option means where it differs from the route service.
+SERVICE_DOCS: dict[Service, dict[str, str]] = {
+    "route": {}, "nearest": {"points": DOCS["point"]},
+    "table": {"annotations": "duration | distance | duration,distance (default duration)",
+              "points": "lon,lat;lon,lat[;...]: the table's points"},
+    "match": {"radiuses": "per point: GPS standard deviation, metres (default 5); candidates "
+                          "within 3 of them",
+              "waypoints": "i;j;...: the points that end legs (first and last included); "
+                           "default all",
+              "points": "lon,lat;lon,lat[;...]: the trace, in time order"},
+    "trip": {"points": "lon,lat;lon,lat[;...]: the points to visit"},
 }
 
 
-def check_names(raw: Mapping[str, object], profile: Profile) -> None:
+def service_docs(service: Service) -> dict[str, str]:
+    """What each option of ``service`` means (for the API document)."""
+    return {**DOCS, **SERVICE_DOCS[service]}
+
+
+def check_names(raw: Mapping[str, object], profile: Profile, service: Service = "route"
+                ) -> None:
     """400 ``InvalidQuery`` for an option this URL does not take (OSRM refuses them too)."""
-    unknown = sorted(k for k in raw if profile not in OPTIONS.get(k, ()))
+    names = option_names(service, profile)
+    unknown = sorted(k for k in raw if k not in names)
     if unknown:
         raise InvalidQueryError(f"unknown option {unknown[0][:40]!r}; this URL takes "
-                                f"{', '.join(k for k, v in OPTIONS.items() if profile in v)}")
+                                f"{', '.join(names)}")
 
 
-def parse_points(raw: str) -> list[tuple[float, float]]:
-    """``lon,lat;lon,lat;...`` (or OSRM's ``polyline(...)``/``polyline6(...)``) -> points."""
-    limits = routing_settings()
-    params.bounded("points", raw, POINT_CHARS * (limits.max_points + 1))
+def parse_points(raw: str, most: int | None = None) -> list[tuple[float, float]]:
+    """``lon,lat;lon,lat;...`` (or OSRM's ``polyline(...)``/``polyline6(...)``) -> points; the
+    text is bounded by what ``most`` points (``max_points`` by default) can need."""
+    most = routing_settings().max_points if most is None else most
+    params.bounded("points", raw, POINT_CHARS * (most + 1))
     for precision, prefix in ((6, "polyline6("), (5, "polyline(")):
         if raw.startswith(prefix) and raw.endswith(")"):
             try:
@@ -172,8 +223,8 @@ def parse_points(raw: str) -> list[tuple[float, float]]:
     for i, part in enumerate(raw.strip().strip(";").split(";")):
         lon_lat = part.split(",")
         if len(lon_lat) != 2:
-            raise InvalidQueryError(f"point {i} {part[:POINT_CHARS]!r} is not 'lon,lat'")
-        lon, lat = (params.finite(f"point {i}", v) for v in lon_lat)
+            raise InvalidQueryError(f"{params.point(i)} {part[:POINT_CHARS]!r} is not 'lon,lat'")
+        lon, lat = (params.finite(params.point(i), v) for v in lon_lat)
         points.append(params.lonlat(i, lon, lat))
     return points
 
@@ -219,7 +270,7 @@ def _alternatives(raw: str) -> int:
     return n
 
 
-def _per_point(name: str, raw: str | None, n: int, max_chars: int = POINT_CHARS
+def per_point(name: str, raw: str | None, n: int, max_chars: int = POINT_CHARS
                ) -> list[str | None]:
     """OSRM's ``a;b;;d`` lists: exactly one element per point, empty for the default."""
     if raw is None:
@@ -241,43 +292,54 @@ def _radius(name: str, raw: str) -> float:
 def _bearing(i: int, raw: str) -> tuple[int, int]:
     parts = raw.split(",")
     if len(parts) != 2:
-        raise InvalidQueryError(f"bearings: element {i} {raw!r} is not 'value,range'")
+        raise InvalidQueryError(f"bearings: {raw!r} of {params.point(i)} is not 'value,range'")
     try:
-        return (params.integer_in(f"bearing {i} value", parts[0], 0, 360),
-                params.integer_in(f"bearing {i} range", parts[1], 0, 180))
+        return (params.integer_in(f"bearing value of {params.point(i)}", parts[0], 0, 360),
+                params.integer_in(f"bearing range of {params.point(i)}", parts[1], 0, 180))
     except InvalidValueError as exc:  # OSRM: parsed, but not a valid bearing
         raise InvalidOptionsError(exc.message) from None
 
 
 def _points(raw: Mapping[str, str], n: int, default_radius: float) -> tuple[PointOptions, ...]:
-    radiuses = _per_point("radiuses", raw.get("radiuses"), n)
-    bearings = _per_point("bearings", raw.get("bearings"), n)
-    approaches = _per_point("approaches", raw.get("approaches"), n)
-    for i, hint in enumerate(_per_point("hints", raw.get("hints"), n, max_chars=512)):
+    radiuses = per_point("radiuses", raw.get("radiuses"), n)
+    bearings = per_point("bearings", raw.get("bearings"), n)
+    approaches = per_point("approaches", raw.get("approaches"), n)
+    for i, hint in enumerate(per_point("hints", raw.get("hints"), n, max_chars=512)):
         # Hints are accepted (OSRM clients send back the ones we gave) but not used: a snap
         # is one indexed query, cheaper than validating a hint against the current version.
         if hint is not None and not HINT.fullmatch(hint):
-            raise InvalidQueryError(f"hints: element {i} is not a base64 hint")
+            raise InvalidQueryError(f"hints: the hint of {params.point(i)} is not base64")
     return tuple(PointOptions(
-        _radius(f"radiuses[{i}]", r) if r is not None else default_radius,
+        _radius(f"radius of {params.point(i)}", r) if r is not None else default_radius,
         _bearing(i, b) if b is not None else None,
-        params.choice(f"approaches[{i}]", a, APPROACHES) if a is not None else "unrestricted",
+        params.choice(f"approach of {params.point(i)}", a, APPROACHES) if a is not None
+        else "unrestricted",
     ) for i, (r, b, a) in enumerate(zip(radiuses, bearings, approaches, strict=True)))
 
 
-def parse(raw: Mapping[str, str], profile: Profile, n_points: int) -> RouteOptions:
+PER_POINT = ("points", "hints", "radiuses", "bearings", "approaches", "timestamps", "sources",
+             "destinations", "waypoints")
+
+
+def parse(raw: Mapping[str, str], profile: Profile, n_points: int,
+          service: Service = "route") -> RouteOptions:
     """Options from raw strings (query string, or a JSON body rendered as strings) for a request
-    of ``n_points`` points on URL family ``profile``."""
-    check_names(raw, profile)
+    of ``n_points`` points to ``service`` on URL family ``profile``: the ones every service
+    shares (snapping, costs) and those that shape routes (route, match, trip). The services'
+    own options are read by :mod:`app.routing.service_options`."""
+    check_names(raw, profile, service)
     for name, value in raw.items():
-        if name not in ("points", "hints", "radiuses", "bearings", "approaches"):
+        if name not in PER_POINT:
             params.bounded(name, value, MAX_OPTION_CHARS)
-    if raw.get("waypoints") is not None:
+    if raw.get("waypoints") is not None and service == "route":
         raise NotImplementedOptionError("waypoints= (via points without legs) is not "
                                         "implemented; every point ends a leg")
     if raw.get("snapping") is not None:  # we never restrict snaps to the largest component
         params.choice("snapping", raw["snapping"], ("default", "any"))
     get = {**DEFAULTS[profile], **raw}.get
+    if service == "table":  # its own annotations (service_options); nothing shapes a route
+        get = {**DEFAULTS[profile], **{k: v for k, v in raw.items()
+                                       if k != "annotations"}}.get
     limits = routing_settings()
     radius = (_radius("radius", get("radius") or "")
               if get("radius") is not None else None)
@@ -302,11 +364,16 @@ def parse(raw: Mapping[str, str], profile: Profile, n_points: int) -> RouteOptio
                                    limits.max_spacing_m),
         radius_m=radius,
     )
-    opts.points = _points(raw, n_points, radius if radius is not None else limits.snap_radius_m)
+    # nearest looks as far as OSRM's does (no radius), unless told; match reads GPS sigmas
+    default_radius = (MATCH_SIGMA_M if service == "match" else radius if radius is not None
+                      else limits.max_snap_radius_m if service == "nearest"
+                      else limits.snap_radius_m)
+    opts.points = _points(raw, n_points, default_radius)
     given = set(raw) & (OSRM_SHAPE if opts.format == "waypoints" else {"spacing"})
     if given:
         raise InvalidOptionsError(f"{sorted(given)[0]} does not apply to format={opts.format}")
-    opts.check(n_points)
+    if service == "route":
+        opts.check(n_points)
     return opts
 
 

@@ -21,9 +21,10 @@ import struct
 from collections.abc import Sequence
 from typing import Any
 
-import polyline
+import numpy as np
 
 from app.errors import ResponseTooLargeError
+from app.routing.encoded_polyline import encode as encode_polyline
 from app.routing.engine import Leg
 from app.routing.graph import RoadGraph
 from app.routing.junctions import junctions
@@ -31,18 +32,18 @@ from app.routing.options import RouteOptions
 from app.routing.overview import simplify
 from app.routing.settings import routing_settings
 from app.routing.snap import Snap
-from app.routing.steps import RoadTags, StepContext, leg_steps
+from app.routing.steps import StepContext, leg_steps
 from app.routing.trace import Trace, location, node_ids, trace
 
 DATASOURCE_NAMES = ["ugvmap"]  # annotation.metadata: every speed comes from the network
 
 
-def encode(coords: list[list[float]], geometries: str) -> Any:
+def encode(coords: np.ndarray | Sequence[Sequence[float]], geometries: str) -> Any:
     """A line as OSRM sends it: an encoded polyline (precision 5 or 6) or GeoJSON."""
+    line = np.asarray(coords, np.float64)
     if geometries in ("polyline", "polyline6"):
-        return polyline.encode([(lat, lon) for lon, lat in coords],
-                               6 if geometries == "polyline6" else 5)
-    return {"type": "LineString", "coordinates": coords}
+        return encode_polyline(line, 6 if geometries == "polyline6" else 5)
+    return {"type": "LineString", "coordinates": line.tolist()}
 
 
 def hint(snap: Snap, version: int) -> str:
@@ -52,27 +53,40 @@ def hint(snap: Snap, version: int) -> str:
     return base64.urlsafe_b64encode(raw).decode("ascii").rstrip("=")
 
 
+def waypoint(graph: RoadGraph, snap: Snap, hints: bool) -> dict[str, Any]:
+    """An OSRM waypoint (``name``, ``location``, ``distance``, ``hint``), plus the segment id
+    and fraction the point snapped to."""
+    row = graph.row_of(snap.segment_id)
+    assert row is not None
+    out: dict[str, Any] = {
+        "name": graph.segs.name[row] or "", "location": location(graph, snap),
+        "distance": snap.distance_m, "segment_id": snap.segment_id, "fraction": snap.fraction,
+    }
+    if hints:
+        out["hint"] = hint(snap, graph.version)
+    return out
+
+
 class Shaper:
     """Turns the routes of one request into the response dictionary."""
 
-    def __init__(self, graph: RoadGraph, opts: RouteOptions,
-                 tags: dict[int, RoadTags] | None = None) -> None:
+    def __init__(self, graph: RoadGraph, opts: RouteOptions) -> None:
         self.graph, self.opts = graph, opts
         self.context = StepContext(
-            graph, junctions(graph), opts.avoid, tags or {}, opts.cost,
+            graph, junctions(graph), opts.avoid, opts.cost,
             routing_settings().driving_side, self.encode) if opts.steps else None
 
-    def encode(self, coords: list[list[float]]) -> Any:
+    def encode(self, coords: np.ndarray | Sequence[Sequence[float]]) -> Any:
         """A line in the requested ``geometries``."""
         return encode(coords, self.opts.geometries)
 
     def _summary(self, t: Trace) -> str:
         names = self.graph.segs.name
         length: dict[str, float] = {}
-        for run in t.runs:
-            name = names[run.piece.row] or ""
+        for piece, metres in zip(t.pieces, t.distance.tolist(), strict=True):
+            name = names[piece.row] or ""
             if name:
-                length[name] = length.get(name, 0.0) + run.distance
+                length[name] = length.get(name, 0.0) + metres
         longest = sorted(length, key=length.__getitem__, reverse=True)[:2]
         return ", ".join(n for n in length if n in longest)
 
@@ -84,7 +98,7 @@ class Shaper:
             pair_m = run.pair_m
             distance.extend(pair_m.tolist())
             duration.extend((pair_m / run.speed_ms).tolist())
-        if not t.runs:
+        if not t.pieces:
             distance, duration = [0.0], [0.0]
         out: dict[str, Any] = {}
         if "distance" in wanted:
@@ -105,13 +119,14 @@ class Shaper:
 
     def _leg(self, t: Trace) -> dict[str, Any]:
         out: dict[str, Any] = {
-            "distance": sum(r.distance for r in t.runs),
-            "duration": sum(r.duration for r in t.runs),
+            "distance": float(t.distance.sum()), "duration": float(t.duration.sum()),
             "weight": t.leg.weight, "summary": self._summary(t),
             "steps": leg_steps(self.context, t) if self.context is not None else [],
-            "segments": [{"id": r.segment_id, "forward": r.forward,
-                          "from_fraction": r.piece.f_from, "to_fraction": r.piece.f_to,
-                          "distance": r.distance, "duration": r.duration} for r in t.runs],
+            "segments": [{"id": i, "forward": f, "from_fraction": p.f_from,
+                          "to_fraction": p.f_to, "distance": d, "duration": s}
+                         for i, f, p, d, s in zip(t.segment_ids.tolist(), t.forward.tolist(),
+                                                  t.pieces, t.distance.tolist(),
+                                                  t.duration.tolist(), strict=True)],
         }
         if self.opts.annotations:
             out["annotation"] = self._annotation(t)
@@ -132,33 +147,26 @@ class Shaper:
             "legs": legs,
         }
         if self.opts.overview != "false":
-            coords = list(traces[0].coords)
-            for t in traces[1:]:
-                coords.extend(t.coords[1:])
+            coords = np.concatenate([traces[0].coords, *(t.coords[1:] for t in traces[1:])])
             route["geometry"] = self.encode(simplify(coords) if self.opts.overview == "simplified"
                                             else coords)
         return route
 
     def waypoint(self, snap: Snap, waypoint_index: int) -> dict[str, Any]:
-        """An OSRM waypoint, plus the segment id and fraction the point snapped to."""
-        row = self.graph.row_of(snap.segment_id)
-        assert row is not None
-        out: dict[str, Any] = {
-            "name": self.graph.segs.name[row] or "",
-            "location": location(self.graph, snap),
-            "distance": snap.distance_m, "segment_id": snap.segment_id,
-            "fraction": snap.fraction, "waypoint_index": waypoint_index,
-        }
-        if self.opts.generate_hints:
-            out["hint"] = hint(snap, self.graph.version)
-        return out
+        """A route's waypoint: where the point snapped and its rank in the visiting order."""
+        return {**waypoint(self.graph, snap, self.opts.generate_hints),
+                "waypoint_index": waypoint_index}
+
+    def routes(self, routes: Sequence[Sequence[Leg]]) -> list[dict[str, Any]]:
+        """OSRM route objects, refused (``ResponseTooLarge``) over the output caps."""
+        traces = [[trace(self.graph, leg) for leg in legs] for legs in routes]
+        check_size(traces, self.opts)
+        return [self.route_of(t) for t in traces]
 
     def response(self, routes: Sequence[Sequence[Leg]], snaps: Sequence[Snap],
                  order: Sequence[int] | None = None) -> dict[str, Any]:
         """The whole OSRM route-service response: ``routes[0]`` the best, then alternatives."""
-        traces = [[trace(self.graph, leg) for leg in legs] for legs in routes]
-        check_size(traces, self.opts)
-        body: dict[str, Any] = {"code": "Ok", "routes": [self.route_of(t) for t in traces]}
+        body: dict[str, Any] = {"code": "Ok", "routes": self.routes(routes)}
         if not self.opts.skip_waypoints:
             visit = list(order) if order is not None else list(range(len(snaps)))
             rank = {i: k for k, i in enumerate(visit)}

@@ -9,21 +9,14 @@ and ends exactly at the waypoints.
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 import shapely
-from pyproj import Transformer
 
 from app.grid import pixel_size_m
 
 VIEWPORT_PX = 1024
 MAX_ZOOM = 18  # OSRM's highest simplification level
-
-
-@lru_cache(maxsize=1)
-def _to_mercator() -> Transformer:
-    return Transformer.from_crs("EPSG:4326", "EPSG:3857", always_xy=True)
+MERCATOR_R = 6_378_137.0  # EPSG:3857's sphere
 
 
 def fitted_zoom(span_m: float) -> int:
@@ -34,23 +27,20 @@ def fitted_zoom(span_m: float) -> int:
     return 0
 
 
-def simplify(coords: list[list[float]]) -> list[list[float]]:
-    """The route line with the vertices a map at the fitted zoom would not show removed."""
-    if len(coords) <= 2:
-        return coords
-    lonlat = np.asarray(coords, dtype=np.float64)
-    x, y = _to_mercator().transform(lonlat[:, 0], lonlat[:, 1])
-    xy = np.column_stack([x, y])
-    if not np.isfinite(xy).all():  # a network with coordinates off the globe: leave it be
-        return coords
-    span = float((xy.max(axis=0) - xy.min(axis=0)).max())
+def simplify(lonlat: np.ndarray) -> np.ndarray:
+    """The route line (lon/lat rows) with the vertices a map at the fitted zoom would not
+    show removed."""
+    if len(lonlat) <= 2:
+        return lonlat
+    with np.errstate(invalid="ignore", divide="ignore"):
+        x = np.radians(lonlat[:, 0]) * MERCATOR_R
+        y = np.log(np.tan(np.pi / 4 + np.radians(lonlat[:, 1]) / 2)) * MERCATOR_R
+    if not (np.isfinite(x).all() and np.isfinite(y).all()):  # off the globe: leave it be
+        return lonlat
+    span = float(max(np.ptp(x), np.ptp(y)))
     tolerance = pixel_size_m(fitted_zoom(span))
-    kept = shapely.get_coordinates(
-        shapely.simplify(shapely.linestrings(xy), tolerance, preserve_topology=False))
-    out, j = [], 0
-    for point in kept:  # the kept vertices, in order, are a subsequence of the input
-        while not (xy[j, 0] == point[0] and xy[j, 1] == point[1]):
-            j += 1
-        out.append(coords[j])
-        j += 1
-    return out
+    # Each vertex carries its index as Z, which simplification keeps with the vertex.
+    line = shapely.linestrings(x, y, np.arange(len(x), dtype=np.float64))
+    kept = shapely.get_coordinates(shapely.simplify(line, tolerance, preserve_topology=False),
+                                   include_z=True)[:, 2].astype(np.int64)
+    return lonlat[kept]

@@ -15,6 +15,12 @@ from app.params import parse_float, parse_int, parse_slug
 MAX_NUMBER_CHARS = 40  # longer than any float repr; stops multi-megabyte "numbers" early
 
 
+def point(i: int) -> str:
+    """How a message names input point ``i`` (0-based in the code): counted from 1, as people
+    count and as the web map numbers its markers."""
+    return f"point {i + 1}"
+
+
 def network_name(name: str) -> str:
     """The network name of a path, or 400 when it cannot name a network (the same pattern the
     ``networks`` table enforces, so a NUL byte or 10 kB name never reaches the database)."""
@@ -71,6 +77,6 @@ def choice(field: str, raw: str, choices: tuple[str, ...]) -> str:
 def lonlat(i: int, lon: float, lat: float) -> tuple[float, float]:
     """The point, or 422 naming it when it is outside lon -180..180, lat -90..90."""
     if not (-180 <= lon <= 180 and -90 <= lat <= 90):
-        message = f"point {i} ({lon:g},{lat:g}) is outside lon -180..180, lat -90..90"
+        message = f"{point(i)} ({lon:g},{lat:g}) is outside lon -180..180, lat -90..90"
         raise InvalidValueError(message, errors={"points": message})
     return lon, lat

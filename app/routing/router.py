@@ -1,12 +1,14 @@
-"""HTTP endpoints: ``/networks/{name}/route`` (GET and POST), OSRM's own URL shape
-``/networks/{name}/route/v1/{profile}/{coordinates}``, and ``/networks/{name}/isochrone``.
+"""HTTP endpoints of OSRM's services and ours: ``route``, ``nearest``, ``table``, ``match`` and
+``trip`` on OSRM's own URL shape ``/networks/{name}/{service}/v1/{profile}/{coordinates}`` and
+on ours (``/networks/{name}/{service}?points=...``, and POST with a JSON body for long point
+lists), plus ``/networks/{name}/isochrone``.
 
-Responses follow the OSRM route service. Errors are ``{"code", "message"}`` with OSRM's codes;
-on ``/route`` and ``/isochrone`` they take the service's statuses (400 malformed, 422 a value
-that breaks a rule or a point that cannot snap or connect), on the OSRM-shaped URLs every OSRM
-code is a 400 as OSRM answers it (:func:`_as_osrm`). Reads need ``UGVMAP_NETWORK_READ_ROLE``
-when it is set, like every other read of network data. Each request does its database read
-and search in one thread-pool hop (:func:`_answer`).
+Responses follow OSRM's services. Errors are ``{"code", "message"}`` with OSRM's codes; on our
+URLs they take the service's statuses (400 malformed, 422 a value that breaks a rule or a
+point that cannot snap or connect), on the OSRM-shaped URLs every OSRM code is a 400 as OSRM
+answers it (:func:`_as_osrm`). Reads need ``UGVMAP_NETWORK_READ_ROLE`` when it is set, like
+every other read of network data. Each request does its database read and search in one
+thread-pool hop (:func:`_answer`).
 """
 
 from __future__ import annotations
@@ -18,45 +20,72 @@ from typing import Annotated, Any
 import orjson
 from fastapi import APIRouter, Depends, FastAPI, Path, Request
 from fastapi.responses import Response
-from pydantic import BaseModel, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 
 from app import errors
+from app.db.session import session_scope
 from app.network.tokens import read_access
 from app.routing import params
+from app.routing.bodies import ServiceBody, body_model
 from app.routing.options import (
-    DOCS,
     ISOCHRONE_OPTIONS,
-    OPTIONS,
+    SERVICES,
     Profile,
+    Service,
+    option_names,
     parse,
     parse_isochrone,
     parse_points,
+    service_docs,
 )
-from app.routing.planner import plan_isochrone, plan_route, read_connection
+from app.routing.planner import plan_isochrone, plan_route
+from app.routing.reads import read_connection
+from app.routing.service_options import parse_match, parse_nearest, parse_table, parse_trip
+from app.routing.services import plan_match, plan_nearest, plan_table, plan_trip
+from app.routing.settings import routing_settings
+from app.settings import get_settings
+
+
+async def network_read_access(request: Request) -> None:
+    """:func:`read_access` for the routing services, without its database session when reads
+    are public (the default): as a synchronous dependency with a session it cost every
+    request three thread-pool hops, more than a city route's search and shaping together."""
+    if get_settings().network_read_role is None:
+        return
+
+    def check() -> None:
+        with session_scope() as session:
+            read_access(request, session)
+
+    await run_in_threadpool(check)
+
 
 # What any routing operation may answer besides 200: OSRM's 400 codes, the read role, an
 # unknown network, the body limit, value rules, unreachable points and the output caps.
-router = APIRouter(prefix="/networks", tags=["routing"], dependencies=[Depends(read_access)],
+router = APIRouter(prefix="/networks", tags=["routing"],
+                   dependencies=[Depends(network_read_access)],
                    responses=errors.responses(
                        errors.InvalidParameterValueError, errors.InvalidQueryError,
                        errors.InvalidOptionsError, errors.TooBigError, errors.InvalidUrlError,
                        errors.InvalidVersionError, errors.NotImplementedOptionError,
                        errors.UnauthorizedError, errors.ForbiddenError, errors.NotFoundError,
                        errors.PayloadTooLargeError, errors.InvalidValueError,
-                       errors.NoSegmentError, errors.NoRouteError,
+                       errors.NoSegmentError, errors.NoRouteError, errors.NoTripsError,
+                       errors.NoMatchError, errors.InvalidServiceError,
                        errors.ResponseTooLargeError, errors.DatabaseUnavailableError))
 
 PROFILE = re.compile(r"[A-Za-z0-9_.-]{1,64}", re.ASCII)
-OSRM_SERVICES = ("nearest", "table", "match", "trip", "tile")
+NOT_SERVED = ("tile",)  # OSRM's vector tiles of its graph: /networks/{name}/tiles/... has ours
 ISOCHRONE_DOCS = {
-    "point": "lon,lat", "seconds": "time budget, s", "meters": "distance budget, m",
-    "avoid": DOCS["avoid"], "exclude": DOCS["exclude"], "radius": DOCS["radius"]}
+    **{n: service_docs("route")[n] for n in ("avoid", "exclude", "radius")},
+    "point": "lon,lat", "seconds": "time budget, s", "meters": "distance budget, m"}
 # Our status for a fault -> the class OSRM clients expect on OSRM's URLs (400, same code).
 _OSRM_FAULTS: dict[type[errors.ApiError], type[errors.ApiError]] = {
     errors.InvalidValueError: errors.OsrmInvalidValueError,
     errors.NoSegmentError: errors.OsrmNoSegmentError,
     errors.NoRouteError: errors.OsrmNoRouteError,
+    errors.NoTripsError: errors.OsrmNoTripsError,
+    errors.NoMatchError: errors.OsrmNoMatchError,
     errors.ResponseTooLargeError: errors.OsrmTooBigError,
     errors.InvalidParameterValueError: errors.InvalidUrlError,
 }
@@ -74,8 +103,8 @@ def _query_doc(names: list[str], docs: dict[str, str]) -> dict[str, Any]:
                            for n in names]}
 
 
-def _route_doc(profile: Profile) -> dict[str, Any]:
-    return _query_doc([n for n, used in OPTIONS.items() if profile in used], DOCS)
+def _service_doc(service: Service, profile: Profile) -> dict[str, Any]:
+    return _query_doc(list(option_names(service, profile)), service_docs(service))
 
 
 def _json(body: dict[str, Any]) -> Response:
@@ -106,78 +135,106 @@ def _raw(request: Request) -> dict[str, str]:
     return raw
 
 
-@router.get("/{name}/route", openapi_extra=_route_doc("ugvmap"))
+def _most_points(service: Service) -> int:
+    """How many points a service's coordinates may hold (bounds the text before parsing)."""
+    limits = routing_settings()
+    return {"route": limits.max_points, "nearest": 1, "table": limits.max_table_size ** 2,
+            "match": limits.max_match_points, "trip": limits.max_trip_points}[service]
+
+
+def _request(service: Service, raw: dict[str, str], profile: Profile,
+             points: list[tuple[float, float]]) -> tuple[Callable[..., dict[str, Any]], tuple]:
+    """The planner call answering a request: the function and its arguments after the
+    database reads and the network name."""
+    opts = parse(raw, profile, len(points), service)
+    n = len(points)
+    if service == "nearest":
+        return plan_nearest, (points[0], opts, parse_nearest(raw, n))
+    if service == "table":
+        return plan_table, (points, opts, parse_table(raw, n))
+    if service == "match":
+        return plan_match, (points, opts, parse_match(raw, n))
+    if service == "trip":
+        return plan_trip, (points, opts, parse_trip(raw, n))
+    return plan_route, (points, opts)
+
+
+async def _own(service: Service, name: str, raw: dict[str, str],
+               points: list[tuple[float, float]]) -> Response:
+    plan, args = _request(service, raw, "ugvmap", points)
+    return await _answer(plan, name, *args)
+
+
+def _query_points(service: Service, raw: dict[str, str]) -> list[tuple[float, float]]:
+    key = "point" if service == "nearest" else "points"
+    if key not in raw:
+        shape = "lon,lat" if service == "nearest" else "lon,lat;lon,lat[;...]"
+        raise errors.InvalidQueryError(f"{key}= ({shape}) is required")
+    return parse_points(raw[key], _most_points(service))
+
+
+@router.get("/{name}/route", openapi_extra=_service_doc("route", "ugvmap"))
 async def route_get(name: str, request: Request) -> Response:
     """Route through the points (OSRM route-service response; options in the README)."""
     params.network_name(name)
     raw = _raw(request)
-    if "points" not in raw:
-        raise errors.InvalidQueryError("points= (lon,lat;lon,lat[;...]) is required")
-    points = parse_points(raw["points"])
-    return await _answer(plan_route, name, points, parse(raw, "ugvmap", len(points)))
+    return await _own("route", name, raw, _query_points("route", raw))
 
 
-Flag = bool | str | None
-Number = float | str | None
-
-
-class RouteBody(BaseModel):
-    """POST body for long point lists: the query string's options, same names and syntax
-    (booleans and numbers may also be JSON booleans and numbers, ``avoid`` a list)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    points: list[Any] = Field(description="[[lon, lat], ...]")
-    cost: str | None = None
-    avoid: list[str] | str | None = None
-    exclude: str | None = None
-    optimize: Flag = None
-    geometries: str | None = None
-    overview: str | None = None
-    steps: Flag = None
-    annotations: Flag = None
-    alternatives: bool | int | str | None = None
-    continue_straight: Flag = None
-    radius: Number = None
-    radiuses: str | None = None
-    bearings: str | None = None
-    approaches: str | None = None
-    hints: str | None = None
-    generate_hints: Flag = None
-    skip_waypoints: Flag = None
-    snapping: str | None = None
-    waypoints: str | None = None
-    format: str | None = None
-    spacing: Number = None
-
-    def raw(self) -> dict[str, str]:
-        """The options as the query string would carry them, for the one option parser."""
-        out: dict[str, str] = {}
-        for key, value in self.model_dump(exclude={"points"}, exclude_none=True).items():
-            if isinstance(value, bool):
-                out[key] = "true" if value else "false"
-            elif isinstance(value, list):
-                out[key] = ",".join(value)
-            else:
-                out[key] = value if isinstance(value, str) else repr(value)
-        return out
-
-
-def _body_point(i: int, raw: Any) -> tuple[float, float]:
-    """A [lon, lat] pair from the JSON body; malformed input is a 400, like the query string."""
-    if not isinstance(raw, list) or len(raw) != 2 or not all(
-            isinstance(v, int | float) and not isinstance(v, bool) for v in raw):
-        raise errors.InvalidQueryError(f"point {i} {str(raw)[:60]} is not [lon, lat]")
-    lon, lat = (params.finite(f"point {i}", repr(v)) for v in raw)
-    return params.lonlat(i, lon, lat)
-
-
-@router.post("/{name}/route")
-async def route_post(name: str, body: RouteBody) -> Response:
-    """Route through a long list of points sent as a JSON body (same options as GET)."""
+@router.get("/{name}/nearest", openapi_extra=_service_doc("nearest", "ugvmap"))
+async def nearest_get(name: str, request: Request) -> Response:
+    """The nearest road segments to a point (OSRM nearest-service response)."""
     params.network_name(name)
-    points = [_body_point(i, p) for i, p in enumerate(body.points)]
-    return await _answer(plan_route, name, points, parse(body.raw(), "ugvmap", len(points)))
+    raw = _raw(request)
+    return await _own("nearest", name, raw, _query_points("nearest", raw))
+
+
+@router.get("/{name}/table", openapi_extra=_service_doc("table", "ugvmap"))
+async def table_get(name: str, request: Request) -> Response:
+    """Durations and distances between the points (OSRM table-service response)."""
+    params.network_name(name)
+    raw = _raw(request)
+    return await _own("table", name, raw, _query_points("table", raw))
+
+
+@router.get("/{name}/match", openapi_extra=_service_doc("match", "ugvmap"))
+async def match_get(name: str, request: Request) -> Response:
+    """The roads a GNSS trace drove (OSRM match-service response)."""
+    params.network_name(name)
+    raw = _raw(request)
+    return await _own("match", name, raw, _query_points("match", raw))
+
+
+@router.get("/{name}/trip", openapi_extra=_service_doc("trip", "ugvmap"))
+async def trip_get(name: str, request: Request) -> Response:
+    """The best order to visit the points, and the route (OSRM trip-service response)."""
+    params.network_name(name)
+    raw = _raw(request)
+    return await _own("trip", name, raw, _query_points("trip", raw))
+
+
+async def _posted(service: Service, name: str, body: ServiceBody) -> Response:
+    params.network_name(name)
+    points = body.point_list()
+    if len(points) > _most_points(service):
+        raise errors.TooBigError(f"{len(points)} points; {service} takes at most "
+                                 f"{_most_points(service)}")
+    return await _own(service, name, body.raw(), points)
+
+
+def _post_endpoint(service: Service) -> Callable[..., Any]:
+    async def endpoint(name: str, body: ServiceBody) -> Response:
+        return await _posted(service, name, body)
+
+    endpoint.__annotations__["body"] = body_model(service)  # the service's own fields
+    endpoint.__name__ = f"{service}_post"
+    endpoint.__doc__ = (f"The {service} service for a long list of points sent as a JSON body "
+                        "(the GET's options, as JSON values).")
+    return endpoint
+
+
+for _service in ("route", "table", "match", "trip"):
+    router.add_api_route(f"/{{name}}/{_service}", _post_endpoint(_service), methods=["POST"])
 
 
 def _as_osrm(exc: errors.ApiError) -> errors.ApiError:
@@ -188,13 +245,8 @@ def _as_osrm(exc: errors.ApiError) -> errors.ApiError:
     return exc
 
 
-@router.get("/{name}/route/{version}/{profile}/{coordinates}", openapi_extra=_route_doc("osrm"))
-async def route_osrm_url(
-    name: str, request: Request,
-    version: Annotated[str, Path(description="OSRM protocol version: v1")],
-    profile: Annotated[str, Path(description="any profile name (one vehicle per network)")],
-    coordinates: Annotated[str, Path(description="lon,lat;lon,lat[;...][.json] or polyline(...)")],
-) -> Response:
+async def _osrm(service: Service, name: str, request: Request, version: str, profile: str,
+                coordinates: str) -> Response:
     """OSRM's own URL shape: an OSRM client given ``/networks/{name}`` as its server works
     unchanged. OSRM's defaults (polyline, simplified overview, no steps, no annotations) and
     OSRM's 400 for every OSRM error code."""
@@ -206,27 +258,55 @@ async def route_osrm_url(
             raise errors.InvalidUrlError(f"profile {profile[:40]!r} is not a profile name")
         if coordinates.endswith(".flatbuffers"):
             raise errors.NotImplementedOptionError("only the json format is served")
-        points = parse_points(coordinates.removesuffix(".json"))
-        opts = parse(_raw(request), "osrm", len(points))
-        return await _answer(plan_route, name, points, opts)
+        points = parse_points(coordinates.removesuffix(".json"), _most_points(service))
+        plan, args = _request(service, _raw(request), "osrm", points)
+        return await _answer(plan, name, *args)
     except errors.ApiError as exc:
         raise _as_osrm(exc) from exc
 
 
-@router.get("/{name}/route/{version}/{profile}", include_in_schema=False)
-async def route_osrm_without_coordinates(name: str, version: str, profile: str) -> Response:
-    """OSRM's URL with the coordinates missing: OSRM's ``InvalidUrl``."""
-    raise errors.InvalidUrlError("the URL has no coordinates: /route/v1/{profile}/{lon,lat;...}")
+def _osrm_endpoint(service: Service) -> Callable[..., Any]:
+    async def endpoint(
+        name: str, request: Request,
+        version: Annotated[str, Path(description="OSRM protocol version: v1")],
+        profile: Annotated[str, Path(description="any profile name (one vehicle per network)")],
+        coordinates: Annotated[str, Path(description="lon,lat;lon,lat[;...][.json] or "
+                                                      "polyline(...) / polyline6(...)")],
+    ) -> Response:
+        return await _osrm(service, name, request, version, profile, coordinates)
+
+    endpoint.__name__ = f"{service}_osrm_url"
+    endpoint.__doc__ = (f"OSRM's {service} service on OSRM's own URL shape, with OSRM's "
+                        "defaults and OSRM's 400 for every error code.")
+    return endpoint
+
+
+for _service in SERVICES:
+    router.add_api_route(f"/{{name}}/{_service}/{{version}}/{{profile}}/{{coordinates}}",
+                         _osrm_endpoint(_service), methods=["GET"],
+                         openapi_extra=_service_doc(_service, "osrm"))
+
+
+@router.get("/{name}/{service}/{version}/{profile}", include_in_schema=False)
+async def osrm_without_coordinates(name: str, service: str, version: str,
+                                   profile: str) -> Response:
+    """OSRM's URL with the coordinates missing: OSRM's ``InvalidUrl`` (for OSRM's service
+    names; any other path here is an unknown path)."""
+    if service not in (*SERVICES, *NOT_SERVED):
+        raise errors.NotFoundError(f"no such path: /networks/{name[:64]}/{service[:40]}/...")
+    raise errors.InvalidUrlError(
+        f"the URL has no coordinates: /{service[:40]}/v1/{{profile}}/{{lon,lat;...}}")
 
 
 @router.get("/{name}/{service}/v1/{profile}/{coordinates}", include_in_schema=False)
 async def osrm_other_service(name: str, service: str, profile: str,
                              coordinates: str) -> Response:
-    """OSRM's other services: refused with OSRM's ``InvalidService`` (only ``route`` is
-    served); any other path here is an unknown path."""
-    if service not in OSRM_SERVICES:
+    """OSRM's ``tile`` service: refused with OSRM's ``InvalidService``; any other path here is
+    an unknown path."""
+    if service not in NOT_SERVED:
         raise errors.NotFoundError(f"no such path: /networks/{name[:64]}/{service[:40]}/v1/...")
-    raise errors.InvalidServiceError(f"service {service!r} is not served here: only route")
+    raise errors.InvalidServiceError(f"service {service!r} is not served here: "
+                                     f"{', '.join(SERVICES)} are")
 
 
 @router.get("/{name}/isochrone", openapi_extra=_query_doc(list(ISOCHRONE_OPTIONS),

@@ -23,6 +23,12 @@ class RoutingSettings(BaseSettings):
     max_points: int = 100  # per route request: TooBig beyond
     max_optimize_points: int = 30  # optimize=true needs a cost matrix: n searches
     max_alternatives: int = 3  # alternatives=N: TooBig beyond
+    max_nearest_number: int = 100  # nearest's number= (OSRM's --max-nearest-size)
+    max_table_size: int = 100  # table: sources x destinations <= this squared (OSRM's rule)
+    max_trip_points: int = 100  # trip (OSRM's --max-trip-size)
+    max_match_points: int = 5000  # match: points of one trace (OSRM's default is 100)
+    # table, match and trip stop with TooBig once their searches have taken this long
+    time_budget_s: float = 10.0
     max_isochrone_seconds: float = 4 * 3600.0
     max_isochrone_meters: float = 200_000.0
     min_spacing_m: float = 0.5  # format=waypoints

@@ -26,6 +26,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from app.routing.costs import Cost
 from app.routing.geometry import side_of
 from app.routing.graph import RoadGraph
@@ -52,17 +54,6 @@ def modifier(before: float, after: float) -> str:
     return side if size <= PLAIN_DEG else f"sharp {side}"
 
 
-@dataclass(frozen=True)
-class RoadTags:
-    """OSM tags that are not columns but matter for guidance (read per request from ``attrs``)."""
-
-    ref: str = ""
-    roundabout: bool = False
-
-
-NO_TAGS = RoadTags()
-
-
 @dataclass
 class StepContext:
     """What shaping a leg's steps needs besides the leg."""
@@ -70,27 +61,27 @@ class StepContext:
     graph: RoadGraph
     junctions: Junctions
     avoid: frozenset[str]
-    tags: dict[int, RoadTags]
     cost: Cost
     driving_side: str
-    encode: Callable[[list[list[float]]], Any]
+    encode: Callable[[np.ndarray], Any]
 
-    def tags_of(self, run: Run) -> RoadTags:
-        """The run's guidance tags (none when the segment has none)."""
-        return self.tags.get(run.segment_id, NO_TAGS)
+    def roundabout(self, run: Run) -> bool:
+        """Is the run on a roundabout (OSM ``junction=roundabout|circular``)?"""
+        return bool(self.graph.segs.roundabout[run.piece.row])
 
-    def attrs(self, run: Run) -> dict[str, Any]:
-        """Per-step attributes of a run: a new step starts where any of them changes."""
-        s, row = self.graph.segs, run.piece.row
-        limit = s.speed_limit[row]
-        return {
-            "name": s.name[row] or "",
-            "ref": self.tags_of(run).ref,
-            "lanes": int(s.lanes_forward[row] if run.forward else s.lanes_backward[row]),
-            "speed_limit_kph": None if limit != limit else float(limit),
-            "speed_kph": float(self.graph.speed_kph[row]),
-            "road_class": s.road_class[row],
-        }
+    def attrs(self, t: Trace) -> list[dict[str, Any]]:
+        """Per-step attributes of each run of a leg (a new step starts where any of them
+        changes), read for all runs at once."""
+        s = self.graph.segs
+        rows = np.array([p.row for p in t.pieces], np.int64)
+        lanes = np.where(t.forward, s.lanes_forward[rows], s.lanes_backward[rows])
+        return [{"name": name or "", "ref": ref or "", "lanes": n,
+                 "speed_limit_kph": None if limit != limit else limit, "speed_kph": kph,
+                 "road_class": cls}
+                for name, ref, n, limit, kph, cls in zip(
+                    s.name[rows].tolist(), s.ref[rows].tolist(), lanes.tolist(),
+                    s.speed_limit[rows].tolist(), self.graph.speed_kph[rows].tolist(),
+                    s.road_class[rows].tolist(), strict=True)]
 
     def node_after(self, run: Run) -> int:
         """Graph node index where a run ends at a segment end."""
@@ -104,6 +95,7 @@ class _Step:
 
     kind: str
     turn: str | None
+    first: int  # index of the step's first run in the leg
     location: list[float]
     before: float
     after: float
@@ -123,8 +115,7 @@ def _exits_passed(ctx: StepContext, runs: list[Run]) -> int:
     for prev in runs[:-1]:
         node = ctx.node_after(prev)
         for road in ctx.junctions.roads(node):
-            seg = int(ctx.graph.segs.ids[road.row])
-            if not ctx.tags.get(seg, NO_TAGS).roundabout and \
+            if not ctx.graph.segs.roundabout[road.row] and \
                     ctx.junctions.enterable(ctx.graph, road, ctx.avoid):
                 count += 1
                 break
@@ -133,26 +124,25 @@ def _exits_passed(ctx: StepContext, runs: list[Run]) -> int:
 
 def _intersection(ctx: StepContext, prev: Run, run: Run) -> dict[str, Any]:
     node = ctx.node_after(prev)
-    return ctx.junctions.intersection(ctx.graph, node, run.coords[0],
+    return ctx.junctions.intersection(ctx.graph, node, run.coords[0].tolist(),
                                       (prev.piece.row, prev.forward),
                                       (run.piece.row, not run.forward), ctx.avoid)
 
 
-def _group(ctx: StepContext, t: Trace) -> list[_Step]:
+def _group(ctx: StepContext, t: Trace, all_attrs: list[dict[str, Any]]) -> list[_Step]:
     """The leg's runs grouped into steps (before ``arrive``)."""
     steps: list[_Step] = []
     prev: Run | None = None
-    for run in t.runs:
-        attrs, tags = ctx.attrs(run), ctx.tags_of(run)
+    for k, (run, attrs) in enumerate(zip(t.runs, all_attrs, strict=True)):
         if prev is None:
-            steps.append(_Step("depart", None, t.start, 0.0, run.b_out, attrs, [run], [{
+            steps.append(_Step("depart", None, 0, t.start, 0.0, run.b_out, attrs, [run], [{
                 "location": t.start, "bearings": [round(run.b_out) % 360], "entry": [True],
                 "out": 0}]))
             prev = run
             continue
         step = steps[-1]
         turn = modifier(prev.b_in, run.b_out)
-        on_roundabout = step.kind == "roundabout" and tags.roundabout
+        on_roundabout = step.kind == "roundabout" and ctx.roundabout(run)
         if on_roundabout or (turn == "straight" and attrs == step.attrs
                              and step.kind != "roundabout"):
             step.runs.append(run)
@@ -161,9 +151,9 @@ def _group(ctx: StepContext, t: Trace) -> list[_Step]:
             prev = run
             continue
         inter = _intersection(ctx, prev, run)
-        if tags.roundabout and not ctx.tags_of(prev).roundabout:
-            steps.append(_Step("roundabout", turn, run.coords[0], prev.b_in, run.b_out, attrs,
-                               [run], [inter]))
+        if ctx.roundabout(run) and not ctx.roundabout(prev):
+            steps.append(_Step("roundabout", turn, k, run.coords[0].tolist(), prev.b_in,
+                               run.b_out, attrs, [run], [inter]))
         else:
             if step.kind == "roundabout":
                 kind = "exit roundabout"
@@ -174,7 +164,8 @@ def _group(ctx: StepContext, t: Trace) -> list[_Step]:
                 kind = "continue"
             else:
                 kind = "new name" if turn == "straight" else "turn"
-            new = _Step(kind, turn, run.coords[0], prev.b_in, run.b_out, attrs, [run], [inter])
+            new = _Step(kind, turn, k, run.coords[0].tolist(), prev.b_in, run.b_out, attrs,
+                        [run], [inter])
             new.exit = step.exit if kind == "exit roundabout" else None
             steps.append(new)
         prev = run
@@ -184,10 +175,9 @@ def _group(ctx: StepContext, t: Trace) -> list[_Step]:
     return steps
 
 
-def _render(ctx: StepContext, s: _Step) -> dict[str, Any]:
-    coords = [s.runs[0].coords[0]]
-    for run in s.runs:
-        coords.extend(run.coords[1:])
+def _render(ctx: StepContext, t: Trace, s: _Step) -> dict[str, Any]:
+    last = s.first + len(s.runs)
+    coords = t.coords[t.starts[s.first]:t.starts[last] + 1]
     maneuver: dict[str, Any] = {"type": s.kind, "location": s.location,
                                 "bearing_before": round(s.before) % 360,
                                 "bearing_after": round(s.after) % 360}
@@ -195,10 +185,11 @@ def _render(ctx: StepContext, s: _Step) -> dict[str, Any]:
         maneuver["modifier"] = s.turn
     if s.exit is not None:
         maneuver["exit"] = s.exit
-    distance = sum(r.distance for r in s.runs)
+    distance = float(t.distance[s.first:last].sum())
+    duration = float(t.duration[s.first:last].sum())
     out: dict[str, Any] = {
-        "distance": distance, "duration": sum(r.duration for r in s.runs),
-        "weight": sum(r.weight(ctx.cost) for r in s.runs),
+        "distance": distance, "duration": duration,
+        "weight": duration if ctx.cost is Cost.TIME else distance,
         "geometry": ctx.encode(coords), "name": s.attrs["name"], "mode": "driving",
         "driving_side": ctx.driving_side, "maneuver": maneuver,
         "intersections": s.intersections,
@@ -210,7 +201,7 @@ def _render(ctx: StepContext, s: _Step) -> dict[str, Any]:
     return out
 
 
-def _arrive(ctx: StepContext, t: Trace) -> dict[str, Any]:
+def _arrive(ctx: StepContext, t: Trace, name: str) -> dict[str, Any]:
     last = t.runs[-1] if t.runs else None
     heading = last.b_in if last is not None else 0.0
     maneuver: dict[str, Any] = {"type": "arrive", "location": t.end,
@@ -218,9 +209,9 @@ def _arrive(ctx: StepContext, t: Trace) -> dict[str, Any]:
     snap = t.leg.end
     if last is not None and snap.distance_m > ON_ROAD_M:
         maneuver["modifier"] = "right" if side_of(t.end, heading, snap.point) > 0 else "left"
-    name = ctx.attrs(last)["name"] if last is not None else ""
     return {
-        "distance": 0.0, "duration": 0.0, "weight": 0.0, "geometry": ctx.encode([t.end, t.end]),
+        "distance": 0.0, "duration": 0.0, "weight": 0.0,
+        "geometry": ctx.encode(np.array([t.end, t.end])),
         "name": name, "mode": "driving", "driving_side": ctx.driving_side,
         "maneuver": maneuver, "segment_ids": [],
         "intersections": [{"location": t.end, "bearings": [round(heading + 180.0) % 360],
@@ -230,4 +221,6 @@ def _arrive(ctx: StepContext, t: Trace) -> dict[str, Any]:
 
 def leg_steps(ctx: StepContext, t: Trace) -> list[dict[str, Any]]:
     """The OSRM steps of one leg, ending with ``arrive``."""
-    return [*(_render(ctx, s) for s in _group(ctx, t)), _arrive(ctx, t)]
+    attrs = ctx.attrs(t)
+    return [*(_render(ctx, t, s) for s in _group(ctx, t, attrs)),
+            _arrive(ctx, t, attrs[-1]["name"] if attrs else "")]

@@ -8,10 +8,10 @@ coordinate pair.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-from app.routing.costs import Cost
 from app.routing.engine import Leg, Piece
 from app.routing.geometry import bearing, cut_with_fractions, point_at
 from app.routing.graph import RoadGraph
@@ -29,7 +29,7 @@ class Run:
 
     piece: Piece
     segment_id: int
-    coords: list[list[float]]
+    coords: np.ndarray  # (k, 2) lon/lat in driving order (a view of the graph's where whole)
     fracs: np.ndarray  # fraction along the segment of each coordinate
     length_m: float  # of the whole segment
     speed_ms: float
@@ -48,10 +48,6 @@ class Run:
         """Driven along the segment's geometry."""
         return self.piece.f_to >= self.piece.f_from
 
-    def weight(self, cost: Cost) -> float:
-        """What the route minimises over this run."""
-        return self.duration if cost is Cost.TIME else self.distance
-
     @property
     def starts_at_node(self) -> bool:
         """The run begins at a segment end (not at a snapped point)."""
@@ -60,13 +56,26 @@ class Run:
 
 @dataclass(frozen=True)
 class Trace:
-    """A leg's runs and its coordinates (start point first, joints not repeated)."""
+    """A leg's driven pieces (zero-length ones dropped) as per-piece arrays, its coordinates
+    (start point first, joints not repeated) and, built only when steps, annotations or
+    node ids need them, its :class:`Run` objects."""
 
     leg: Leg
-    runs: list[Run]
-    coords: list[list[float]]
+    graph: RoadGraph
+    pieces: list[Piece]
+    segment_ids: np.ndarray
+    forward: np.ndarray
+    distance: np.ndarray  # metres per piece
+    duration: np.ndarray  # seconds per piece
+    coords: np.ndarray  # (n, 2) lon/lat
+    starts: np.ndarray  # index in coords of each piece's first coordinate, then of the last
     start: list[float]
     end: list[float]
+
+    @cached_property
+    def runs(self) -> list[Run]:
+        """The pieces as runs (coordinates and bearings of each)."""
+        return runs_of(self.graph, self.pieces)
 
 
 def location(graph: RoadGraph, snap: Snap) -> list[float]:
@@ -77,34 +86,69 @@ def location(graph: RoadGraph, snap: Snap) -> list[float]:
     return list(point_at(coords, fracs, snap.fraction))
 
 
+def runs_of(graph: RoadGraph, pieces: list[Piece]) -> list[Run]:
+    """The runs of ``pieces``: coordinates cut at their fractions, bearings at their ends.
+    Per-piece numbers are read for all pieces at once (a city route has ~100): whole
+    segments take their precomputed end bearings, cut ones measure theirs."""
+    if not pieces:
+        return []
+    rows = np.array([p.row for p in pieces], np.int64)
+    f_from = np.array([p.f_from for p in pieces])
+    f_to = np.array([p.f_to for p in pieces])
+    start, end = graph.bearing_start[rows], graph.bearing_end[rows]
+    forward = f_to >= f_from
+    b_out = np.where(forward, start, (end + 180.0) % 360.0).tolist()
+    b_in = np.where(forward, end, (start + 180.0) % 360.0).tolist()
+    lengths = graph.segs.length_m[rows]
+    speeds = graph.speed_kph[rows] / 3.6
+    distances = np.abs(f_to - f_from) * lengths
+    whole = (np.minimum(f_from, f_to) == 0.0) & (np.maximum(f_from, f_to) == 1.0)
+    runs = []
+    for k, (p, sid, length, speed, distance, duration) in enumerate(zip(
+            pieces, graph.segs.ids[rows].tolist(), lengths.tolist(), speeds.tolist(),
+            distances.tolist(), (distances / speeds).tolist(), strict=True)):
+        line, line_fracs = graph.line(p.row)
+        coords, fracs = cut_with_fractions(line, line_fracs, p.f_from, p.f_to)
+        if not whole[k]:
+            b_out[k] = bearing(coords[0], coords[1])
+            b_in[k] = bearing(coords[-2], coords[-1])
+        runs.append(Run(p, sid, coords, fracs, length, speed, b_out[k], b_in[k], distance,
+                        duration))
+    return runs
+
+
 def run_of(graph: RoadGraph, p: Piece) -> Run:
-    """The run of one piece: coordinates cut at its fractions, bearings at its ends."""
-    line, line_fracs = graph.line(p.row)
-    coords, fracs = cut_with_fractions(line, line_fracs, p.f_from, p.f_to)
-    length = float(graph.segs.length_m[p.row])
-    if (p.f_from, p.f_to) == (0.0, 1.0):  # whole segments: bearings precomputed per graph
-        b_out, b_in = float(graph.bearing_start[p.row]), float(graph.bearing_end[p.row])
-    elif (p.f_from, p.f_to) == (1.0, 0.0):
-        b_out = (float(graph.bearing_end[p.row]) + 180.0) % 360.0
-        b_in = (float(graph.bearing_start[p.row]) + 180.0) % 360.0
-    else:
-        b_out, b_in = bearing(coords[0], coords[1]), bearing(coords[-2], coords[-1])
-    speed_ms = float(graph.speed_kph[p.row]) / 3.6
-    distance = abs(p.f_to - p.f_from) * length
-    return Run(p, int(graph.segs.ids[p.row]), coords, fracs, length, speed_ms, b_out, b_in,
-               distance, distance / speed_ms)
+    """The run of one piece."""
+    return runs_of(graph, [p])[0]
 
 
 def trace(graph: RoadGraph, leg: Leg) -> Trace:
-    """The leg's runs (zero-length pieces dropped) and coordinates."""
-    runs = [run_of(graph, p) for p in leg.pieces if p.f_from != p.f_to]
+    """The leg's pieces and coordinates. What every answer needs is read for all pieces at
+    once (a city route has ~100): whole segments contribute a view of the graph's
+    coordinates, only the cut ends are interpolated."""
+    pieces = [p for p in leg.pieces if p.f_from != p.f_to]
     start, end = location(graph, leg.start), location(graph, leg.end)
-    coords = [start]
-    for run in runs:
-        coords.extend(run.coords[1:])
-    if len(coords) == 1:  # start and end coincide: OSRM still sends a two-point line
-        coords.append(end)
-    return Trace(leg, runs, coords, start, end)
+    rows = np.array([p.row for p in pieces], np.int64)
+    f_from = np.array([p.f_from for p in pieces])
+    f_to = np.array([p.f_to for p in pieces])
+    distance = np.abs(f_to - f_from) * graph.segs.length_m[rows]
+    parts = [np.array([start])]
+    offsets, all_coords = graph.segs.offsets, graph.segs.coords
+    for p in pieces:
+        lo, hi = int(offsets[p.row]), int(offsets[p.row + 1])
+        if p.f_from == 0.0 and p.f_to == 1.0:
+            parts.append(all_coords[lo + 1:hi])
+        elif p.f_from == 1.0 and p.f_to == 0.0:
+            parts.append(all_coords[lo:hi - 1][::-1])
+        else:
+            parts.append(cut_with_fractions(all_coords[lo:hi], graph.fracs[lo:hi], p.f_from,
+                                            p.f_to)[0][1:])
+    if not pieces:  # start and end coincide: OSRM still sends a two-point line
+        parts.append(np.array([end]))
+    starts = np.cumsum([0, *(len(part) for part in parts[1:])])
+    return Trace(leg, graph, pieces, graph.segs.ids[rows], f_to >= f_from, distance,
+                 distance / (graph.speed_kph[rows] / 3.6), np.concatenate(parts), starts,
+                 start, end)
 
 
 def node_ids(graph: RoadGraph, t: Trace) -> list[int]:
@@ -112,14 +156,8 @@ def node_ids(graph: RoadGraph, t: Trace) -> list[int]:
     node ids; inner vertices get :data:`VERTEX_BASE` ids; a snapped point takes the id of the
     vertex behind it (start) or ahead of it (end), so each consecutive pair of ids names the
     piece of road the pair lies on, as OSRM's OSM node pairs do."""
-    if not t.runs:  # zero-length leg on one segment
-        row = graph.row_of(t.leg.start.segment_id)
-        assert row is not None
-        _, fracs = graph.line(row)
-        f = t.leg.start.fraction
-        k = int(np.searchsorted(fracs, f, side="right")) - 1
-        return [_vertex_id(graph, row, max(k, 0)),
-                _vertex_id(graph, row, min(k + 1, len(fracs) - 1))]
+    if not t.pieces:  # zero-length leg on one segment
+        return nodes_around(graph, t.leg.start)
     ids: list[int] = []
     last = len(t.runs) - 1
     for n, run in enumerate(t.runs):
@@ -138,6 +176,17 @@ def node_ids(graph: RoadGraph, t: Trace) -> list[int]:
                 vertex = lower if use_lower or not (behind or ahead) else lower + 1
             ids.append(_vertex_id(graph, run.piece.row, vertex))
     return ids
+
+
+def nodes_around(graph: RoadGraph, snap: Snap) -> list[int]:
+    """The ids (as ``annotation.nodes`` gives them) of the vertices before and after a snapped
+    point along its segment: OSRM's ``nodes`` of a nearest waypoint."""
+    row = graph.row_of(snap.segment_id)
+    assert row is not None
+    _, fracs = graph.line(row)
+    k = min(max(int(np.searchsorted(fracs, snap.fraction, side="right")) - 1, 0),
+            len(fracs) - 2)
+    return [_vertex_id(graph, row, k), _vertex_id(graph, row, k + 1)]
 
 
 def _vertex_id(graph: RoadGraph, row: int, vertex: int) -> int:

@@ -17,8 +17,10 @@ from rasterio.enums import Resampling
 from rasterio.errors import RasterioIOError
 from rasterio.windows import Window
 
-from app.tiles.catalog import TileSource
-from app.tiles.readers import open_dataset
+from app.grid import tile_bounds
+from app.tiles.catalog import TileQuery, TileSource
+from app.tiles.encode import encode
+from app.tiles.readers import open_dataset, overview_zoom
 
 log = logging.getLogger(__name__)
 
@@ -90,3 +92,13 @@ def render(sources: list[TileSource], bbox: tuple[float, float, float, float],
     for source in sources:
         paint(canvas, source, bbox)
     return canvas
+
+
+def compose_tile(query: TileQuery, z: int, x: int, y: int, fmt: str, size: int = 256) -> bytes:
+    """Tile z/x/y of a layer, encoded as served: from the layer overview at the zooms it
+    covers, else from the sources meeting the tile. The one path the tile endpoint and the
+    offline package both take, so a packaged tile is the served tile byte for byte."""
+    sources = query.sources
+    if sources and query.overview_uri and z <= overview_zoom(query.overview_uri):
+        sources = [TileSource(query.overview_uri, None)]
+    return encode(render(sources, tile_bounds(z, x, y), size), fmt)

@@ -23,10 +23,8 @@ from app.grid import parse_tile, tile_bounds
 from app.params import LayerSlug, Shape, TileXY, TileZ
 from app.tiles import catalog
 from app.tiles.cache import tile_cache
-from app.tiles.catalog import TileSource
-from app.tiles.encode import MEDIA_TYPES, encode
-from app.tiles.mosaic import render
-from app.tiles.readers import overview_zoom
+from app.tiles.encode import MEDIA_TYPES
+from app.tiles.mosaic import compose_tile
 from app.tiles.store import open_store
 from app.tiles.versioned import cache_headers, not_modified, versioned
 
@@ -187,9 +185,6 @@ def tile(slug: LayerSlug, z: TileZ, x: TileXY, tile: TileName, request: Request)
     body = tile_cache().get(key)
     headers["X-Tile-Cache"] = "hit" if body is not None else "miss"
     if body is None:
-        sources = query.sources
-        if sources and query.overview_uri and zi <= overview_zoom(query.overview_uri):
-            sources = [TileSource(query.overview_uri, None)]
-        body = encode(render(sources, bbox, size), fmt)
+        body = compose_tile(query, zi, xi, yi, fmt, size)
         tile_cache().put(key, body)
     return Response(body, media_type=MEDIA_TYPES[fmt], headers=headers)

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from sqlalchemy.orm import Session
 from tqdm import tqdm
 
 from app.db.models import SLUG_RE
@@ -42,6 +43,7 @@ from ingest.ipm.place import PlacedPatch, place
 from ingest.ipm.poses import NO_POSE, Pose, PoseTrack, interpolate_poses, read_poses
 from ingest.ipm.qrpose import CORNERS, read_pose
 from ingest.ipm.stitch import BLENDS, ZoneStitcher
+from ingest.ipm.trajectory import store_trajectory, trajectory_line
 from ingest.raster.job import ingest_raster
 from ingest.raster.sources import SourceError
 
@@ -123,6 +125,8 @@ class IpmSummary:
 class _Outcome:
     placed: PlacedPatch | None = None
     pose: GridPose | None = None
+    where: Pose | None = None
+    """The pose (lon/lat) the frame was placed with: a point of the drive's trajectory."""
     skip: str | None = None
     message: str = ""
 
@@ -157,7 +161,7 @@ def _process(ref: FrameRef, pose: Pose | None, ctx: _Context) -> _Outcome:
                    ctx.grid.resolution_m)
     if placed is None:
         return _Outcome(skip=NO_GROUND, message=f"{ref.name}: nothing valid")
-    return _Outcome(placed, grid_pose)
+    return _Outcome(placed, grid_pose, pose)
 
 
 def _first_qr_pose(frames: FrameSet, corner: str, limit: int = 200) -> Pose:
@@ -206,6 +210,8 @@ class DriveResult:
     """One message per skip reason."""
     times: list[float] = field(default_factory=list)
     """Times of the frames, for the "no pose" hint."""
+    poses: list[Pose] = field(default_factory=list)
+    """Poses of the frames used: the trajectory stored with the layer."""
 
     def no_frame_used(self, track: PoseTrack | None) -> str:
         """The one-line error when every frame was skipped; when frames fell outside the pose
@@ -241,7 +247,9 @@ def stitch_drive(frames: FrameSet, track: PoseTrack | None, ctx: _Context,
             result.examples.setdefault(outcome.skip, outcome.message)
         else:
             assert outcome.placed is not None and outcome.pose is not None
+            assert outcome.where is not None
             stitcher.add(outcome.placed)
+            result.poses.append(outcome.where)
             stitcher.close_far(outcome.pose.col, outcome.pose.row)
             result.used += 1
         now = time.monotonic()
@@ -273,6 +281,14 @@ def stitch_drive(frames: FrameSet, track: PoseTrack | None, ctx: _Context,
         pool.shutdown(wait=True, cancel_futures=True)
         bar.close()
     return result
+
+
+def drive_name(frames_path: Path, frames: slice) -> str:
+    """What names a drive in ``layer_trajectories``: its frames (absolute), and the part of
+    them used when ``--frames`` chose one, so the same drive ingested again replaces its row."""
+    start, stop = ("" if v is None else v for v in (frames.start, frames.stop))
+    part = "" if frames == slice(None) else f"[{start}:{stop}]"
+    return f"{Path(frames_path).resolve()}{part}"
 
 
 def ingest_ipm(frames_path: Path, layer: str, calib_path: Path, poses_path: Path | None = None,
@@ -319,12 +335,22 @@ def ingest_ipm(frames_path: Path, layer: str, calib_path: Path, poses_path: Path
             raise IpmInputError(drive.no_frame_used(track))
         if not stitcher.written:
             raise IpmInputError("the frames saw too little ground to write any zone")
+        line = trajectory_line(drive.poses)
+
+        def keep_trajectory(session: Session) -> None:
+            if line is not None:
+                store_trajectory(session, layer, drive_name(frames_path, options.frames), line,
+                                 {"frames": drive.used, "t0": drive.poses[0].t,
+                                  "t1": drive.poses[-1].t,
+                                  "poses": str(poses_path) if poses_path else "qr"})
+
         try:
             report = ingest_raster(
                 stitcher.written, layer, title=options.title, kind="ipm-mosaic",
                 priority=options.priority, database_url=database_url, store=store,
                 on_progress=lambda f, step: progress(FRAMES_SHARE + (1 - FRAMES_SHARE) * f,
-                                                     f"zone COG {step}"))
+                                                     f"zone COG {step}"),
+                after_register=keep_trajectory)
         except SourceError as exc:
             raise IpmInputError(str(exc)) from exc
     stats = stitcher.stats

@@ -22,6 +22,7 @@ from typing import TypeVar, overload
 
 import cv2
 import numpy as np
+import shapely
 from pyproj import Transformer
 from scipy.spatial.transform import Rotation
 
@@ -134,6 +135,25 @@ class Drive:
             lon, lat = self.to_lonlat(east, north)
             out.append((colour, float(lon), float(lat)))
         return out
+
+    def from_road_centre_m(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        """Signed ground distance (m) of lon/lat points from the road's centre line (+ outside
+        the bend): what an extracted centreline is scored by."""
+        east, north = self.to_local(np.asarray(lon, float), np.asarray(lat, float))
+        return np.hypot(east, north) - (self.radius_m + self.road_offset_m)
+
+    def share_found(self, coverage: shapely.Geometry, lines: shapely.Geometry,
+                    within_m: float = 1.0) -> float:
+        """Share of the road's centre line inside ``coverage`` (lon/lat: what the drive saw)
+        that lies within ``within_m`` of ``lines`` (lon/lat: the extracted roads)."""
+        radius = self.radius_m + self.road_offset_m
+        azimuth = np.radians(np.arange(0.0, 360.0, 0.05))
+        lon, lat = self.to_lonlat(radius * np.sin(azimuth), radius * np.cos(azimuth))
+        seen = shapely.contains_xy(coverage, lon, lat)
+        local = shapely.transform(lines, lambda xy: np.column_stack(self.to_local(xy[:, 0],
+                                                                                  xy[:, 1])))
+        east, north = self.to_local(lon[seen], lat[seen])
+        return float(shapely.dwithin(local, shapely.points(east, north), within_m).mean())
 
     def texture(self, east: np.ndarray, north: np.ndarray) -> np.ndarray:
         """Ground colour (..., 3) RGB float32 at local metres."""

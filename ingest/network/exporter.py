@@ -56,25 +56,36 @@ class StoredNode:
     external_id: str | None
 
 
-def load_network(session: Session, network: str) -> tuple[list[StoredSegment], list[StoredNode]]:
-    """The network's segments and nodes, ordered by id so exports are deterministic."""
+def load_network(session: Session, network: str,
+                 bbox: tuple[float, float, float, float] | None = None
+                 ) -> tuple[list[StoredSegment], list[StoredNode]]:
+    """The network's segments and nodes, ordered by id so exports are deterministic; with
+    ``bbox`` (W, S, E, N) only the segments meeting it, whole, and the nodes they end at."""
     network_id = session.execute(text("SELECT id FROM networks WHERE name = :n"),
                                  {"n": network}).scalar()
     if network_id is None:
         raise UserError(f"network {network[:100]!r} does not exist")
+    area = ("" if bbox is None else
+            " AND ST_Intersects(geom, ST_MakeEnvelope(:w, :s, :e, :nn, 4326))")
+    params = {"n": network_id, **({} if bbox is None else dict(zip(("w", "s", "e", "nn"), bbox,
+                                                                    strict=True)))}
     rows = session.execute(text(
         f"SELECT id, source_node, target_node, length_m, version, {', '.join(ATTRIBUTE_NAMES)}, "
-        "ST_AsGeoJSON(geom, 17) AS geometry FROM road_segments WHERE network_id = :n "
-        "ORDER BY id"), {"n": network_id}).all()
+        "ST_AsGeoJSON(geom, 17) AS geometry FROM road_segments WHERE network_id = :n"
+        f"{area} ORDER BY id"), params).all()
     segments = [StoredSegment(
         r.id, r.source_node, r.target_node, r.length_m, r.version,
         [tuple(c) for c in json.loads(r.geometry)["coordinates"]],
         RoadAttributes(**{k: getattr(r, k) for k in ATTRIBUTE_NAMES})) for r in rows]
+    ends = (None if bbox is None else
+            sorted({s.source_node for s in segments} | {s.target_node for s in segments}))
     nodes = [StoredNode(r.id, tuple(json.loads(r.geometry)["coordinates"]), r.kind,
                         r.traffic_light, r.external_id)
              for r in session.execute(text(
                  "SELECT id, kind, traffic_light, external_id, ST_AsGeoJSON(geom, 17) AS geometry "
-                 "FROM road_nodes WHERE network_id = :n ORDER BY id"), {"n": network_id})]
+                 "FROM road_nodes WHERE network_id = :n"
+                 + ("" if ends is None else " AND id = ANY(CAST(:ends AS bigint[]))")
+                 + " ORDER BY id"), {"n": network_id, "ends": ends})]
     return segments, nodes
 
 
@@ -212,12 +223,17 @@ def _write_atomically(path: Path, write: Callable[[Path], None], fmt: str) -> No
         tmp.unlink(missing_ok=True)
 
 
-def export_network(session: Session, network: str, out: Path, fmt: str) -> ExportSummary:
-    """Write network ``network`` to ``out`` (GeoJSON: the two files of :func:`geojson_paths`,
-    the nodes first, so the segments file, which import starts from, appears last)."""
+def export_network(session: Session, network: str, out: Path, fmt: str,
+                   bbox: tuple[float, float, float, float] | None = None) -> ExportSummary:
+    """Write network ``network`` (with ``bbox``: the segments meeting it, whole) to ``out``
+    (GeoJSON: the two files of :func:`geojson_paths`, the nodes first, so the segments file,
+    which import starts from, appears last)."""
     if fmt not in FORMATS:
         raise UserError(f"format must be one of {', '.join(FORMATS)}")
-    segments, nodes = load_network(session, network)
+    segments, nodes = load_network(session, network, bbox)
+    if not segments and bbox is not None:
+        raise UserError(f"network {network[:100]!r} has no segments within bbox "
+                        f"{','.join(map(str, bbox))}")
     outputs: list[tuple[Path, Callable[[Path], None]]]
     if fmt == "geojson":
         segment_path, node_path = geojson_paths(out)

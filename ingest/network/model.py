@@ -31,6 +31,8 @@ class RoadAttributes:
     width_m: float | None = None
     external_id: str | None = None
     attrs: dict[str, Any] = field(default_factory=dict)
+    confidence: float | None = None
+    """How sure road extraction was of the segment (0..1); None = not extracted from imagery."""
 
 
 ATTRIBUTE_NAMES = tuple(f.name for f in fields(RoadAttributes))

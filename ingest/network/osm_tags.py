@@ -17,11 +17,15 @@ from ingest.network.model import RoadAttributes
 
 # Tags consumed into columns; every other tag is kept verbatim in ``attrs``.
 EXTERNAL_ID_TAG = "ugvmap:external_id"
+CONFIDENCE_TAG = "ugvmap:confidence"
+BOTH_WAYS_TAG = "lanes:both_ways"
+"""OSM's centre lane shared by both directions (e.g. a turn lane), counted in ``lanes``."""
 
 # ``junction`` stays in attrs too (unless it is a bare "yes"): its value (roundabout,
 # circular...) is more than the ``is_junction`` flag.
 MAPPED_TAGS = frozenset({"highway", "maxspeed", "lanes", "lanes:forward", "lanes:backward",
-                         "oneway", "name", "surface", "width", EXTERNAL_ID_TAG})
+                         "oneway", "name", "surface", "width", EXTERNAL_ID_TAG,
+                         CONFIDENCE_TAG})
 
 # highway=* values that are not drivable or walkable lines (plans, areas, points).
 NOT_ROADS = frozenset({"proposed", "construction", "abandoned", "disused", "razed", "platform",
@@ -56,6 +60,15 @@ def parse_maxspeed(value: str | None) -> float | None:
         return None
     kph = float(match.group(1)) * _UNIT_FACTOR.get((match.group(2) or "").lower(), 1.0)
     return round(kph, 3) if 1 <= kph <= 200 else None
+
+
+def parse_confidence(value: str | None) -> float | None:
+    """``ugvmap:confidence`` (our exports) as 0..1; None when absent or not a share."""
+    try:
+        share = float(value) if value else None
+    except ValueError:
+        return None
+    return share if share is not None and 0.0 <= share <= 1.0 else None
 
 
 def _parse_count(value: str | None) -> int | None:
@@ -135,6 +148,7 @@ def attributes_from_tags(tags: Mapping[str, str], external_id: str | None = None
         external_id=(tags[EXTERNAL_ID_TAG] or None) if EXTERNAL_ID_TAG in tags else external_id,
         attrs={k: v for k, v in tags.items()
                if k not in MAPPED_TAGS and not (k == "junction" and v == "yes")},
+        confidence=parse_confidence(tags.get(CONFIDENCE_TAG)),
     )
 
 
@@ -145,7 +159,8 @@ def tags_from_attributes(a: RoadAttributes) -> dict[str, str]:
     tags["oneway"] = {"forward": "yes", "backward": "-1"}.get(a.oneway, "no")
     tags["lanes:forward"] = str(a.lanes_forward)
     tags["lanes:backward"] = str(a.lanes_backward)
-    tags["lanes"] = str(a.lanes_forward + a.lanes_backward)
+    both_ways = _parse_count(tags.get(BOTH_WAYS_TAG)) or 0
+    tags["lanes"] = str(a.lanes_forward + a.lanes_backward + both_ways)
     if a.speed_limit_kph is not None:
         tags["maxspeed"] = repr(float(a.speed_limit_kph)).removesuffix(".0")
     if a.is_junction:
@@ -158,4 +173,6 @@ def tags_from_attributes(a: RoadAttributes) -> dict[str, str]:
     tags[EXTERNAL_ID_TAG] = a.external_id or ""
     if a.width_m is not None:
         tags["width"] = repr(float(a.width_m))
+    if a.confidence is not None:
+        tags[CONFIDENCE_TAG] = repr(float(a.confidence))
     return tags

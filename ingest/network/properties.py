@@ -31,6 +31,14 @@ def _as_float(value: Any) -> float | None:
     return None if value is None or value == "" else float(value)
 
 
+def _as_share(value: Any) -> float | None:
+    """A 0..1 share (``confidence``), refused outside that range rather than stored wrong."""
+    share = _as_float(value)
+    if share is not None and not 0.0 <= share <= 1.0:
+        raise ValueError(f"confidence must be a number from 0 to 1, got {value!r}")
+    return share
+
+
 def _as_text(value: Any) -> str | None:
     return None if value is None else str(value)
 
@@ -85,6 +93,7 @@ def attributes_from_properties(props: Mapping[str, Any]) -> RoadAttributes:
         width_m=_as_float(props.get("width_m")),
         external_id=_as_text(props.get("external_id")),
         attrs=attrs,
+        confidence=_as_share(props.get("confidence")),
     )
 
 

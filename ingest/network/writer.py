@@ -48,7 +48,7 @@ Read = Callable[[], Iterable[RoadLine | NodePoint]]
 
 SEGMENT_COLUMNS = ("network_id, source_node, target_node, geom, lanes_forward, lanes_backward, "
                    "speed_limit_kph, oneway, road_class, is_junction, name, surface, width_m, "
-                   "external_id, attrs")
+                   "external_id, attrs, confidence")
 
 
 class NetworkExistsError(UserError):
@@ -59,7 +59,9 @@ class NoLinesError(UserError):
     """The input holds no road line."""
 
 
-def _network_id(session: Session, network: str, replace: bool) -> int:
+def lock_network(session: Session, network: str) -> int:
+    """The id of network ``network``, its row locked for the caller's transaction; a new name
+    is checked and created (empty)."""
     if not re.match(SLUG_RE, network):
         raise UserError(f"network name {network[:80]!r} is not valid: use 1-64 lowercase "
                         "letters, digits, '-' or '_', starting with a letter or digit")
@@ -68,14 +70,19 @@ def _network_id(session: Session, network: str, replace: bool) -> int:
     if row is None:
         return session.execute(text("INSERT INTO networks (name) VALUES (:n) RETURNING id"),
                                {"n": network}).scalar_one()
+    return int(row.id)
+
+
+def _network_id(session: Session, network: str, replace: bool) -> int:
+    network_id = lock_network(session, network)
     has_data: bool = session.execute(text("SELECT EXISTS (SELECT 1 FROM road_segments "
-                                    "WHERE network_id = :id)"), {"id": row.id}).scalar_one()
+                                    "WHERE network_id = :id)"), {"id": network_id}).scalar_one()
     if has_data and not replace:
         raise NetworkExistsError(f"network {network!r} already has segments; "
                                  "use replace to overwrite it")
     for table in ("segment_edits", "road_segments", "road_nodes"):
-        session.execute(text(f"DELETE FROM {table} WHERE network_id = :id"), {"id": row.id})
-    return row.id
+        session.execute(text(f"DELETE FROM {table} WHERE network_id = :id"), {"id": network_id})
+    return network_id
 
 
 def _chunked(items: Iterable[RoadLine | NodePoint]
@@ -144,7 +151,7 @@ class _Stager:
                 copy.write_row((self.network_id, src[i], dst[i], geoms[i], a.lanes_forward,
                                 a.lanes_backward, a.speed_limit_kph, a.oneway, a.road_class,
                                 a.is_junction, a.name, a.surface, a.width_m, a.external_id,
-                                doc, 0))
+                                doc, a.confidence, 0))
 
     def nodes(self, coords: np.ndarray, degree: np.ndarray,
               extras: list[NodePoint | None]) -> None:

@@ -7,6 +7,7 @@ retried task redoes it; a retry after the commit finds the job succeeded and doe
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from app.db.session import get_engine, session_scope
@@ -33,14 +34,13 @@ def ingest_roads(job_id: int, params: RoadsParams) -> None:
     from ingest.roads.pipeline import tuned_params
 
     lines = read_sample_lines(Path(params.train_lines)) if params.train_lines else []
-    width = {} if params.line_width is None else {"line_width_m": params.line_width}
-    sample = (GeoSample(params.train_boxes, params.not_road_boxes, lines, **width)
+    sample = (GeoSample(params.train_boxes, params.not_road_boxes, lines)
               if params.train_boxes or params.not_road_boxes or lines else None)
+    if sample is not None and params.line_width is not None:
+        sample = dataclasses.replace(sample, line_width_m=params.line_width)
     tuning = tuned_params(params.classifier, params.k, params.work_resolution,
                           params.spur_max, params.simplify)
     with Lease(get_engine(), job_id), session_scope() as session:
-        extraction, summary = ingest_layer_roads(session, params.layer, params.network, sample,
-                                                 tuning, replace=params.replace)
-        succeed_in(session.connection(), job_id,
-                   f"network {summary.network}: {summary.segments} segments "
-                   f"({extraction.classifier} classifier)")
+        done = ingest_layer_roads(session, params.layer, params.network, sample, tuning,
+                                  rules=params.rules, replace=params.replace)
+        succeed_in(session.connection(), job_id, "; ".join(done.lines()))

@@ -210,11 +210,14 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
                   to_cog: Callable[[Source, Path], None] | None = None,
                   database_url: str | None = None,
                   store: RasterStore | Path | str | None = None,
-                  on_progress: Callable[[float, str], None] | None = None) -> IngestReport:
+                  on_progress: Callable[[float, str], None] | None = None,
+                  after_register: Callable[[Session], None] | None = None) -> IngestReport:
     """Ingest ``paths`` into layer ``layer``; raise :class:`SourceError` on bad input.
 
     ``inspect_source``/``to_cog`` let the GCP path plug in its own georeferencing and warp;
-    ``on_progress(fraction, step)`` is told before each step (e.g. to update a job row).
+    ``on_progress(fraction, step)`` is told before each step (e.g. to update a job row);
+    ``after_register(session)`` writes rows that belong with the sources (an IPM drive's
+    trajectory) in the registering transaction, after the layer row exists.
     """
     if not re.match(SLUG_RE, layer):
         raise SourceError(f"layer slug {layer!r} must match {SLUG_RE}")
@@ -242,6 +245,8 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
             with session_scope(database_url) as session:
                 version, replaced = register(session, written, layer, title, kind, priority,
                                              overview, raster_store)
+                if after_register is not None:
+                    after_register(session)
         except BaseException:
             with contextlib.suppress(Exception):  # the original error matters more
                 raster_store.delete(created)

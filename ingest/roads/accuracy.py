@@ -11,6 +11,7 @@ Connectivity (APLS, :mod:`ingest.roads.connectivity`) is measured on the same th
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -30,7 +31,7 @@ from ingest.roads.evaluate import (
     rasterize_lines,
 )
 from ingest.roads.georef import Image, read_band, read_image
-from ingest.roads.graph import build_graph
+from ingest.roads.graph import GraphParams, build_graph
 from ingest.roads.pipeline import Classifier, ExtractParams, extract_roads
 from ingest.roads.skeleton import thin
 
@@ -59,6 +60,18 @@ SAMPLES = (
            "spacenet_vegas/AOI_2_Vegas_img0.geojson", None),
 )
 
+
+
+def holdout_samples(training_root: Path) -> list[Sample]:
+    """The training set's model-selection scenes (:func:`ingest.roads.model.data.is_holdout`)
+    as samples: pipeline settings are chosen on these, never on the validation images."""
+    from ingest.roads.model.data import is_holdout
+
+    pairs = json.loads((training_root / "pairs.json").read_text())
+    return [Sample(Path(p["image"]).stem, p["image"], p["mask"], float(p["m_per_px"]))
+            for p in pairs if is_holdout(p)]
+
+
 CENTERLINE_ROAD_M = 3.0
 """For centerline ground truth: within this of a centerline the training sample says road..."""
 CENTERLINE_CLEAR_M = 8.0
@@ -73,7 +86,8 @@ def truth_rasters(sample: Sample, root: Path, image: Image
     if path.suffix != ".geojson":
         road = read_band(path)[0] >= 128
         centerline = thin(road)
-        graph = build_graph(centerline, road, image.resolution_m)
+        # The truth keeps the pixel geometry it was scored with before issue 20.
+        graph = build_graph(centerline, road, image.resolution_m, GraphParams(geometry="pixel"))
         return road, centerline, None, [e.coords for e in graph.edges]
     if image.transform is None:
         raise RoadsInputError(f"{sample.image}: a GeoJSON truth needs a georeferenced image")
@@ -95,6 +109,29 @@ def quadrant_labels(road: np.ndarray, unsure: np.ndarray | None = None
     if unsure is not None:
         labels[unsure & region] = 0
     return labels, region
+
+
+@dataclass(frozen=True)
+class Truth:
+    """A sample's ground truth on its image grid, and the quadrant the job trains on."""
+
+    road: np.ndarray
+    centerline: np.ndarray
+    lines: list[np.ndarray]
+    """Centerlines, source pixel-corner coordinates (the whole image)."""
+    labels: np.ndarray
+    """The training sample: the labelled quadrant."""
+    region: np.ndarray
+    """True in the training quadrant (not scored)."""
+    resolution_m: float
+
+
+def load_sample(sample: Sample, root: Path) -> tuple[Image, Truth]:
+    """The sample's image and its ground truth."""
+    image = read_image(root / sample.image, sample.resolution_m)
+    road, centerline, unsure, truth_lines = truth_rasters(sample, root, image)
+    labels, region = quadrant_labels(road, unsure)
+    return image, Truth(road, centerline, truth_lines, labels, region, image.resolution_m)
 
 
 @dataclass(frozen=True)
@@ -123,23 +160,28 @@ def _clip_lines(lines: list[np.ndarray], region_box: tuple[float, float, float, 
     return out
 
 
+def score_lines(truth: Truth, pred_lines: list[np.ndarray], seconds: float = 0.0,
+                radii_m: tuple[float, ...] = (1.0, 2.0)) -> Evaluation:
+    """Buffer scores and APLS of predicted centerlines (source pixel-corner coordinates)
+    outside the training quadrant."""
+    pred = rasterize_lines(pred_lines, truth.road.shape)
+    res = truth.resolution_m
+    scores = buffer_scores(pred, truth.centerline, [r / res for r in radii_m], res,
+                           region=~truth.region)
+    rows, cols = np.nonzero(truth.region)
+    train_box = (cols.min(), rows.min(), cols.max() + 1, rows.max() + 1)
+    connectivity = apls(_clip_lines(truth.lines, train_box, res),
+                        _clip_lines(pred_lines, train_box, res), snap_radius=APLS_SNAP_M)
+    return Evaluation(scores, connectivity, seconds)
+
+
 def evaluate_sample(sample: Sample, root: Path, classifier: Classifier,
                     radii_m: tuple[float, ...] = (1.0, 2.0),
                     params: ExtractParams | None = None) -> Evaluation:
     """Extract roads from ``sample`` with ``classifier`` and score them (see module doc)."""
-    image = read_image(root / sample.image, sample.resolution_m)
-    road, centerline, unsure, truth_lines = truth_rasters(sample, root, image)
-    labels, region = quadrant_labels(road, unsure)
+    image, truth = load_sample(sample, root)
     params = replace(params or ExtractParams(), classifier=classifier)
     start = time.perf_counter()
-    result = extract_roads(image, None if classifier == "model" else labels, params)
+    result = extract_roads(image, None if classifier == "model" else truth.labels, params)
     seconds = time.perf_counter() - start
-    pred_lines = result.source_lines()
-    pred = rasterize_lines(pred_lines, road.shape)
-    res = image.resolution_m
-    scores = buffer_scores(pred, centerline, [r / res for r in radii_m], res, region=~region)
-    rows, cols = np.nonzero(region)
-    train_box = (cols.min(), rows.min(), cols.max() + 1, rows.max() + 1)
-    connectivity = apls(_clip_lines(truth_lines, train_box, res),
-                        _clip_lines(pred_lines, train_box, res), snap_radius=APLS_SNAP_M)
-    return Evaluation(scores, connectivity, seconds)
+    return score_lines(truth, result.source_lines(), seconds, radii_m)

@@ -20,14 +20,17 @@ import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from skimage.filters import apply_hysteresis_threshold
-from sklearn.ensemble import HistGradientBoostingClassifier
 from tqdm import tqdm
 
 from ingest.roads import RoadsInputError
+
+if TYPE_CHECKING:  # scikit-learn takes 0.7 s to import: only the learned classifier needs it
+    from sklearn.ensemble import HistGradientBoostingClassifier
 
 ROAD, NOT_ROAD, UNLABELLED = 255, 128, 0
 Box = tuple[int, int, int, int]
@@ -266,6 +269,8 @@ def train_pixel_classifier(pixels: np.ndarray, labels: np.ndarray, resolution_m:
         f = _tile_features(pixels, rs, cs, resolution_m, extra)
         xs.append(f[rows[inside] - rs.start, cols[inside] - cs.start])
         ys.append(labels[rows[inside], cols[inside]] == ROAD)
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
     model = HistGradientBoostingClassifier(max_iter=60, learning_rate=0.2, max_leaf_nodes=31,
                                            l2_regularization=1.0, early_stopping=False,
                                            random_state=seed)

@@ -24,6 +24,7 @@ from pyproj import CRS, Transformer
 from rasterio.transform import Affine
 
 from ingest.roads import RoadsInputError
+from ingest.roads.curve import arc_length
 from ingest.roads.georef import pixel_size_m, read_band
 from ingest.roads.skeleton import thin
 
@@ -217,3 +218,22 @@ def _apply(t: Affine, line: np.ndarray) -> np.ndarray:
 def scores_json(scores: Sequence[BufferScore]) -> str:
     """The scores as JSON, for scripts (``evaluate-roads --json``)."""
     return json.dumps([asdict(s) for s in scores], indent=2)
+def turn_share(lines: list[np.ndarray], step: float, degrees: float) -> tuple[float, int]:
+    """Share of ``step``-long steps along ``lines`` (resampled) that turn by more than
+    ``degrees`` from the previous step, and how many turns were counted: how staircase-like
+    a set of centrelines is (a road bends that fast only inside a junction)."""
+    turns = []
+    for line in lines:
+        cum = arc_length(line)
+        if cum[-1] < 2 * step:
+            continue
+        s = np.arange(0.0, cum[-1] + 1e-9, step)
+        pts = np.column_stack([np.interp(s, cum, line[:, 0]), np.interp(s, cum, line[:, 1])])
+        d = np.diff(pts, axis=0)
+        heading = np.arctan2(d[:, 1], d[:, 0])
+        turn = np.abs((np.diff(heading) + math.pi) % (2 * math.pi) - math.pi)
+        turns.append(np.degrees(turn))
+    if not turns:
+        return 0.0, 0
+    all_turns = np.concatenate(turns)
+    return float((all_turns > degrees).mean()), len(all_turns)

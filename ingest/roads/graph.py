@@ -1,18 +1,24 @@
 """Pixel skeleton -> road graph: nodes at junctions and ends, edges along pixel chains.
 
 Junction pixels (more than two skeleton neighbours) that lie within a few metres of each
-other are one crossing seen through a wide road, so they are merged into one node. Pixel
-chains between nodes become edges; nodes left with exactly two edges are not junctions and
-are dissolved, so every node a planner sees is a real junction or a road end. The image also
-tells each edge's width (twice the distance from centerline to the mask edge) and from it a
-lane estimate. Coordinates stay in working-grid pixels here; :class:`~ingest.roads.georef.Frame`
-maps them to the output.
+other are one crossing seen through a wide road, so they are merged into one node; so are two
+junctions joined by an edge shorter than their two inscribed road discs together (a wide or
+skewed crossing that thinning splits in two). Pixel chains between nodes become edges; nodes
+left with exactly two edges are not junctions and are dissolved, so every node a planner sees
+is a real junction or a road end. Where each edge runs is :mod:`ingest.roads.geometry`'s job
+(sub-pixel, smooth); the pixel chain itself, simplified, is kept as the ``pixel`` geometry for
+ablations. Each edge also carries its width (from the road's cross-sections, or twice the
+distance from centerline to the mask edge), a lane estimate from it, and a confidence.
+Coordinates stay in working-grid pixels here; :class:`~ingest.roads.georef.Frame` maps them
+to the output.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
+from typing import Literal
 
 import cv2
 import networkx as nx
@@ -20,7 +26,9 @@ import numpy as np
 from shapely import LineString
 
 from ingest.roads.clean import disk, metres_to_px
+from ingest.roads.geometry import confidence, edge_key, refine_geometry
 from ingest.roads.georef import Frame
+from ingest.roads.ridge import RoadField, soft_mask
 from ingest.roads.skeleton import PixelWalker, neighbour_count, trace
 
 
@@ -30,8 +38,21 @@ class GraphParams:
 
     junction_merge_m: float = 4.0
     """Junction pixels closer than this are one node."""
-    simplify_m: float = 0.5
-    """Ramer–Douglas–Peucker tolerance for edge geometry."""
+    geometry: Literal["ridge", "pixel"] = "ridge"
+    """``ridge``: sub-pixel centres from cross-sections of the soft road field, smoothed
+    (:mod:`ingest.roads.geometry`); ``pixel``: the skeleton's pixel chain simplified (the
+    geometry before issue 20, kept for ablations)."""
+    simplify_m: float = 0.1
+    """Simplification tolerance for edge geometry (Ramer–Douglas–Peucker; ``ridge`` also
+    splits vertices that would turn by more than ``max_turn_deg``)."""
+    station_m: float = 1.0
+    """Spacing of the cross-sections along a road."""
+    smooth_m: float = 15.0
+    """Shortest wavelength of a centreline's bends that the smoothing keeps."""
+    max_turn_deg: float = 5.0
+    """Largest turn at one output vertex, unless the road itself turns that fast."""
+    max_half_width_m: float = 15.0
+    """How far from the skeleton a cross-section looks for the road's edge."""
     min_segment_m: float = 10.0
     """Isolated pieces (both ends free) shorter than this are dropped as clutter."""
     lane_width_m: float = 3.5
@@ -62,6 +83,9 @@ class Edge:
     length_m: float
     width_m: float
     lanes: int
+    confidence: float = 1.0
+    """0..1: mean road probability along the centreline (see
+    :func:`ingest.roads.geometry.confidence`)."""
 
 
 @dataclass(frozen=True)
@@ -179,9 +203,46 @@ def _length(coords: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(coords, axis=0), axis=1).sum())
 
 
+def merge_close_junctions(g: nx.MultiGraph, xy: dict[int, tuple[float, float]],
+                          dist: np.ndarray) -> bool:
+    """Contract every edge between two junctions whose positions ``xy`` are closer than the
+    radii of the road discs inscribed at them (``dist``: distance to the mask edge) added
+    up: their crossings overlap, so they are one, which thinning split in two (a skewed or
+    very wide crossing). Returns whether anything was merged."""
+    h, w = dist.shape
+
+    def radius(n: int) -> float:
+        x, y = g.nodes[n]["xy"]
+        return float(dist[min(max(int(y), 0), h - 1), min(max(int(x), 0), w - 1)])
+
+    merged = True
+    merged_any = False
+    while merged:
+        merged = False
+        for u, v, k in g.edges(keys=True):
+            if u == v or g.degree(u) < 3 or g.degree(v) < 3:
+                continue
+            if math.dist(xy[u], xy[v]) >= radius(u) + radius(v):
+                continue
+            g.remove_edge(u, v, k)
+            (ux, uy), (vx, vy) = g.nodes[u]["xy"], g.nodes[v]["xy"]
+            g.nodes[u]["xy"] = ((ux + vx) / 2, (uy + vy) / 2)
+            xy[u] = ((xy[u][0] + xy[v][0]) / 2, (xy[u][1] + xy[v][1]) / 2)
+            for _, other, data in list(g.edges(v, data=True)):
+                start = u if data["start"] == v else data["start"]
+                g.add_edge(u, u if other == v else other, start=start, pixels=data["pixels"])
+            g.remove_node(v)
+            merged = merged_any = True
+            break
+    return merged_any
+
+
 def build_graph(skel: np.ndarray, road_mask: np.ndarray, resolution_m: float,
-                params: GraphParams = GraphParams()) -> RoadGraph:
-    """The road graph of a pruned skeleton; ``road_mask`` (cleaned) gives edge widths."""
+                params: GraphParams = GraphParams(), field: RoadField | None = None
+                ) -> RoadGraph:
+    """The road graph of a pruned skeleton; ``road_mask`` (cleaned) gives edge widths where
+    the cross-sections cannot, and ``field`` (default: the mask, softened) is what the
+    ``ridge`` geometry and the confidence are read from."""
     merge_px = max(1, metres_to_px(params.junction_merge_m, resolution_m))
     g = _skeleton_multigraph(skel, merge_px)
     walker = PixelWalker(skel)
@@ -198,24 +259,48 @@ def build_graph(skel: np.ndarray, road_mask: np.ndarray, resolution_m: float,
     _dissolve_degree_two(g)
 
     dist = cv2.distanceTransform(road_mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    field = field or RoadField(soft_mask(road_mask), 0.5, None)
+    coefficients = field.coefficients()
+    spacing = max(params.station_m / resolution_m, 0.5)
+    if params.geometry == "ridge":
+        # Junctions are compared where the roads' centrelines cross, not where thinning put
+        # them: a skewed crossing's two skeleton junctions lie far apart, its roads' do not.
+        merged = True
+        while merged:
+            chains = {edge_key(u, v, k): _centre(walker, g.edges[u, v, k]["pixels"])
+                      for u, v, k in g.edges(keys=True)}
+            shapes, node_xy = refine_geometry(
+                g, chains, field, coefficients, resolution_m, params.station_m,
+                params.smooth_m, params.simplify_m, params.max_turn_deg,
+                params.max_half_width_m)
+            merged = merge_close_junctions(g, dict(node_xy), dist)
+    else:
+        shapes, node_xy = {}, {n: g.nodes[n]["xy"] for n in g.nodes}
     ids = {n: i for i, n in enumerate(sorted(g.nodes))}
-    nodes = [Node(ids[n], g.nodes[n]["xy"], g.degree(n)) for n in sorted(g.nodes)]
+    nodes = [Node(ids[n], node_xy[n], g.degree(n)) for n in sorted(g.nodes)]
     edges: list[Edge] = []
     for u, v, k in g.edges(keys=True):
-        coords = _geometry(g, u, v, k, walker)
+        shape = shapes.get(edge_key(u, v, k))
+        if shape is None:
+            pixel = _geometry(g, u, v, k, walker)
+            coords = (np.asarray(LineString(pixel).simplify(
+                params.simplify_m / resolution_m, preserve_topology=False).coords)
+                if len(pixel) >= 2 else pixel)
+            width_px = None
+            conf = confidence(coefficients, coords, spacing) if len(coords) >= 2 else 0.0
+        else:
+            coords, width_px, conf = shape.coords, shape.width_px, shape.confidence
         if len(coords) < 2:
             continue
-        line = LineString(coords)
-        rows, cols = walker.unflat(np.asarray(g.edges[u, v, k]["pixels"]))
-        width_px = max(2.0 * float(np.median(dist[rows, cols])) - 1.0, 1.0)
+        if width_px is None:
+            rows, cols = walker.unflat(np.asarray(g.edges[u, v, k]["pixels"]))
+            width_px = max(2.0 * float(np.median(dist[rows, cols])) - 1.0, 1.0)
         width_m = width_px * resolution_m
         start = g.edges[u, v, k]["start"]
         end = v if start == u else u
-        simple = np.asarray(line.simplify(params.simplify_m / resolution_m,
-                                          preserve_topology=False).coords)
-        edges.append(Edge(len(edges), ids[start], ids[end], simple,
-                          round(line.length * resolution_m, 2), round(width_m, 2),
-                          max(1, round(width_m / params.lane_width_m))))
+        edges.append(Edge(len(edges), ids[start], ids[end], coords,
+                          round(LineString(coords).length * resolution_m, 2), round(width_m, 2),
+                          max(1, round(width_m / params.lane_width_m)), round(conf, 3)))
     return RoadGraph(nodes, edges)
 
 
@@ -233,7 +318,8 @@ def feature_collection(graph: RoadGraph, frame: Frame, members: dict) -> dict:
         "type": "Feature", "id": e.id,
         "geometry": {"type": "LineString", "coordinates": out(e.coords)},
         "properties": {"id": e.id, "source": e.source, "target": e.target,
-                       "length_m": e.length_m, "width_m": e.width_m, "lanes": e.lanes},
+                       "length_m": e.length_m, "width_m": e.width_m, "lanes": e.lanes,
+                       "confidence": e.confidence},
     } for e in graph.edges]
     nodes = [{
         "type": "Feature", "id": n.id,

@@ -1,18 +1,29 @@
 """``ugvmap ingest roads``: extract the road network of a stored raster layer into PostGIS.
 
-The layer's sources are merged (top source first, masks honoured) into one temporary
-GeoTIFF on the finest source grid, so overlapping zones are extracted once rather than per
-file (which would store every road twice where zones overlap). Training samples are given in
-map coordinates (lon/lat boxes, or road centerlines from a vector file) because a layer has no
-pixel grid a user could point at; they are burnt into the label image on the mosaic's grid.
-The extracted graph goes through the network importer's ``write_network``, so it obeys the
-same topology rules as any imported file.
+The layer's sources are merged (top source first, masks honoured) into one image in memory,
+so overlapping zones are extracted once rather than per file (which would store every road
+twice where zones overlap); its valid mask is the sources' own coverage, so nothing is drawn
+where no source has data. Training samples are given in map coordinates (lon/lat boxes,
+or road centerlines from a vector file) because a layer has no pixel grid a user could point
+at; they are burnt into the label image on the mosaic's grid, on valid pixels only.
+
+An ``ipm-mosaic`` layer made by ``ugvmap ingest ipm`` knows where the vehicle drove
+(``layer_trajectories``): without a sample, that trajectory is the road sample (one lane wide
+around it: the vehicle drove there; the road goes on past the drive's first and last pose), so
+``auto`` fits the road's colour to the drive's own imagery with no hand labels
+(:data:`IPM_CLASSIFIER`). The mosaic goes to the pipeline at its own resolution with its
+coverage as the valid mask: the pipeline refines centrelines on such fine grids and never
+bridges no-data. The extracted graph gets its attributes from the rules of
+:mod:`ingest.roads.attributes` (defaults < network settings < job options) and goes through
+the network importer's ``write_network``, so it obeys the same topology rules as any imported
+file.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
-import tempfile
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,8 +31,8 @@ from pathlib import Path
 import numpy as np
 import rasterio
 import shapely
-from pyproj import Transformer
-from rasterio.crs import CRS
+from pyproj import CRS, Transformer
+from rasterio.enums import ColorInterp
 from rasterio.features import rasterize
 from rasterio.merge import merge
 from rasterio.transform import Affine
@@ -29,18 +40,39 @@ from shapely.geometry import box, shape
 from shapely.geometry.base import BaseGeometry
 from sqlalchemy.orm import Session
 
+from app.jobs.kinds import Classifier
+from app.network.settings import AttributeRules
 from app.tiles.catalog import get_layer
 from app.tiles.store import open_store
+from ingest.ipm.trajectory import layer_trajectories
 from ingest.network import ImportSummary, RoadAttributes, RoadLine, write_network
+from ingest.network.osm_tags import BOTH_WAYS_TAG
 from ingest.roads import RoadsInputError
+from ingest.roads.attributes import segment_attributes
 from ingest.roads.classify import NOT_ROAD, ROAD
-from ingest.roads.georef import read_image
+from ingest.roads.georef import Image, as_image, pixel_size_m
 from ingest.roads.pipeline import Extraction, ExtractParams, extract_roads
+from ingest.roads.rules import effective_rules
 
 LonLatBox = tuple[float, float, float, float]
-MAX_LANES = 8
 MAX_MOSAIC_PX = 40_000 * 40_000
 """Refuse layers whose mosaic would not fit a 2-core / 24 GiB machine's memory."""
+OPEN_END_M = 50.0
+"""How far ahead of an open line end nothing is labelled "not road" (beyond a drive's view)."""
+IPM_CLASSIFIER: Classifier = "spectral"
+"""What ``auto`` means on an ipm-mosaic layer. A drive's lane is a clean sample of the road
+surface's colour, and a mosaic seen from the road shows little else that is grey. Measured
+again with the centrelines refined on the mosaic's own grid (which takes the road's edges
+from the mosaic's colours whichever classifier found the road): on the 189-frame ring of
+``bench/ipm_roads.py`` spectral gives median / p95 / max 0.033 / 0.110 / 0.161 m in 2.7 s,
+the road model adapted to the drive 0.034 / 0.124 / 0.250 m in 8.9 s, learned 0.037 / 0.136
+/ 0.222 m in 9.3 s; on the 36-frame test drive spectral 0.059 / 0.141 / 0.174 m, adapted
+0.063 / 0.212 / 0.241 m; with 18 frames lost only spectral finds the road at all (roads-v1
+and the roads-v2 snapshot alike; zero-shot finds none of these drives). So spectral stays:
+as accurate or better, and 3x faster."""
+TRAJECTORY_WIDTH_M = 3.0
+"""Road sample width around a drive's trajectory: one lane (the vehicle drove in a lane; a
+wider band would call the verge of a narrow road "road")."""
 
 
 @dataclass(frozen=True)
@@ -52,19 +84,16 @@ class GeoSample:
     road_lines: Sequence[object] = ()
     """Shapely geometries (lon/lat) of known road centerlines."""
     line_width_m: float = 6.0
+    not_road_beyond_m: float | None = None
+    """Farther than this from every line is "not road" (default: 3 x ``line_width_m``)."""
+    open_ends: bool = False
+    """The lines go on past their ends (a drive's trajectory): no "not road" ahead of them."""
 
 
-def layer_source_paths(session: Session, slug: str) -> list[str]:
-    """The layer's COGs, the one drawn on top first (what ``merge`` keeps where they overlap)."""
-    layer = get_layer(session.connection(), slug)
-    if layer is None:
-        raise RoadsInputError(f"no raster layer {slug!r} (see `ugvmap layers list`)")
-    store = open_store()
-    return [store.resolve(source["uri"]) for source in reversed(layer["sources"])]
-
-
-def merge_sources(paths: Sequence[str], dst: Path) -> None:
-    """Write the mosaic of ``paths`` (all EPSG:3857) at the finest source resolution."""
+def layer_mosaic(paths: Sequence[str]) -> Image:
+    """The mosaic of ``paths`` (all EPSG:3857, the one drawn on top first) at the finest
+    source resolution, merged in memory, valid where any source has data (their own masks,
+    whatever the pixel values: a black pixel of a JPEG COG is data)."""
     datasets = [rasterio.open(p) for p in paths]
     try:
         res = min(min(abs(d.res[0]), abs(d.res[1])) for d in datasets)
@@ -76,21 +105,42 @@ def merge_sources(paths: Sequence[str], dst: Path) -> None:
             raise RoadsInputError("the layer is too large to extract in one go; extract its "
                                   "source images one by one with `ugvmap extract-roads`")
         colour = [i for i, c in enumerate(datasets[0].colorinterp, 1)
-                  if c.name != "alpha"] or [1]
-        # The COGs are JPEG/YCbCr; the scratch mosaic is plain lossless RGB (or grey).
-        photometric = "RGB" if len(colour) == 3 else "MINISBLACK"
-        merge(datasets, res=res, indexes=colour, nodata=0, dst_path=dst,
-              dst_kwds={"driver": "GTiff", "tiled": True, "compress": "deflate",
-                        "photometric": photometric})
+                  if c != ColorInterp.alpha] or [1]
+        pixels, transform = merge(datasets, res=res, indexes=colour, nodata=0)
+        count, _ = merge(datasets, res=res, indexes=[1], nodata=0, dtype="uint16",
+                         method="count")
+        crs = CRS.from_user_input(datasets[0].crs)
     finally:
         for d in datasets:
             d.close()
+    resolution = pixel_size_m(transform, crs, pixels.shape[1:])
+    return as_image(pixels, count[0] > 0, transform, crs, resolution)
 
 
-def sample_labels(shape: tuple[int, int], to_map: Affine, crs: CRS,
-                  sample: GeoSample) -> np.ndarray:
-    """Burn a lon/lat training sample into a 255 road / 128 not road / 0 label image."""
+def _extended(line: BaseGeometry, by: float) -> BaseGeometry:
+    """A line continued straight past both ends by ``by`` (map units); other shapes as they are."""
+    if not isinstance(line, shapely.LineString) or len(line.coords) < 2:
+        return line
+    xy = np.asarray(line.coords)
+    ends = []
+    for end, inner in ((xy[0], xy[1]), (xy[-1], xy[-2])):
+        direction = end - inner
+        ends.append(end + direction / max(float(np.hypot(*direction)), 1e-12) * by)
+    return shapely.LineString(np.vstack([ends[0], xy, ends[1]]))
+
+
+def sample_labels(shape: tuple[int, int], to_map: Affine, crs: CRS, sample: GeoSample,
+                  valid: np.ndarray | None = None) -> np.ndarray:
+    """Burn a lon/lat training sample into a 255 road / 128 not road / 0 label image; pixels
+    without data (``valid`` False) stay unlabelled, since no-data is neither.
+
+    Widths are ground metres, turned into map units at the image (a web-mercator metre is
+    1/cos(latitude) ground metres). With ``open_ends`` the lines are known to go on past their
+    ends (a drive saw road ahead of its first and behind its last pose), so nothing straight
+    ahead of an end is called "not road".
+    """
     transformer = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    units_per_m = abs(to_map.a) / pixel_size_m(to_map, crs, shape)
 
     def reproject_geometry(geom: BaseGeometry) -> BaseGeometry:
         return shapely.transform(geom, lambda xy: np.column_stack(
@@ -105,54 +155,129 @@ def sample_labels(shape: tuple[int, int], to_map: Affine, crs: CRS,
     lines = [reproject_geometry(g) for g in sample.road_lines]
     if lines:
         # Far from every known road is "not road"; near the centerline is road.
+        beyond = (sample.not_road_beyond_m or sample.line_width_m * 3) * units_per_m
         near = np.zeros(shape, np.uint8)
-        burn([g.buffer(sample.line_width_m * 3) for g in lines], 1, near)
+        burn([(_extended(g, OPEN_END_M * units_per_m) if sample.open_ends else g).buffer(beyond)
+              for g in lines], 1, near)
         labels[(near == 0) & (labels == 0)] = NOT_ROAD
     burn([reproject_geometry(box(*b)) for b in sample.road_boxes], ROAD, labels)
-    burn([g.buffer(sample.line_width_m / 2) for g in lines], ROAD, labels)
+    burn([g.buffer(sample.line_width_m / 2 * units_per_m) for g in lines], ROAD, labels)
+    if valid is not None:
+        labels[~valid] = 0
     if not (labels == ROAD).any():
-        raise RoadsInputError("the training sample does not cover any road pixel of the layer: "
-                              "check that the boxes / lines lie on the layer (lon/lat)")
+        raise RoadsInputError("the training sample does not cover any road pixel of the layer "
+                              "that has data: check that the boxes / lines lie on the layer "
+                              "(lon/lat)")
     return labels
 
 
-def road_lines(extraction: Extraction, attrs: dict) -> list[RoadLine]:
-    """Extracted edges as lon/lat RoadLines; total lanes (capped at the store's 8, since a
-    blob wider than any road says nothing about lanes) split over both directions."""
-    to_lonlat = Transformer.from_crs(extraction.frame.crs, "EPSG:4326", always_xy=True)
+def road_lines(extraction: Extraction, rules: AttributeRules, attrs: dict) -> list[RoadLine]:
+    """Extracted edges as lon/lat RoadLines with the attributes ``rules`` give them and the
+    pipeline's confidence."""
+    graph, frame = extraction.graph, extraction.frame
+    facts = segment_attributes(graph, frame.resolution_m, rules)
+    to_lonlat = Transformer.from_crs(frame.crs, "EPSG:4326", always_xy=True)
     lines = []
-    for edge in extraction.graph.edges:
-        xs, ys = extraction.frame.to_output @ (edge.coords[:, 0], edge.coords[:, 1])
+    for edge, fact in zip(graph.edges, facts, strict=True):
+        xs, ys = frame.to_output @ (edge.coords[:, 0], edge.coords[:, 1])
         lon, lat = to_lonlat.transform(np.asarray(xs), np.asarray(ys))
-        lanes = min(max(edge.lanes, 1), MAX_LANES)
+        extra = {"through": fact.through}
+        if fact.lanes_both_ways:
+            extra[BOTH_WAYS_TAG] = fact.lanes_both_ways
         attributes = RoadAttributes(
-            lanes_forward=(lanes + 1) // 2, lanes_backward=max(1, lanes // 2),
-            width_m=round(edge.width_m, 2) if edge.width_m > 0 else None, attrs=dict(attrs))
+            lanes_forward=fact.lanes_forward, lanes_backward=fact.lanes_backward,
+            speed_limit_kph=fact.speed_limit_kph, road_class=fact.road_class,
+            is_junction=fact.is_junction,
+            width_m=round(edge.width_m, 2) if edge.width_m > 0 else None,
+            attrs={**attrs, **extra}, confidence=round(min(max(edge.confidence, 0.0), 1.0), 3))
         lines.append(RoadLine(list(zip(lon.tolist(), lat.tolist(), strict=True)), attributes))
     return lines
 
 
-def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSample | None,
-                       params: ExtractParams, *, replace: bool = False,
-                       progress: bool = False) -> tuple[Extraction, ImportSummary]:
-    """Extract layer ``slug``'s roads into network ``network`` in the caller's transaction
-    (``sample`` None: the road model zero-shot)."""
-    paths = layer_source_paths(session, slug)
-    if not paths:
+@dataclass(frozen=True)
+class LayerExtraction:
+    """What ``ingest roads`` did: the extraction, what it stored, with which sample and rules."""
+
+    layer: str
+    extraction: Extraction
+    summary: ImportSummary
+    sample: str
+    """"none" (zero-shot), "given", or "drive trajectory" (an ipm-mosaic's stored drives)."""
+    rules: AttributeRules
+    stored: list[RoadAttributes]
+    """The attributes of the lines written (one per extracted edge)."""
+
+    def lines(self) -> list[str]:
+        """The CLI's report: what was written, from what, and the attributes it got."""
+        s = self.summary
+        classes = Counter(a.road_class for a in self.stored).most_common()
+        confidence = [a.confidence for a in self.stored if a.confidence is not None]
+        junctions = sum(a.is_junction for a in self.stored)
+        return [
+            f"network {s.network}: {s.segments} segments, {s.nodes} nodes, "
+            f"{s.total_length_m / 1000:.3f} km extracted from layer {self.layer} "
+            f"({self.extraction.classifier} classifier, sample: {self.sample})",
+            "classes: " + ", ".join(f"{n} {c}" for c, n in classes)
+            + f"; {junctions} junction segments; confidence mean "
+              f"{np.mean(confidence):.2f}, min {min(confidence):.2f}",
+        ]
+
+
+def _layer_sources(session: Session, slug: str) -> tuple[str, list[str]]:
+    """(kind, COGs with the one drawn on top first: what ``merge`` keeps where they overlap)."""
+    layer = get_layer(session.connection(), slug)
+    if layer is None:
+        raise RoadsInputError(f"no raster layer {slug!r} (see `ugvmap layers list`)")
+    if not layer["sources"]:
         raise RoadsInputError(f"layer {slug!r} has no sources")
-    with tempfile.TemporaryDirectory(prefix="ugvmap-roads-") as tmp:
-        mosaic = Path(tmp) / "mosaic.tif"
-        merge_sources(paths, mosaic)
-        image = read_image(mosaic)
-    labels = (None if sample is None
-              else sample_labels(image.pixels.shape[:2], image.transform, image.crs, sample))
+    store = open_store()
+    return layer["kind"], [store.resolve(s["uri"]) for s in reversed(layer["sources"])]
+
+
+def _no_road(slug: str, classifier: str, sample: str) -> str:
+    advice = {"none": "give a training sample (--train-box / --train-lines) to adapt it",
+              "given": "check the training sample",
+              "drive trajectory": "the drive's imagery may not show a road surface; give a "
+                                  "training sample (--train-box / --train-lines)"}[sample]
+    return f"no road found in layer {slug!r} with the {classifier} classifier; {advice}"
+
+
+def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSample | None,
+                       params: ExtractParams, *, rules: AttributeRules | None = None,
+                       replace: bool = False, progress: bool = False) -> LayerExtraction:
+    """Extract layer ``slug``'s roads into network ``network`` in the caller's transaction.
+
+    ``sample`` None: an ipm-mosaic's stored drives are the sample, else the road model runs
+    zero-shot. ``rules`` override the network's attribute rules for this job.
+    """
+    kind, paths = _layer_sources(session, slug)
+    used = "none" if sample is None else "given"
+    if kind == "ipm-mosaic" and params.classifier == "auto":
+        params = dataclasses.replace(params, classifier=IPM_CLASSIFIER)
+    if kind == "ipm-mosaic" and sample is None:
+        drives = layer_trajectories(session, slug)
+        if not drives:
+            raise RoadsInputError(
+                f"layer {slug!r} is an ipm-mosaic without a stored drive (made by `ugvmap "
+                "ingest raster`, or before drives were kept): give a training sample "
+                "(--train-lines / --train-box), or ingest the drive with `ugvmap ingest ipm`")
+        sample = GeoSample(road_lines=drives, line_width_m=TRAJECTORY_WIDTH_M,
+                           open_ends=True)
+        used = "drive trajectory"
+    image = layer_mosaic(paths)
+    assert image.crs is not None  # a layer's sources are all EPSG:3857
+    labels = (None if sample is None else
+              sample_labels(image.pixels.shape[:2], image.transform, image.crs, sample,
+                            image.valid))
     extraction = extract_roads(image, labels, params, progress=progress)
     if not extraction.graph.edges:
-        raise RoadsInputError(f"no road found in layer {slug!r} with the "
-                              f"{extraction.classifier} classifier; check the training sample")
-    lines = road_lines(extraction, {"extracted_from": slug, "classifier": extraction.classifier})
+        raise RoadsInputError(_no_road(slug, extraction.classifier, used))
+    applied = effective_rules(session, network, rules)
+    lines = road_lines(extraction, applied, {"extracted_from": slug,
+                                             "classifier": extraction.classifier})
     summary = write_network(session, network, lines, replace=replace, node_crossings=False)
-    return extraction, summary
+    return LayerExtraction(slug, extraction, summary, used, applied,
+                           [line.attributes for line in lines])
 
 
 def read_sample_lines(path: Path) -> list[object]:

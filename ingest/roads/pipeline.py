@@ -24,14 +24,18 @@ from app.jobs.kinds import Classifier
 from ingest.roads import RoadsInputError
 from ingest.roads.classify import ROAD, learned_classify, spectral_classify
 from ingest.roads.clean import clean_mask
+from ingest.roads.finegrid import applies, refine_on_source
 from ingest.roads.georef import Frame, Image, crs_member, resize, to_working_grid
 from ingest.roads.graph import GraphParams, RoadGraph, build_graph, feature_collection
 from ingest.roads.houses import HouseRule, remove_houses
+from ingest.roads.ridge import RoadField, soft_mask
 from ingest.roads.skeleton import prune_spurs, thin
 from ingest.roads.topology import TopologyParams, clean_topology
 
-MODEL_MAX_COARSER = 1.4
-"""The model saw scales down to 1/1.4 in training: coarser pixels hide its roads."""
+MODEL_MAX_COARSER = 2.5
+"""How much coarser than the model's grid an image may be. Coarser images are enlarged to the
+model's grid; roads-v2 (0.5 m) trained on 1 m imagery enlarged 2x and on crops degraded by up to
+2.5x, so 1.2 m imagery works; beyond, roads are too few pixels wide to be found."""
 
 
 @dataclass(frozen=True)
@@ -43,22 +47,37 @@ class ExtractParams:
     k: float = 3.0
     """Spectral: keep pixels within k x the mean training distance to the colour line."""
     threshold: float = 0.5
-    """Learned: road probability above which a pixel is road (model: its own threshold)..."""
+    """Learned/adapted: road probability above which a pixel is road (the zero-shot model uses
+    its own, chosen on its hold-out scenes)..."""
     seed_threshold: float = 0.85
-    """...when connected to a pixel at least this probable (hysteresis)."""
+    """...when connected to a pixel at least this probable (hysteresis; learned/adapted)."""
     work_resolution_m: float | None = 0.5
     """Average finer images down to this grid; None keeps the source grid."""
     open_m: float = 1.0
     close_m: float = 2.0
     min_area_m2: float = 150.0
     max_hole_m2: float = 40.0
+    model_open_m: float = 0.0
+    """Road model paths: opening before thinning (``open_m`` is for the colour classifiers'
+    speckle). The network's probability has none, and on imagery unlike its training a faint
+    track is thresholded narrower than the road: a 1 m opening erased every road of a DeepGlobe
+    tile. Chosen on the training hold-out scenes (``bench/roads_accuracy.py --holdout``: P/R at
+    2 m 0.674/0.548 with 1 m, 0.673/0.551 without)."""
+    model_min_area_m2: float = 20.0
+    """Road model paths: smaller pieces are dropped (short ones go later, by length: an area
+    rule would drop narrow roads first)."""
     houses: HouseRule = field(default_factory=HouseRule)
     spur_max_m: float = 15.0
     spur_steps: int = 4
     graph: GraphParams = field(default_factory=GraphParams)
     topology: TopologyParams = field(default_factory=TopologyParams)
+    fine_max_m: float = 0.1
+    """Sources this fine or finer (IPM mosaics) get their centrelines refined on their own
+    grid (:mod:`ingest.roads.finegrid`); 0 switches that off."""
     model_path: Path | None = None
-    """ONNX road model; None = ``UGVMAP_ROAD_MODEL`` or the shipped ``models/roads-v1``."""
+    """ONNX road model; None = ``UGVMAP_ROAD_MODEL`` or the shipped ``models/roads-v2``."""
+    tta: int = 1
+    """Road model: average it over this many rotations/mirrors of the image (1, 2, 4, 8)."""
 
 
 def tuned_params(classifier: Classifier | None = None, k: float | None = None,
@@ -122,20 +141,20 @@ def _on_grid(labels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 
 def model_mask(image: Image, labels: np.ndarray | None, adapt: bool, params: ExtractParams,
-               progress: bool = False) -> tuple[np.ndarray, np.ndarray, Frame]:
-    """(road mask, road probability, frame) from the road model on its own grid."""
+               progress: bool = False) -> tuple[np.ndarray, RoadField, Frame]:
+    """(road mask, road probability as a field, frame) from the road model on its own grid."""
     from ingest.roads.model.adapt import adapted_probability
     from ingest.roads.model.data import rgb_bands, stretch, stretch_limits
     from ingest.roads.model.runtime import load_model, predict
 
     model = load_model(params.model_path)
-    pixels, valid, frame = to_working_grid(image, model.resolution_m)
-    if frame.resolution_m > model.resolution_m * MODEL_MAX_COARSER:
+    if image.resolution_m > model.resolution_m * MODEL_MAX_COARSER:
         raise RoadsInputError(
-            f"the image is {frame.resolution_m:.2f} m/px but the road model works at "
+            f"the image is {image.resolution_m:.2f} m/px but the road model works at "
             f"{model.resolution_m:g} m/px and cannot see roads in pixels coarser than "
             f"{model.resolution_m * MODEL_MAX_COARSER:g} m: use --classifier learned or "
             "spectral with a training sample")
+    pixels, valid, frame = to_working_grid(image, model.resolution_m, upsample=True)
     rgb = stretch(rgb_bands(pixels), stretch_limits(image.pixels, image.valid))
     del pixels
     if adapt:
@@ -145,13 +164,19 @@ def model_mask(image: Image, labels: np.ndarray | None, adapt: bool, params: Ext
         prob, _ = adapted_probability(model, rgb, _on_grid(labels, rgb.shape[:2]),
                                       frame.resolution_m, progress=progress)
         low = params.threshold
+        binary = apply_hysteresis_threshold(prob, low, max(params.seed_threshold, low))
     else:
-        prob, _ = predict(model, rgb, progress=progress)
+        # Zero-shot: one cut, the model's own (hold-out F1) threshold. A second, absolute seed
+        # level (0.85) held in the scenes the model knows and removed everything where it is
+        # less sure, i.e. on imagery unlike its training. On the hold-out scenes (where it knows
+        # the look) the two are equal in F1: P/R at 2 m with seeds 0.674/0.548, APLS 0.358;
+        # one cut, no opening, 20 m² pieces 0.625/0.574, APLS 0.375 (roads-v2 at 6 epochs).
+        prob, _ = predict(model, rgb, progress=progress, tta=params.tta)
         low = model.threshold
-    binary = apply_hysteresis_threshold(prob, low, max(params.seed_threshold, low))
+        binary = prob >= low
     if valid is not None:
         binary &= valid
-    return binary, prob, frame
+    return binary, RoadField(prob, low, valid), frame
 
 
 def extract_roads(image: Image, labels: np.ndarray | None = None,
@@ -159,10 +184,20 @@ def extract_roads(image: Image, labels: np.ndarray | None = None,
                   progress: bool = False) -> Extraction:
     """Run every stage; ``labels`` (255 road / 128 not road / 0) are on the source grid and
     optional for the road model (zero-shot)."""
+    if image.valid is not None and not image.valid.any():
+        raise RoadsInputError("the image has no data (every pixel is no-data or transparent): "
+                              "nothing to extract roads from")
+    if labels is not None and image.valid is not None:
+        # A sample says nothing where the image has no data: "not road" burnt over a no-data
+        # fill (a drive's sample labels everything far from the path, most of it unseen)
+        # would teach the classifier that black is the only thing that is not road.
+        labels = np.where(image.valid, labels, 0).astype(labels.dtype)
     method = choose_classifier(params.classifier, labels)
-    prob = None
+    field = None
+    valid = None
     if method in ("model", "adapted"):
-        binary, prob, frame = model_mask(image, labels, method == "adapted", params, progress)
+        binary, field, frame = model_mask(image, labels, method == "adapted", params, progress)
+        valid = field.valid
     else:
         if labels is None:
             raise RoadsInputError(f"the {method} classifier needs a training sample: give "
@@ -178,22 +213,30 @@ def extract_roads(image: Image, labels: np.ndarray | None = None,
         if valid is not None:
             binary &= valid
     res = frame.resolution_m
-    cleaned = clean_mask(binary, res, params.open_m, params.close_m, params.min_area_m2,
+    on_model = field is not None
+    cleaned = clean_mask(binary, res, params.model_open_m if on_model else params.open_m,
+                         params.close_m,
+                         params.model_min_area_m2 if on_model else params.min_area_m2,
                          params.max_hole_m2)
     # Roof-like blobs are what colour classifiers confuse with roads; the network has learned
     # them, and the rectangle rule would cut its wide junctions and parking aisles.
-    no_houses = cleaned if prob is not None else remove_houses(cleaned, params.houses)
+    no_houses = cleaned if field is not None else remove_houses(cleaned, params.houses)
     skeleton = prune_spurs(thin(no_houses), params.spur_max_m / res, params.spur_steps)
     stages = {"binary": binary, "cleaned": cleaned, "houses_removed": no_houses,
               "skeleton": skeleton}
-    if prob is not None:
-        skeleton = clean_topology(skeleton, prob, res, params.topology)
+    if field is not None:
+        skeleton = clean_topology(skeleton, field.values, res, params.topology, valid)
         stages["topology"] = skeleton
-    graph = build_graph(skeleton, no_houses, res, params.graph)
+    else:
+        field = RoadField(soft_mask(no_houses), 0.5, valid)
+    graph = build_graph(skeleton, no_houses, res, params.graph, field)
+    if params.graph.geometry == "ridge" and applies(image.resolution_m, res, params.fine_max_m):
+        graph = refine_on_source(graph, image, frame.to_source, params.graph, params.k)
     if debug_dir is not None:
         write_debug_images(stages, debug_dir)
-        if prob is not None:
-            cv2.imwrite(str(debug_dir / "0_probability.png"), np.round(prob * 255).astype(np.uint8))
+        if method in ("model", "adapted"):
+            cv2.imwrite(str(debug_dir / "0_probability.png"),
+                        np.round(field.values * 255).astype(np.uint8))
     return Extraction(graph, frame, method, stages, image.resolution_m)
 
 

@@ -3,16 +3,26 @@
 A scene is textured vegetation with grey asphalt polylines drawn at a known width, optional
 grey house roofs (the same colour as the road, the classic false positive) and hairline
 scratches off the roads. Because the drawn centerlines are known exactly, every stage of the
-pipeline can be checked against them.
+pipeline can be checked against them. :func:`ipm_scene` is a vehicle's own drive instead: a
+fine top-down mosaic with a coverage mask and the trajectory as the sample.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+import shapely
+from rasterio.crs import CRS
+from rasterio.features import rasterize
+from rasterio.transform import Affine
+
+from ingest.ipm.synthetic import Drive
+from ingest.roads.georef import Image
+from ingest.roads.layer import GeoSample, sample_labels
 
 Polyline = Sequence[tuple[int, int]]
 ROAD_RGB = (118, 118, 122)
@@ -71,3 +81,49 @@ def grid_scene(size: int, spacing: int, road_width_px: int, seed: int = 0) -> Sc
               for y in range(spacing // 2, size - spacing, spacing)]
     return Scene((size, size), roads=lines, road_width_px=road_width_px, houses=houses,
                  seed=seed)
+
+
+@dataclass(frozen=True)
+class IpmScene:
+    """A top-down mosaic of a drive, its coverage and truth."""
+
+    image: Image
+    labels: np.ndarray
+    coverage: np.ndarray
+    transform: Affine
+    centre_radius_m: float
+
+    def truth_distance(self, pts: np.ndarray) -> np.ndarray:
+        """Distance (m) of local (east, north) points to the true centreline (the ring's road
+        exists all round; the drive saw only part of it)."""
+        return np.abs(np.hypot(pts[:, 0], pts[:, 1]) - self.centre_radius_m)
+
+
+def ipm_scene(resolution_m: float = 0.06, sweep_deg: float = 320.0,
+              swath_m: float = 9.0) -> IpmScene:
+    """A 0.06 m top-down mosaic of :class:`ingest.ipm.synthetic.Drive`'s road (7 m wide, edge
+    lines, dashed centre line) along ``sweep_deg`` of its ring, seen only within ``swath_m``
+    of the vehicle's path (no-data elsewhere, so the rest of the ring is unseen), with the
+    trajectory burnt as the road sample the way ``ingest roads`` burns ``--train-lines``."""
+    drive = Drive()
+    length = math.radians(sweep_deg) * drive.radius_m
+    east, north, _ = drive.local_pose(np.arange(0.0, length + 0.25, 0.25))
+    path = shapely.LineString(np.column_stack([east, north]))
+    x0, y0, x1, y1 = path.buffer(swath_m + 1).bounds
+    cols, rows = math.ceil((x1 - x0) / resolution_m), math.ceil((y1 - y0) / resolution_m)
+    transform = Affine.translation(x0, y1) @ Affine.scale(resolution_m, -resolution_m)
+    coverage = rasterize([(path.buffer(swath_m), 1)], out_shape=(rows, cols),
+                         transform=transform).astype(bool)
+    rgb = np.zeros((rows, cols, 3), np.float32)
+    r, c = np.nonzero(coverage)
+    for dr in (0.25, 0.75):  # 2 x 2 samples per pixel, as a camera integrates
+        for dc in (0.25, 0.75):
+            e, n = transform @ (c + dc, r + dr)
+            rgb[r, c] += drive.texture(e, n) / 4
+    crs = CRS.from_proj4(f"+proj=aeqd +lat_0={drive.lat0} +lon_0={drive.lon0} +ellps=WGS84 "
+                         "+units=m")
+    lon, lat = drive.to_lonlat(east, north)
+    sample = GeoSample(road_lines=[shapely.LineString(np.column_stack([lon, lat]))])
+    labels = sample_labels((rows, cols), transform, crs, sample)
+    image = Image(rgb / 255, coverage, transform, crs, resolution_m)
+    return IpmScene(image, labels, coverage, transform, drive.radius_m + drive.road_offset_m)

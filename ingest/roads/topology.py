@@ -99,7 +99,8 @@ def _rethin(out: np.ndarray, boxes: list[tuple[int, int, int, int]]) -> None:
 
 
 def bridge_gaps(skeleton: np.ndarray, prob: np.ndarray, resolution_m: float,
-                params: TopologyParams = TopologyParams()) -> np.ndarray:
+                params: TopologyParams = TopologyParams(),
+                valid: np.ndarray | None = None) -> np.ndarray:
     """Copy of ``skeleton`` (bool) with dead ends joined to the skeleton they point at.
 
     For each dead end (exactly one 8-neighbour) the direction is the vector from the pixel
@@ -112,12 +113,16 @@ def bridge_gaps(skeleton: np.ndarray, prob: np.ndarray, resolution_m: float,
 
     Proposals are then accepted best first. Accepting one retires every dead end whose own
     traced stretch the bridge touches, so two dead ends facing each other get one bridge, not
-    two parallel ones; each dead end bridges at most once. ``prob`` must be on the skeleton's
-    grid.
+    two parallel ones; each dead end bridges at most once. ``prob`` (and ``valid``, False
+    where the imagery has no data) must be on the skeleton's grid.
+
+    A bridge never crosses a no-data pixel: there the network saw nothing (a black fill, an
+    unseen stretch beside a drive), so whatever probability it gives is not evidence of a
+    road, and a planner must not be sent across ground nobody has seen.
     """
     skel = skeleton.astype(bool)
-    if prob.shape != skel.shape:
-        raise ValueError(f"probability grid {prob.shape} differs from skeleton {skel.shape}")
+    if prob.shape != skel.shape or (valid is not None and valid.shape != skel.shape):
+        raise ValueError(f"probability/valid grids differ from skeleton {skel.shape}")
     max_px = params.bridge_max_m / resolution_m
     count = neighbour_count(skel)
     end_r, end_c = np.nonzero(skel & (count == 1))
@@ -169,6 +174,8 @@ def bridge_gaps(skeleton: np.ndarray, prob: np.ndarray, resolution_m: float,
         for k in np.argsort(score, kind="stable")[:MAX_TRIES]:
             tr, tc = pts[idx[k]]
             rows, cols = draw_line(r, c, int(tr), int(tc))
+            if valid is not None and not valid[rows, cols].all():
+                continue
             if _support(prob, skel, rows, cols) >= params.bridge_min_support:
                 proposals.append((float(score[k]), i, rows, cols))
                 break
@@ -227,8 +234,10 @@ def drop_short_fragments(skeleton: np.ndarray, resolution_m: float,
 
 
 def clean_topology(skeleton: np.ndarray, prob: np.ndarray, resolution_m: float,
-                   params: TopologyParams = TopologyParams()) -> np.ndarray:
-    """Bridge gaps, then drop short fragments: in this order, so a piece that a bridge joined
-    to the network counts with the network's length and survives."""
-    bridged = bridge_gaps(skeleton, prob, resolution_m, params)
+                   params: TopologyParams = TopologyParams(),
+                   valid: np.ndarray | None = None) -> np.ndarray:
+    """Bridge gaps (never across no-data, ``valid`` False), then drop short fragments: in
+    this order, so a piece that a bridge joined to the network counts with the network's
+    length and survives."""
+    bridged = bridge_gaps(skeleton, prob, resolution_m, params, valid)
     return drop_short_fragments(bridged, resolution_m, params.min_fragment_m)

@@ -1,9 +1,11 @@
 // Bootstraps the map: MapLibre from the app's own /vendor route, then imagery, networks, tools.
 import { readHeaders, setStatus } from './api.js';
+import { BulkEditor } from './bulk.js';
 import { Inspector } from './inspector.js';
-import { Networks } from './networks.js';
+import { Networks, reviewFilter } from './networks.js';
 import { loadRasterLayers } from './rasters.js';
 import { RouteTool } from './route.js';
+import { Selection, isMultiClick } from './selection.js';
 
 // A style with no glyphs or sprites: nothing is fetched from outside this server.
 const STYLE = {
@@ -46,6 +48,24 @@ function setupPanelToggle(map) {
   narrow.addEventListener('change', () => apply(!narrow.matches));
 }
 
+/** The review filter controls: "only confidence below X" (a slider) and "hide edited". */
+function setupReviewFilter(networks) {
+  const below = document.getElementById('conf-filter');
+  const slider = document.getElementById('conf-max');
+  const shown = document.getElementById('conf-value');
+  const unedited = document.getElementById('hide-edited');
+  const apply = () => {
+    shown.textContent = Number(slider.value).toFixed(2);
+    networks.setFilter(reviewFilter({
+      below: below.checked ? Number(slider.value) : null, unedited: unedited.checked,
+    }));
+  };
+  slider.addEventListener('input', () => { below.checked = true; apply(); });
+  below.addEventListener('change', apply);
+  unedited.addEventListener('change', apply);
+  apply();
+}
+
 function setupCoordinates(map) {
   const box = document.getElementById('coords');
   map.on('mousemove', (ev) => {
@@ -80,15 +100,39 @@ async function start() {
   const rasterBounds = await loadRasterLayers(map);
   const networks = new Networks(map);
   await networks.load();
-  const route = new RouteTool(map, maplibregl, networks.names);
-  const inspector = new Inspector({
-    onSaved: (network) => {
-      networks.refresh(network);
-      route.update(); // the next route must see the edit
-    },
-    onClose: () => networks.select(null, -1),
-    onLayout: () => map.resize(),
+  setupReviewFilter(networks);
+  const route = new RouteTool(map, maplibregl, networks);
+  const changed = (names) => {
+    for (const name of names) networks.refresh(name);
+    route.update(); // the next route must see the edit
+  };
+  // The inspector (one segment) and the bulk editor (a selection) share the right dock.
+  const layout = () => {
+    const docked = !document.getElementById('inspector').hidden || !document.getElementById('bulk').hidden;
+    document.body.classList.toggle('dock-open', docked);
+    map.resize();
+  };
+  // A plain click selects one segment, shift-drag boxes and ctrl/shift-clicks add more: one
+  // selected segment is shown by the inspector, several by the bulk editor.
+  const selection = new Selection({
+    map, networks, paused: () => route.isActive(), onChange: (segments) => showSelection(segments),
   });
+  const inspector = new Inspector({
+    onSaved: (network) => changed([network]),
+    onDeleted: (network) => { selection.clear(); changed([network]); },
+    onClose: () => selection.clear(),
+    onLayout: layout,
+  });
+  const bulk = new BulkEditor({ selection, onChanged: changed, onClose: () => selection.clear(), onLayout: layout });
+  function showSelection(segments) {
+    if (segments.length === 1) {
+      bulk.hide();
+      inspector.open(segments[0].network, segments[0].id);
+    } else {
+      inspector.hide();
+      bulk.show(segments);
+    }
+  }
 
   map.on('click', (ev) => {
     if (route.isActive()) {
@@ -96,9 +140,8 @@ async function start() {
       return;
     }
     const hit = networks.segmentAt(ev.point);
-    if (!hit) return;
-    networks.select(hit.network, hit.id);
-    inspector.open(hit.network, hit.id);
+    if (hit && isMultiClick(ev)) selection.toggle(hit);
+    else if (hit) selection.set([hit]);
   });
   map.on('mousemove', (ev) => {
     if (route.isActive()) return;
@@ -114,7 +157,7 @@ async function start() {
   const extent = openingView(rasterBounds, networks.extents);
   if (extent && !sharedView) map.fitBounds(extent, { padding: 30, duration: 0, maxZoom: 18 });
   // Exposed for the browser tests and for debugging from the console.
-  window.ugvmap = { map, networks, route, inspector };
+  window.ugvmap = { map, networks, route, inspector, selection, bulk };
   document.body.dataset.ready = 'true';
 }
 

@@ -1,21 +1,9 @@
 // Segment side panel: attributes, edit history, and editing with a bearer token (PATCH + If-Match).
 import { TOKEN_KEY, request, describeError } from './api.js';
+import { FIELDS, roadClassList } from './fields.js';
 
-// Editable attributes in display order; `kind` picks the input and how its value is read back.
-const FIELDS = [
-  { key: 'name', label: 'Name', kind: 'text', nullable: true },
-  { key: 'road_class', label: 'Road class', kind: 'text', list: 'road-classes' },
-  { key: 'speed_limit_kph', label: 'Speed limit (km/h)', kind: 'number', nullable: true },
-  { key: 'lanes_forward', label: 'Lanes forward', kind: 'integer' },
-  { key: 'lanes_backward', label: 'Lanes backward', kind: 'integer' },
-  { key: 'oneway', label: 'One-way', kind: 'select', options: ['none', 'forward', 'backward'] },
-  { key: 'is_junction', label: 'Junction', kind: 'checkbox' },
-  { key: 'surface', label: 'Surface', kind: 'text', nullable: true },
-  { key: 'width_m', label: 'Width (m)', kind: 'number', nullable: true },
-];
-const READ_ONLY = [['length_m', 'Length (m)'], ['version', 'Version'], ['updated_by', 'Updated by'], ['updated_at', 'Updated at']];
-const ROAD_CLASSES = ['motorway', 'trunk', 'primary', 'secondary', 'tertiary', 'unclassified',
-  'residential', 'living_street', 'service', 'track', 'road', 'path'];
+const READ_ONLY = [['length_m', 'Length (m)'], ['confidence', 'Confidence'], ['version', 'Version'],
+  ['updated_by', 'Updated by'], ['updated_at', 'Updated at']];
 
 function fieldHtml(field) {
   const id = `f-${field.key}`;
@@ -53,6 +41,7 @@ function writeField(form, field, value) {
 function formatValue(value, key) {
   if (value === null || value === undefined) return '—';
   if (key === 'updated_at') return new Date(value).toLocaleString();
+  if (key === 'confidence') return value.toFixed(2);
   if (typeof value === 'number') return Number.isInteger(value) ? String(value) : value.toFixed(1);
   return String(value);
 }
@@ -67,22 +56,21 @@ function historyItem(edit) {
 }
 
 /** The side panel for one road segment at a time. `onSaved(network)` runs after each save,
- * `onLayout()` after the panel opens or closes (the map must resize). */
+ * `onDeleted(network)` after the segment was deleted, `onClose()` when the user closes it,
+ * `onLayout()` after it opens or hides (the map must resize). */
 export class Inspector {
-  constructor({ onSaved, onClose, onLayout }) {
+  constructor({ onSaved, onDeleted, onClose, onLayout }) {
     this.onSaved = onSaved;
+    this.onDeleted = onDeleted;
     this.onClose = onClose;
-    this.onLayout = () => {
-      document.body.classList.toggle('inspector-open', !this.panel.hidden);
-      onLayout();
-    };
+    this.onLayout = onLayout;
     this.panel = document.getElementById('inspector');
     this.form = document.getElementById('seg-form');
     this.message = document.getElementById('seg-message');
     this.reloadButton = document.getElementById('seg-reload');
     this.token = document.getElementById('token');
     document.getElementById('seg-fields').innerHTML = FIELDS.map(fieldHtml).join('')
-      + `<datalist id="road-classes">${ROAD_CLASSES.map((c) => `<option value="${c}">`).join('')}</datalist>`
+      + roadClassList()
       + '<dl id="seg-readonly" class="readonly"></dl>';
     this.token.value = sessionStorage.getItem(TOKEN_KEY) || '';
     this.token.addEventListener('input', () => {
@@ -96,6 +84,10 @@ export class Inspector {
     });
     this.form.addEventListener('submit', (ev) => { ev.preventDefault(); this.save(); });
     this.reloadButton.addEventListener('click', () => this.open(this.network, this.id));
+    this.confirm = document.getElementById('seg-confirm');
+    document.getElementById('seg-delete').addEventListener('click', () => { this.confirm.hidden = false; });
+    document.getElementById('seg-delete-no').addEventListener('click', () => { this.confirm.hidden = true; });
+    document.getElementById('seg-delete-yes').addEventListener('click', () => this.remove());
     document.getElementById('inspector-close').addEventListener('click', () => this.close());
   }
 
@@ -107,6 +99,7 @@ export class Inspector {
     const editable = Boolean(this.token.value.trim()) && Boolean(this.feature);
     for (const field of FIELDS) this.form.elements[field.key].disabled = !editable;
     document.getElementById('seg-save').disabled = !editable;
+    document.getElementById('seg-delete').disabled = !editable;
   }
 
   showMessage(text, kind) {
@@ -126,6 +119,7 @@ export class Inspector {
     this.panel.hidden = false;
     this.onLayout();
     this.reloadButton.hidden = true;
+    this.confirm.hidden = true;
     this.clearErrors();
     this.showMessage('loading…');
     document.getElementById('seg-title').textContent = `Segment ${id} (${network})`;
@@ -184,6 +178,37 @@ export class Inspector {
     return patch;
   }
 
+  headers() {
+    return { Authorization: `Bearer ${this.token.value.trim()}`, 'If-Match': this.etag };
+  }
+
+  /** A refused write in words: a conflict offers Reload, a token problem says so. */
+  refused(result, verb) {
+    if (result.status === 412) {
+      this.showMessage('Conflict: someone else changed this segment since you opened it. '
+        + `Your changes were not ${verb}; reload to see the current values.`, 'error conflict');
+      this.reloadButton.hidden = false;
+    } else if (result.status === 401 || result.status === 403) {
+      this.showMessage(`Not ${verb}: ${describeError(result)} (check the editor token).`, 'error');
+    } else {
+      this.showMessage(`Not ${verb}: ${describeError(result)}`, 'error');
+    }
+  }
+
+  /** Delete the segment (its version must still be the one shown: If-Match). */
+  async remove() {
+    this.confirm.hidden = true;
+    this.showMessage('deleting…');
+    const result = await request(this.itemUrl(), { method: 'DELETE', headers: this.headers() });
+    if (result.ok) {
+      const { network } = this;
+      this.hide();
+      this.onDeleted(network);
+    } else {
+      this.refused(result, 'deleted');
+    }
+  }
+
   async save() {
     this.clearErrors();
     const patch = this.patch();
@@ -194,11 +219,7 @@ export class Inspector {
     this.showMessage('saving…');
     const result = await request(this.itemUrl(), {
       method: 'PATCH',
-      headers: {
-        'Content-Type': 'application/merge-patch+json',
-        Authorization: `Bearer ${this.token.value.trim()}`,
-        'If-Match': this.etag,
-      },
+      headers: { 'Content-Type': 'application/merge-patch+json', ...this.headers() },
       body: JSON.stringify(patch),
     });
     if (result.ok) {
@@ -208,10 +229,6 @@ export class Inspector {
       this.showMessage(`Saved: version ${result.body.properties.version}.`, 'ok');
       this.onSaved(this.network);
       await this.loadHistory();
-    } else if (result.status === 412) {
-      this.showMessage('Conflict: someone else changed this segment since you opened it. '
-        + 'Your changes were not saved; reload to see the current values.', 'error conflict');
-      this.reloadButton.hidden = false;
     } else if (result.status === 422 && result.body.errors) {
       for (const [key, problem] of Object.entries(result.body.errors)) {
         const span = document.getElementById(`f-${key}-error`);
@@ -221,17 +238,20 @@ export class Inspector {
         }
       }
       this.showMessage('Not saved: fix the highlighted fields.', 'error');
-    } else if (result.status === 401 || result.status === 403) {
-      this.showMessage(`Not saved: ${describeError(result)} (check the editor token).`, 'error');
     } else {
-      this.showMessage(`Not saved: ${describeError(result)}`, 'error');
+      this.refused(result, 'saved');
     }
   }
 
-  close() {
+  /** Hide the panel (another panel takes the dock, e.g. the bulk editor). */
+  hide() {
     this.panel.hidden = true;
     this.feature = null;
     this.onLayout();
+  }
+
+  close() {
+    this.hide();
     this.onClose();
   }
 }

@@ -34,17 +34,31 @@ function stepText(step) {
   return `${verbOf(step.maneuver)}${road} — ${formatDistance(step.distance)}${limit}`;
 }
 
-/** Click-to-add task points and the drawn route; active only while its checkbox is ticked. */
+/** A failed route in words: the server's message names the points as the markers number
+ * them (from 1); a route that found no connection says so itself. */
+function routeError(result) {
+  const message = describeError(result);
+  if (result.body?.code === 'NoRoute') return `${message[0].toUpperCase()}${message.slice(1)}.`;
+  return `No route: ${message}`;
+}
+
+/** Click-to-add task points and the drawn route; active only while its checkbox is ticked.
+ * The network routed on follows the map (the one on screen) until the user picks one or
+ * places a point. */
 export class RouteTool {
-  constructor(map, maplibregl, networkNames) {
+  constructor(map, maplibregl, networks) {
     this.map = map;
     this.maplibregl = maplibregl;
+    this.networks = networks;
     this.markers = [];
     this.active = document.getElementById('route-active');
     this.optimize = document.getElementById('route-optimize');
     this.network = document.getElementById('route-network');
     this.result = document.getElementById('route-result');
-    this.network.replaceChildren(...networkNames.map((n) => new Option(n, n)));
+    this.network.replaceChildren(...networks.names.map((n) => new Option(n, n)));
+    this.picked = false; // the user chose the network in the list
+    this.followView();
+    map.on('moveend', () => this.followView());
     this.requestSeq = 0;
     map.addSource(ROUTE_SOURCE, { type: 'geojson', data: { type: 'FeatureCollection', features: [] } });
     map.addLayer({ id: 'route-casing', type: 'line', source: ROUTE_SOURCE,
@@ -54,7 +68,7 @@ export class RouteTool {
       layout: { 'line-cap': 'round', 'line-join': 'round' },
       paint: { 'line-color': '#1f4fff', 'line-width': 5 } });
     this.optimize.addEventListener('change', () => this.update());
-    this.network.addEventListener('change', () => this.update());
+    this.network.addEventListener('change', () => { this.picked = true; this.update(); });
     document.getElementById('route-clear').addEventListener('click', () => this.clear());
     this.active.addEventListener('change', () => {
       map.getCanvas().style.cursor = this.active.checked ? 'crosshair' : '';
@@ -62,6 +76,14 @@ export class RouteTool {
   }
 
   isActive() { return this.active.checked; }
+
+  /** Route on the network under the map centre (the smallest whose bounds hold it), unless
+   * the user picked one or points are placed (they belong to the network they were set on). */
+  followView() {
+    if (this.picked || this.markers.length) return;
+    const name = this.networks.networkAt(this.map.getCenter());
+    if (name) this.network.value = name;
+  }
 
   addPoint(lngLat) {
     const el = document.createElement('div');
@@ -88,6 +110,8 @@ export class RouteTool {
   clear() {
     for (const marker of this.markers) marker.remove();
     this.markers = [];
+    this.picked = false;
+    this.followView();
     this.update();
   }
 
@@ -116,7 +140,7 @@ export class RouteTool {
     if (!result.ok) {
       this.draw(null);
       this.result.innerHTML = '<p class="error route-error"></p>';
-      this.result.firstChild.textContent = `No route: ${describeError(result)}`;
+      this.result.firstChild.textContent = routeError(result);
       return;
     }
     const route = result.body.routes[0];

@@ -158,7 +158,7 @@ def training_pairs(root: Path, exclude_sha16: Iterable[str] = ()) -> list[dict]:
 
 def is_holdout(pair: dict) -> bool:
     """The model-selection split: ``"split": "holdout"`` in the pair, else (the shared
-    training set) one Massachusetts tile and every 12th EPFL tile.
+    training set) one Massachusetts tile and every 12th EPFL and CIL-2022 tile.
 
     Fixed by name so every run holds out the same scenes; threshold and checkpoint are chosen
     on these, never on the validation images reported in the model card.
@@ -168,35 +168,65 @@ def is_holdout(pair: dict) -> bool:
     name = Path(pair["image"]).stem
     if pair.get("source") == "massachusetts":
         return name == "mass_14_sat"
-    if pair.get("source") == "epfl_roadseg":
-        return int(name.rsplit("_", 1)[-1]) % 12 == 0
+    if pair.get("source") in ("epfl_roadseg", "cil2022"):
+        return int(name.removesuffix("_sat").rsplit("_", 1)[-1]) % 12 == 0
     return False
 
 
-class CropSampler:
-    """Random augmented crops: scale, 90° rotations, flips, colour/brightness/blur/noise.
+@dataclass(frozen=True)
+class Augment:
+    """Random changes a training crop goes through: probabilities and ranges.
 
-    Scenes are drawn with probability proportional to area^0.75 so the 96 small EPFL tiles do
-    not drown the seven large Massachusetts ones, nor the reverse. Scenes smaller than a crop
-    are padded with weight 0.
+    Geometry (scale, 90° turns, flips) teaches that a road is a road at any heading and a
+    little bigger or smaller. The photometric ones imitate what differs between the training
+    sources and a user's imagery: sensor colour and gain, season (hue), haze, a coarser
+    sensor upsampled to the model's grid (``degrade``), JPEG compression, blur, noise and
+    single-band imagery. ``ugvmap roads train --augment NAME=VALUE`` changes one.
     """
 
-    def __init__(self, scenes: list[Scene], size: int, seed: int, hue_jitter: float = 0.0,
-                 grey_p: float = 0.05) -> None:
+    scale_min: float = 0.7
+    scale_max: float = 1.4
+    hue: float = 0.08
+    """Rotate hue by up to this fraction of the colour wheel (0 = off)."""
+    saturation: float = 0.4
+    """Scale saturation by 1 +- this."""
+    grey_p: float = 0.05
+    haze_p: float = 0.15
+    """Blend towards a bright veil (haze, thin cloud, over-exposure) by up to 40 %."""
+    degrade_p: float = 0.2
+    """Down- then up-sample by 1.5-2.5x: a coarser sensor seen on the model's grid."""
+    jpeg_p: float = 0.25
+    """Re-encode as JPEG at quality 30-90."""
+    blur_p: float = 0.3
+    noise_p: float = 0.3
+    shuffle_p: float = 0.0
+    """Permute the colour channels: a road is a road in any palette (shape over colour)."""
+    invert_p: float = 0.0
+    """Invert brightness: dirt tracks are lighter than their ground, asphalt darker."""
+
+
+class CropSampler:
+    """Random augmented crops (:class:`Augment`) of the training scenes.
+
+    Scenes are drawn with probability proportional to area^0.75 so the many small EPFL and CIL
+    tiles do not drown the few large Massachusetts ones, nor the reverse. Scenes smaller than
+    a crop are padded (reflected image, weight 0).
+    """
+
+    def __init__(self, scenes: list[Scene], size: int, seed: int,
+                 augment: Augment = Augment()) -> None:
         self.scenes = scenes
         self.size = size
-        self.hue_jitter = hue_jitter
-        """Rotate hue by up to this fraction of the colour wheel (0 = off)."""
-        self.grey_p = grey_p
+        self.augment = augment
         self.rng = np.random.default_rng(seed)
         area = np.array([s.road.size for s in scenes], float) ** 0.75
         self.p = area / area.sum()
 
     def crop(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(rgb float32 (3, s, s) in [0, 1], road float32 (1, s, s), weight float32 (1, s, s))."""
-        rng = self.rng
+        rng, aug = self.rng, self.augment
         scene = self.scenes[rng.choice(len(self.scenes), p=self.p)]
-        scale = math.exp(rng.uniform(math.log(0.7), math.log(1.4)))
+        scale = math.exp(rng.uniform(math.log(aug.scale_min), math.log(aug.scale_max)))
         side = max(8, round(self.size * scale))
         rows, cols = scene.road.shape
         r0 = int(rng.integers(0, max(rows - side, 0) + 1))
@@ -224,24 +254,45 @@ class CropSampler:
                 np.ascontiguousarray(road)[None], np.ascontiguousarray(weight)[None])
 
     def _colour(self, rgb: np.ndarray) -> np.ndarray:
-        """Photometric jitter: sensors, sun and season differ; road shape does not."""
-        rng = self.rng
-        if self.hue_jitter:
+        """Photometric changes: sensors, sun, season and compression differ; road shape does
+        not."""
+        rng, aug = self.rng, self.augment
+        if aug.hue:
             hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
-            hsv[..., 0] = (hsv[..., 0] + 360 * rng.uniform(-self.hue_jitter, self.hue_jitter)
-                           ) % 360
+            hsv[..., 0] = (hsv[..., 0] + 360 * rng.uniform(-aug.hue, aug.hue)) % 360
             rgb = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
         grey = rgb.mean(axis=-1, keepdims=True)
-        if rng.random() < self.grey_p:
+        if rng.random() < aug.grey_p:
             rgb = np.repeat(grey, 3, axis=-1)
         else:
-            rgb = grey + (rgb - grey) * rng.uniform(0.6, 1.4)
+            rgb = grey + (rgb - grey) * rng.uniform(1 - aug.saturation, 1 + aug.saturation)
         rgb = rgb * rng.normal(1.0, 0.06, size=3).astype(np.float32)
         mean = float(rgb.mean())
         rgb = (rgb - mean) * rng.uniform(0.75, 1.25) + mean + rng.uniform(-0.1, 0.1)
         rgb = np.clip(rgb, 0, 1) ** rng.uniform(0.8, 1.25)
-        if rng.random() < 0.3:
+        if rng.random() < aug.haze_p:
+            veil = rng.uniform(0.7, 1.0)
+            rgb = rgb + (veil - rgb) * rng.uniform(0.1, 0.4)
+        if rng.random() < aug.degrade_p:
+            small = max(8, round(self.size / rng.uniform(1.5, 2.5)))
+            rgb = resize(resize(rgb, (small, small), cv2.INTER_AREA), (self.size, self.size),
+                         cv2.INTER_LINEAR)
+        if rng.random() < aug.blur_p:
             rgb = cv2.GaussianBlur(rgb, (0, 0), rng.uniform(0.3, 1.2))
-        if rng.random() < 0.3:
+        if rng.random() < aug.noise_p:
             rgb = rgb + rng.normal(0, rng.uniform(0.005, 0.03), rgb.shape)
+        if rng.random() < aug.shuffle_p:
+            rgb = rgb[..., rng.permutation(3)]
+        if rng.random() < aug.invert_p:
+            rgb = 1 - rgb
+        if rng.random() < aug.jpeg_p:
+            rgb = _jpeg(rgb, int(rng.integers(30, 91)))
         return np.clip(rgb, 0, 1).astype(np.float32)
+
+
+def _jpeg(rgb: np.ndarray, quality: int) -> np.ndarray:
+    """``rgb`` after a JPEG round trip at ``quality`` (blocking and ringing artefacts)."""
+    u8 = np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8)
+    ok, buf = cv2.imencode(".jpg", u8, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if ok else None
+    return rgb if decoded is None else decoded.astype(np.float32) / 255

@@ -1,20 +1,36 @@
-"""The road segmentation network (PyTorch; only training and the export test import it).
+"""The road segmentation networks (PyTorch; only training and the export test import them).
 
-A compact U-Net: four 2x down-samplings (a 16 px grid, so at 1 m/px each bottleneck cell sees
-a city block) with two 3x3 conv + BatchNorm + ReLU per level and skip connections back up.
-Plain 3x3 convolutions rather than depthwise-separable ones: on two CPU cores PyTorch and
-onnxruntime run dense 3x3 kernels several times faster per FLOP, and at ~1 M parameters the
-model is 4 MB. Two outputs: the road logit, and the last decoder feature map, which per-job
-adaptation (:mod:`ingest.roads.model.adapt`) feeds to a small classifier without needing torch.
+Two architectures, one interface (RGB in [0, 1], (N, 3, H, W) with H and W multiples of 16 ->
+(road logit, last decoder features)):
+
+- ``lite0`` (roads-v2): an EfficientNet-Lite0 encoder pretrained on ImageNet
+  (:mod:`ingest.roads.model.encoder`), cut at stride 16, under a small U-Net decoder that joins
+  the encoder's stride 8/4/2 maps and a full-resolution branch back up. The pretrained
+  encoder is what lets the model find roads on imagery unlike its ~250 training scenes.
+- ``unet`` (roads-v1): a compact U-Net trained from scratch, four 2x down-samplings, two 3x3
+  conv + BatchNorm + ReLU per level. Kept to reproduce v1 and for the ablation.
+
+Decoders use plain 3x3 convolutions: on two CPU cores PyTorch and onnxruntime run dense 3x3
+kernels several times faster per FLOP than depthwise ones. The decoder's last feature map is
+the second output, which per-job adaptation (:mod:`ingest.roads.model.adapt`) feeds to a small
+classifier without needing torch.
 """
 
 from __future__ import annotations
 
+from typing import Literal
+
 import torch
+import torch.nn.functional as F  # noqa: N812
 from torch import nn
 
+from ingest.roads.model.encoder import LiteEncoder, load_imagenet_weights
+
+Arch = Literal["lite0", "unet"]
 WIDTHS = (16, 32, 64, 96, 128)
-"""Channels per level, full resolution first."""
+"""``unet``: channels per level, full resolution first."""
+DECODER = (64, 48, 32, 16)
+"""``lite0``: decoder channels at strides 8, 4, 2 and 1."""
 
 
 def _block(cin: int, cout: int) -> nn.Sequential:
@@ -25,7 +41,7 @@ def _block(cin: int, cout: int) -> nn.Sequential:
 
 
 class RoadUNet(nn.Module):
-    """RGB in [0, 1] (N, 3, H, W), H and W multiples of 16 -> (logit, features)."""
+    """roads-v1: a U-Net from scratch (see module doc)."""
 
     def __init__(self, widths: tuple[int, ...] = WIDTHS) -> None:
         super().__init__()
@@ -54,3 +70,43 @@ class RoadUNet(nn.Module):
         for up, merge, skip in zip(self.up, self.merge, reversed(skips[:-1]), strict=True):
             x = merge(torch.cat([up(x), skip], dim=1))
         return self.head(x), x
+
+
+class LiteUNet(nn.Module):
+    """roads-v2: EfficientNet-Lite0 encoder + U-Net decoder (see module doc)."""
+
+    def __init__(self, decoder: tuple[int, ...] = DECODER) -> None:
+        super().__init__()
+        self.encoder = LiteEncoder()
+        skips = self.encoder.channels  # stride 2, 4, 8, 16
+        self.full = nn.Sequential(nn.Conv2d(3, decoder[-1], 3, padding=1, bias=False),
+                                  nn.BatchNorm2d(decoder[-1]), nn.ReLU(inplace=True))
+        self.merge = nn.ModuleList()
+        cin = skips[-1]
+        for skip, cout in zip([*reversed(skips[:-1]), decoder[-1]], decoder, strict=True):
+            self.merge.append(_block(cin + skip, cout))
+            cin = cout
+        self.head = nn.Conv2d(decoder[-1], 1, 1)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Encode, then upsample (bilinear) and merge with each finer map down to full size."""
+        skips = [self.full(x - 0.5), *self.encoder(x)]
+        y = skips.pop()
+        for merge, skip in zip(self.merge, reversed(skips), strict=True):
+            y = F.interpolate(y, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            y = merge(torch.cat([y, skip], dim=1))
+        return self.head(y), y
+
+    def encoder_parameters(self) -> list[nn.Parameter]:
+        """The pretrained part (trained with a smaller learning rate)."""
+        return list(self.encoder.parameters())
+
+
+def build(arch: Arch, pretrained: bool = True, widths: tuple[int, ...] = WIDTHS) -> nn.Module:
+    """A fresh network; ``pretrained`` loads ImageNet weights into the ``lite0`` encoder."""
+    if arch == "unet":
+        return RoadUNet(widths)
+    net = LiteUNet()
+    if pretrained:
+        load_imagenet_weights(net.encoder)
+    return net

@@ -25,7 +25,7 @@ from ingest.roads import RoadsInputError
 if TYPE_CHECKING:
     import onnxruntime as ort
 
-MODEL_DIR = Path(__file__).resolve().parents[3] / "models" / "roads-v1"
+MODEL_DIR = Path(__file__).resolve().parents[3] / "models" / "roads-v2"
 GRID_PX = 16
 TILE_PX = 1024
 OVERLAP_PX = 128
@@ -45,7 +45,7 @@ class RoadModel:
 
 
 def default_model_path() -> Path:
-    """``UGVMAP_ROAD_MODEL`` or the model committed under ``models/roads-v1``."""
+    """``UGVMAP_ROAD_MODEL`` or the model committed under ``models/roads-v2``."""
     return Path(os.environ.get("UGVMAP_ROAD_MODEL") or MODEL_DIR / "model.onnx")
 
 
@@ -98,15 +98,42 @@ def _axis_plan(n: int, tile: int, overlap: int) -> tuple[int, int, list[int]]:
     return tile, count * step + 2 * overlap, [i * step for i in range(count)]
 
 
+def _dihedral(x: np.ndarray, k: int) -> np.ndarray:
+    """The k-th (0..7) of the square's symmetries on the last two axes: k % 4 quarter turns,
+    then a mirror for k >= 4."""
+    x = np.rot90(x, k % 4, axes=(-2, -1))
+    return x[..., ::-1] if k >= 4 else x
+
+
+def _undo_dihedral(x: np.ndarray, k: int) -> np.ndarray:
+    if k >= 4:
+        x = x[..., ::-1]
+    return np.rot90(x, -(k % 4), axes=(-2, -1))
+
+
+def _run(model: RoadModel, x: np.ndarray, names: list[str], tta: int) -> list[np.ndarray]:
+    """The network's outputs for one tile, averaged over ``tta`` symmetries of it."""
+    outs = None
+    for k in range(tta):
+        got = model.session.run(names, {"rgb": np.ascontiguousarray(_dihedral(x, k))})
+        back = [_undo_dihedral(o, k) for o in got]
+        outs = back if outs is None else [a + b for a, b in zip(outs, back, strict=True)]
+    assert outs is not None  # tta >= 1
+    return [o / tta for o in outs]
+
+
 def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
-            tile: int = TILE_PX, overlap: int = OVERLAP_PX, progress: bool = False
-            ) -> tuple[np.ndarray, np.ndarray | None]:
+            tile: int = TILE_PX, overlap: int = OVERLAP_PX, progress: bool = False,
+            tta: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
     """Road probability (rows, cols) float32 of normalised RGB on the model grid, and the
     decoder features (rows, cols, C) when asked for.
 
     ``tile`` and ``overlap`` must be multiples of the 16 px grid; images smaller than a tile
-    run as one (padded) tile.
+    run as one (padded) tile. ``tta`` > 1 averages the network over that many rotations and
+    mirror images of each tile (test-time augmentation: 1, 2, 4 or 8; costs as many runs).
     """
+    if tta not in (1, 2, 4, 8):
+        raise ValueError("tta must be 1, 2, 4 or 8")
     if tile % GRID_PX or overlap % GRID_PX or tile <= 2 * overlap:
         raise ValueError("tile and overlap must be multiples of 16 with tile > 2 x overlap")
     rows, cols = rgb.shape[:2]
@@ -123,7 +150,7 @@ def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
     names = ["road", "features"] if features else ["road"]
     for r, c in tqdm(boxes, desc="road model", unit="tile", disable=not progress, leave=False):
         x = np.ascontiguousarray(padded[r:r + th, c:c + tw].transpose(2, 0, 1))[None]
-        out = model.session.run(names, {"rgb": x})
+        out = _run(model, x, names, tta)
         acc[r:r + th, c:c + tw] += out[0][0, 0] * window
         weight[r:r + th, c:c + tw] += window
         if features:

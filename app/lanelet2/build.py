@@ -1,0 +1,193 @@
+"""Turn a network selection into a Lanelet2 map, streamed into an :class:`OsmXmlWriter`.
+
+Conventions (the README's *Lanelet2 export* section says the same for users):
+
+- **Frame** (:mod:`app.lanelet2.frame`): metres in the UTM zone of the map origin,
+  relative to it, as lanelet2's ``UtmProjector`` computes; ``ele`` is 0 (no heights).
+- **Cross-section.** A segment's lanes are centred on its line, lane width apart, backward
+  lanes on the left of the digitising direction and forward lanes on the right (right-hand
+  traffic). Bounds between lanes of one direction are ``line_thin``/``dashed`` (lane changes
+  allowed), between the two directions ``line_thin``/``solid``, at the road's edges
+  ``road_border``; lanelets beside each other share their bound (one way, written once).
+- **Lanelets.** One per lane and allowed direction, ``type=lanelet subtype=road
+  location=urban one_way=yes participant:vehicle=yes speed_limit=<km/h>`` (the segment's
+  limit, else the router's class default), ``segment_id``, ``direction`` (forward/backward
+  along the segment's geometry) and ``lane`` (1 = the rightmost); junction lanelets carry
+  ``turn_direction`` (straight within 30°), ``segment_id`` (the segment they leave),
+  ``to_segment_id``, ``node_id`` and ``virtual`` bounds (nothing is painted in a junction).
+- **Junctions and traffic lights**: :mod:`app.lanelet2.junctions`.
+
+IDs are positive, unique across nodes, ways and relations, and handed out in a fixed order
+(segments by id, nodes by id), so the same network gives the same file byte for byte.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+
+from app.lanelet2 import topology as topo
+from app.lanelet2.frame import Frame, IdSource
+from app.lanelet2.geometry import line_index, progressing
+from app.lanelet2.junctions import BASE_TAGS, Pending, flush, junction, lights, speed_tag
+from app.lanelet2.layout import Layout, plan_layout
+from app.lanelet2.osm_xml import Member, OsmXmlWriter
+from app.lanelet2.roads import NetworkSelection
+
+Progress = Callable[[str, float], None]
+SEGMENT_CHUNK = 20_000
+NODE_CHUNK = 20_000
+
+
+@dataclass
+class MapSummary:
+    """What a Lanelet2 export wrote."""
+
+    segments: int  # segments mapped
+    lanelets: int
+    junction_lanelets: int
+    traffic_lights: int
+    # Junction lanelets not drawn, as (node, from segment, to segment): where the roads overlap
+    # at a node, lanelet2 would read every drawing of the turn with a bound turned round.
+    movements_dropped: list[tuple[int, int, int]]
+    defects: list[topo.Defect] = field(default_factory=list)
+    elements: dict[str, int] = field(default_factory=dict)
+
+
+def _boundary_tags(k: int, n: int, backward: int) -> dict[str, str]:
+    if k in (0, n):
+        return {"type": "road_border"}
+    if k == backward:
+        return {"type": "line_thin", "subtype": "solid"}
+    return {"type": "line_thin", "subtype": "dashed"}
+
+
+def _segment_tags(plan: Layout, s: int) -> dict[str, object]:
+    roads = plan.roads
+    tags: dict[str, object] = {**BASE_TAGS, "speed_limit": speed_tag(plan.speed[s]),
+                               "segment_id": int(roads.ids[s]),
+                               "road_class": roads.road_class[s]}
+    if roads.name[s]:
+        tags["name"] = roads.name[s]
+    return tags
+
+
+def _write_end_points(plan: Layout, frame: Frame, out: OsmXmlWriter) -> None:
+    ids = plan.end_ids.ravel()
+    unique, first = np.unique(ids, return_index=True)
+    local = plan.end_xy.reshape(-1, 2)[first]
+    out.nodes(unique, frame.lonlat(local), local)
+
+
+def _write_segments(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter,
+                    rows: range) -> int:
+    """Bounds and lanelets of segments ``rows``; returns the number of lanelets."""
+    n = plan.forward + plan.backward
+    seg_rows = np.arange(rows.start, rows.stop)
+    slots = np.arange(plan.slot_offsets[rows.start], plan.slot_offsets[rows.stop])
+    slot_seg = np.repeat(seg_rows, n[seg_rows] + 1)
+    k = slots - plan.slot_offsets[slot_seg]
+    inner = plan.offsets[1:][slot_seg] - plan.offsets[:-1][slot_seg] - 2
+    inner_offsets = np.concatenate([[0], np.cumsum(inner)])
+    vertex = (np.repeat(plan.offsets[:-1][slot_seg] + 1 - inner_offsets[:-1], inner)
+              + np.arange(inner_offsets[-1]))
+    offset = np.repeat((n[slot_seg] / 2.0 - k) * plan.width[slot_seg], inner)
+    local = plan.xy[vertex] + offset[:, None] * plan.normals[vertex]
+    # Keep each bound running forwards along its centreline (no folds on tight bends).
+    centre_at = np.arange(plan.offsets[rows.start], plan.offsets[rows.stop])
+    centres = shapely.linestrings(plan.xy[centre_at],
+                                  indices=line_index(plan.offsets[rows.start:rows.stop + 1]
+                                                     - plan.offsets[rows.start]))
+    slot_line = slot_seg - rows.start
+    point_slot = np.repeat(np.arange(len(slots)), inner)
+
+    def along(lines: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        return shapely.line_locate_point(lines, shapely.points(xy))
+
+    keep = progressing(along(centres[slot_line[point_slot]], local), point_slot,
+                       along(centres[slot_line], plan.end_xy[0][slots]),
+                       along(centres[slot_line], plan.end_xy[1][slots]))
+    local, point_slot = local[keep], point_slot[keep]
+    inner_offsets = np.concatenate([[0], np.cumsum(np.bincount(point_slot,
+                                                               minlength=len(slots)))])
+    point_ids = ids.take(len(local))
+    out.nodes(point_ids, frame.lonlat(local), local)
+    way_ids = ids.take(len(slots))
+    starts, ends = plan.end_ids[0][slots].tolist(), plan.end_ids[1][slots].tolist()
+    pid = point_ids.tolist()
+    io = inner_offsets.tolist()
+    out.ways((int(way_ids[i]), [starts[i], *pid[io[i]:io[i + 1]], ends[i]],
+              _boundary_tags(int(k[i]), int(n[slot_seg[i]]),
+                             int(plan.backward[slot_seg[i]])))
+             for i in range(len(slots)))
+    relations: list[tuple[int, list[Member], dict[str, object]]] = []
+    lanelet_ids = ids.take(int(n[seg_rows].sum()))
+    next_lanelet = 0
+    base = plan.slot_offsets[rows.start]
+    for s in seg_rows.tolist():
+        tags = _segment_tags(plan, s)
+        f, b = int(plan.forward[s]), int(plan.backward[s])
+        w0 = plan.slot_offsets[s] - base
+        for direction, count, arm in (("forward", f, 2 * s + 1), ("backward", b, 2 * s)):
+            re_id = int(plan.re_ids[arm])
+            for j in range(count):
+                if direction == "forward":  # lane j of the forward lanes, from their left
+                    left, right, lane = w0 + b + j, w0 + b + j + 1, f - j
+                else:  # the loader turns both bounds round (they point along the geometry)
+                    left, right, lane = w0 + j + 1, w0 + j, j + 1
+                members: list[Member] = [("way", int(way_ids[left]), "left"),
+                                         ("way", int(way_ids[right]), "right")]
+                if re_id:
+                    members.append(("relation", re_id, "regulatory_element"))
+                relations.append((int(lanelet_ids[next_lanelet]), members,
+                                  {**tags, "direction": direction, "lane": lane}))
+                next_lanelet += 1
+    out.relations(relations)
+    return len(relations)
+
+
+def _chunks(total: int, size: int) -> Iterator[range]:
+    for start in range(0, total, size):
+        yield range(start, min(start + size, total))
+
+
+def write_map(sel: NetworkSelection, frame: Frame, out: OsmXmlWriter,
+              progress: Progress | None = None) -> MapSummary:
+    """Write the Lanelet2 map of ``sel`` into ``out``; ``progress(stage, fraction)`` hears how
+    far it is (planning ~10 %, segments ~50 %, junctions ~40 %)."""
+    say: Progress = progress or (lambda _m, _f: None)
+    ids = IdSource()
+    say("planning lanes and junctions", 0.0)
+    plan = plan_layout(sel, frame, ids)
+    _write_end_points(plan, frame, out)
+    total = len(plan.roads)
+    lanelets = 0
+    for rows in _chunks(total, SEGMENT_CHUNK):
+        lanelets += _write_segments(plan, frame, ids, out, rows)
+        say("segment lanelets", 0.1 + 0.5 * rows.stop / max(total, 1))
+    junction_lanelets = light_count = 0
+    dropped: list[tuple[int, int, int]] = []
+    busy = np.flatnonzero((plan.arms.kind == topo.JUNCTION)
+                          | (plan.traffic_light & (plan.arms.kind > 0)))
+    for part in _chunks(len(busy), NODE_CHUNK):
+        pending = Pending()
+        for node in busy[part.start:part.stop].tolist():
+            if plan.arms.kind[node] == topo.JUNCTION:
+                junction_lanelets += junction(plan, node, ids, pending)
+            light_count += lights(plan, node, ids, pending)
+        dropped += flush(pending, frame, ids, out)
+        say("junctions", 0.6 + 0.4 * part.stop / max(len(busy), 1))
+    junction_lanelets -= len(dropped)
+    return MapSummary(total, lanelets + junction_lanelets, junction_lanelets, light_count,
+                      sorted(set(dropped)), plan.defects, dict(out.counts))
+
+
+def summary_lines(summary: MapSummary, limit: int = 20) -> list[str]:
+    """The defects as report lines, at most ``limit`` then a count of the rest."""
+    lines = [str(d) for d in summary.defects[:limit]]
+    if len(summary.defects) > limit:
+        lines.append(f"... and {len(summary.defects) - limit} more")
+    return lines

@@ -1,0 +1,47 @@
+"""Delete one road segment (``DELETE`` on an OGC API item, as Part 4 spells it) and keep the
+topology valid: the nodes it leaves without segments go with it, the others take the kind
+their new degree gives them, so ``ugvmap network validate`` stays clean.
+
+Why role editor (not admin, as split and merge): deleting the roads extraction found where
+there are none is the core of reviewing an extracted network, which is the map team's
+(editors') job. It is as safe as an attribute edit: ``If-Match`` names the version the editor
+saw (412 if someone changed the segment since), and the history row keeps the whole segment
+(attributes, geometry, end nodes) with who deleted it.
+
+Routing and the tile caches hear of it as of any edit: the change triggers of migration 0002
+bump the network's version and NOTIFY the deleted geometry's box when the transaction commits.
+"""
+
+from __future__ import annotations
+
+from sqlalchemy import text
+from sqlalchemy.orm import Session
+
+from app.network import collections as colls
+from app.network.collections import KIND_OF_DEGREE, NODE_DEGREE
+from app.network.editing import lock_segment, log_edit
+from app.network.tokens import Principal
+
+_ENDS = f"SELECT n.id, {NODE_DEGREE} AS degree FROM road_nodes n WHERE n.id = ANY(:ids)"
+
+
+def delete_segment(session: Session, c: colls.Collection, fid: int, expected: int,
+                   principal: Principal) -> None:
+    """Delete segment ``fid`` if it is at version ``expected`` (404 / 412 otherwise), drop the
+    end nodes it orphans and re-kind the others, and log it, all in the caller's transaction."""
+    feature = lock_segment(session, c, fid, expected)
+    props = feature["properties"]
+    ends = {"ids": sorted({props["source_node"], props["target_node"]})}
+    # Lock the end nodes before counting their segments: two deletions of the two segments
+    # at a node must not each see the other still there and leave the node orphaned. (The
+    # change trigger's version bump of the network row serialises them today as well; the
+    # lock keeps this correct without relying on a trigger's side effect.)
+    session.execute(text("SELECT id FROM road_nodes WHERE id = ANY(:ids) ORDER BY id "
+                         "FOR UPDATE"), ends)
+    session.execute(text("DELETE FROM road_segments WHERE id = :id"), {"id": fid})
+    session.execute(text(f"DELETE FROM road_nodes WHERE id IN (SELECT id FROM ({_ENDS}) d "
+                         "WHERE degree = 0)"), ends)
+    session.execute(text(f"UPDATE road_nodes n SET kind = {KIND_OF_DEGREE} FROM ({_ENDS}) d "
+                         f"WHERE n.id = d.id AND n.kind <> {KIND_OF_DEGREE}"), ends)
+    log_edit(session, c, fid, "delete", props["version"], None, principal,
+             {**props, "geometry": feature["geometry"]}, None)

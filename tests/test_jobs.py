@@ -131,8 +131,10 @@ def test_killed_ingest_is_marked_failed(client, tmp_path: Path,
     """A SIGKILLed `ugvmap ingest` stops renewing its lease: its row turns failed within a
     lease instead of staying `running` forever."""
     east, north = utm_origin()
+    # Enough work to outlast the lease check by far on an idle machine (5 such images were
+    # ingested within the 1.5 s once, and the job was already 'succeeded').
     images = [str(synthetic_utm(tmp_path / f"z{i}.tif", 1500, 1500, 0.3,
-                                (east + 450 * i, north))[0]) for i in range(5)]
+                                (east + 450 * i, north))[0]) for i in range(16)]
     slug = f"killed-{uuid.uuid4().hex[:6]}"
     with settings_env(monkeypatch, UGVMAP_JOB_LEASE_S="1"):
         proc = subprocess.Popen([sys.executable, "-m", "cli", "ingest", "raster", *images,

@@ -10,6 +10,7 @@ import psycopg
 import pytest
 
 from app.routing import synthetic
+from app.routing.options import SERVICES
 from app.routing.settings import routing_settings
 from app.settings import get_settings
 from tests.network_helpers import bearer
@@ -191,11 +192,16 @@ def test_unknown_options_are_refused_not_ignored(client, net) -> None:
 
 def test_read_role_covers_routes_isochrones_waypoints_and_osrm_urls(client, net,
                                                                     monkeypatch) -> None:
+    """Every routing service, on both URL families, is behind the network read role."""
     base = f"/networks/{net['name']}"
     urls = [f"{base}/route?points={net['points']}",
             f"{base}/route?points={net['points']}&format=waypoints&spacing=10",
             f"{base}/isochrone?point={net['point']}&seconds=30",
-            f"{base}/route/v1/driving/{net['points']}"]
+            f"{base}/nearest?point={net['point']}"]
+    urls += [f"{base}/{service}?points={net['points']}" for service in SERVICES
+             if service != "nearest"]
+    urls += [f"{base}/{service}/v1/driving/"
+             f"{net['point'] if service == 'nearest' else net['points']}" for service in SERVICES]
     monkeypatch.setenv("UGVMAP_NETWORK_READ_ROLE", "viewer")
     get_settings.cache_clear()
     try:

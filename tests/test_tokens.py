@@ -18,6 +18,7 @@ from sqlalchemy import text
 from app.db.session import session_scope
 from app.errors import UserError
 from app.network.tokens import TOUCH_EVERY_S, parse_duration
+from app.routing.options import SERVICES
 from app.settings import get_settings
 from cli.main import main
 from tests.conftest import REPO, running_server
@@ -141,11 +142,14 @@ EXAMPLES = {"collection_id": ("{net}-segments", "{net}-nodes"), "name": ("{net}"
 def _read_urls(app) -> list[str]:
     """Every GET route that reads network data (features, schemas, history, discovery, vector
     tiles), from the app's own API document, each with example path values: a new read route
-    cannot slip past the read role unnoticed. Routing (route, isochrone) is tested with it."""
+    cannot slip past the read role unnoticed. Routing (every OSRM service on both URL
+    families, isochrones) needs points on a road and is tested with them in
+    ``tests/test_routing_hostile.py``."""
+    routing = tuple(f"/{service}" for service in (*SERVICES, "isochrone"))
     urls = []
     for path, operations in app.openapi()["paths"].items():
         if "get" not in operations or not path.startswith(("/collections", "/networks")) \
-                or path.endswith(("/route", "/isochrone")) or "/route/" in path:
+                or path.endswith(routing) or any(f"{s}/" in path for s in routing):
             continue
         filled = [path]
         for name, values in EXAMPLES.items():

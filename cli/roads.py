@@ -279,11 +279,16 @@ def _augment_option(ctx: click.Context, param: click.Parameter, values: tuple[st
               help="Carry on from OUT/checkpoint.pt (a run cut off; same options).")
 @click.option("--time-limit", type=float, metavar="MINUTES",
               help="Stop after the first epoch that ends past this (carry on with --resume).")
+@click.option("--init", "init", type=click.Path(path_type=Path, dir_okay=False, exists=True),
+              help="Start from this weights.pt of an earlier run of the same --arch "
+                   "(fine-tuning with a new recipe).")
+@click.option("--lr", type=float, default=2e-3, show_default=True,
+              help="Peak learning rate of the one-cycle schedule (lower to fine-tune).")
 def roads_train(data: Path, out_dir: Path, exclude_dirs: tuple[Path, ...], arch: str,
                 scratch: bool, epochs: int, steps_per_epoch: int, batch: int, crop: int,
                 resolution: float, seed: int, augment: dict[str, float],
                 max_scenes: int | None, threads: int, resume: bool,
-                time_limit: float | None) -> None:
+                time_limit: float | None, init: Path | None, lr: float) -> None:
     """Train the road segmentation model and export it to ONNX with its model card."""
     try:
         from ingest.roads.model.train import TrainConfig, train
@@ -291,7 +296,7 @@ def roads_train(data: Path, out_dir: Path, exclude_dirs: tuple[Path, ...], arch:
         raise UserError(f"training needs torch: pip install -e '.[train]' ({exc})") from exc
     from dataclasses import replace
 
-    from ingest.roads.model.data import Augment, image_hashes
+    from ingest.roads.model.data import Augment, file_sha16, image_hashes
     from ingest.roads.model.net import Arch
 
     if crop % 16:
@@ -302,7 +307,9 @@ def roads_train(data: Path, out_dir: Path, exclude_dirs: tuple[Path, ...], arch:
                              crop_px=crop, batch=batch, epochs=epochs,
                              steps_per_epoch=steps_per_epoch, seed=seed, max_scenes=max_scenes,
                              threads=threads, augment=replace(Augment(), **augment),
-                             exclude=exclude)
+                             exclude=exclude, lr=lr,
+                             init=None if init is None else str(init.resolve()),
+                             init_sha16=None if init is None else file_sha16(init))
         report = train(data, out_dir, config, progress=True, resume=resume,
                        time_limit_min=time_limit)
     click.echo(f"best epoch {report['best_epoch']}: hold-out F1 {report['holdout']['f1']:.3f} "

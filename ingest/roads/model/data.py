@@ -23,6 +23,7 @@ import numpy as np
 from ingest.roads import RoadsInputError
 from ingest.roads.evaluate import distance_to_lines_m, line_pixels
 from ingest.roads.georef import Image, read_band, read_image, resize
+from ingest.roads.model.procedural import procedural_scene
 
 STRETCH_PERCENTILES = (0.5, 99.5)
 """Per-image contrast stretch: robust to a few saturated pixels (white roofs, glints)."""
@@ -203,6 +204,10 @@ class Augment:
     """Permute the colour channels: a road is a road in any palette (shape over colour)."""
     invert_p: float = 0.0
     """Invert brightness: dirt tracks are lighter than their ground, asphalt darker."""
+    procedural_p: float = 0.0
+    """Share of crops drawn by :func:`ingest.roads.model.procedural.procedural_scene` instead
+    of cut from a real scene: roads of every surface over every ground (domain
+    randomisation), for the looks the real data lacks (rural tracks, deserts, fields)."""
 
 
 class CropSampler:
@@ -210,20 +215,37 @@ class CropSampler:
 
     Scenes are drawn with probability proportional to area^0.75 so the many small EPFL and CIL
     tiles do not drown the few large Massachusetts ones, nor the reverse. Scenes smaller than
-    a crop are padded (reflected image, weight 0).
+    a crop are padded (reflected image, weight 0). A share ``augment.procedural_p`` of the
+    crops is drawn procedurally instead, at the model's ``resolution_m``.
     """
 
     def __init__(self, scenes: list[Scene], size: int, seed: int,
-                 augment: Augment = Augment()) -> None:
+                 augment: Augment = Augment(), resolution_m: float = 0.5) -> None:
         self.scenes = scenes
         self.size = size
         self.augment = augment
+        self.resolution_m = resolution_m
         self.rng = np.random.default_rng(seed)
         area = np.array([s.road.size for s in scenes], float) ** 0.75
         self.p = area / area.sum()
 
     def crop(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(rgb float32 (3, s, s) in [0, 1], road float32 (1, s, s), weight float32 (1, s, s))."""
+        rng = self.rng
+        if self.augment.procedural_p and rng.random() < self.augment.procedural_p:
+            rgb, road, weight = procedural_scene(rng, self.size, self.resolution_m)
+        else:
+            rgb, road, weight = self._real_crop()
+        k = int(rng.integers(4))
+        rgb, road, weight = np.rot90(rgb, k), np.rot90(road, k), np.rot90(weight, k)
+        if rng.random() < 0.5:
+            rgb, road, weight = rgb[:, ::-1], road[:, ::-1], weight[:, ::-1]
+        rgb = self._colour(np.ascontiguousarray(rgb))
+        return (np.ascontiguousarray(rgb.transpose(2, 0, 1)),
+                np.ascontiguousarray(road)[None], np.ascontiguousarray(weight)[None])
+
+    def _real_crop(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A randomly placed, randomly scaled crop of a real scene: (rgb, road, weight)."""
         rng, aug = self.rng, self.augment
         scene = self.scenes[rng.choice(len(self.scenes), p=self.p)]
         scale = math.exp(rng.uniform(math.log(aug.scale_min), math.log(aug.scale_max)))
@@ -245,13 +267,7 @@ class CropSampler:
             rgb = resize(rgb, shape, cv2.INTER_AREA if side > self.size else cv2.INTER_LINEAR)
             road = resize(road, shape, cv2.INTER_LINEAR)
             weight = (resize(weight, shape, cv2.INTER_LINEAR) >= 0.99).astype(np.float32)
-        k = int(rng.integers(4))
-        rgb, road, weight = np.rot90(rgb, k), np.rot90(road, k), np.rot90(weight, k)
-        if rng.random() < 0.5:
-            rgb, road, weight = rgb[:, ::-1], road[:, ::-1], weight[:, ::-1]
-        rgb = self._colour(np.ascontiguousarray(rgb))
-        return (np.ascontiguousarray(rgb.transpose(2, 0, 1)),
-                np.ascontiguousarray(road)[None], np.ascontiguousarray(weight)[None])
+        return rgb, road, weight
 
     def _colour(self, rgb: np.ndarray) -> np.ndarray:
         """Photometric changes: sensors, sun, season and compression differ; road shape does

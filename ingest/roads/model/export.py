@@ -81,6 +81,10 @@ def write_model_card(out: Path, report: dict) -> None:
     flags += [f"--augment {k}={v}" for k, v in aug.items() if v != _default_augment().get(k)]
     if arch == "lite0" and not pretrained:
         flags.append("--scratch")
+    if cfg["lr"] != 2e-3:
+        flags.append(f"--lr {cfg['lr']}")
+    if cfg.get("init"):
+        flags.append(f"--init {Path(cfg['init']).name}  # sha16 {cfg['init_sha16']}, see below")
     command = " \\\n    ".join(["ugvmap roads train --data ../shared/data/road_training",
                                  "--exclude-images ../shared/data/road_imagery", *flags])
     rows = "\n".join(

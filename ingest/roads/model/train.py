@@ -73,6 +73,11 @@ class TrainConfig:
     """Use only the first N training scenes (CI-sized runs)."""
     exclude: list[str] = field(default_factory=list)
     """sha16 of images never to train on (the validation set)."""
+    init: str | None = None
+    """``weights.pt`` of an earlier run of the same architecture to start from (fine-tuning:
+    a new recipe need not pay again for the epochs an earlier one already trained)."""
+    init_sha16: str | None = None
+    """sha16 of ``init``: the card names exactly which weights the run started from."""
 
 
 def masked_loss(logit: torch.Tensor, road: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
@@ -155,6 +160,15 @@ def _load_checkpoint(path: Path, config: TrainConfig) -> dict | None:
     return state
 
 
+def _load_init(model: nn.Module, path: Path) -> None:
+    """Start from the weights of an earlier run (``TrainConfig.init``)."""
+    try:
+        model.load_state_dict(torch.load(path, map_location="cpu", weights_only=True))
+    except (OSError, RuntimeError) as exc:
+        raise RoadsInputError(f"--init {path}: not weights of this architecture ({exc})"
+                              ) from exc
+
+
 def _publish(model: nn.Module, best_state: dict, out: Path, report: dict) -> None:
     """Write the best weights so far as the model folder: ONNX, weights, report, card."""
     from ingest.roads.model.export import export_onnx, write_model_card
@@ -187,8 +201,11 @@ def train(data: Path, out: Path, config: TrainConfig, progress: bool = True,
     load = tqdm(train_pairs + hold_pairs, desc="load scenes", unit="scene", disable=not progress)
     scenes = [load_scene(data, p, config.resolution_m) for p in load]
     train_scenes, hold_scenes = scenes[:len(train_pairs)], scenes[len(train_pairs):]
-    sampler = CropSampler(train_scenes, config.crop_px, config.seed, config.augment)
+    sampler = CropSampler(train_scenes, config.crop_px, config.seed, config.augment,
+                          config.resolution_m)
     model = _network(config)
+    if config.init is not None:
+        _load_init(model, Path(config.init))
     opt = _optimiser(model, config)
     total = config.epochs * config.steps_per_epoch
     sched = torch.optim.lr_scheduler.OneCycleLR(

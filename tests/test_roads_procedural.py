@@ -22,7 +22,7 @@ def test_a_scene_is_reproducible_and_well_formed() -> None:
     assert not np.array_equal(a[0], c[0])
     rgb, road, weight = a
     assert rgb.shape == (128, 128, 3) and road.shape == weight.shape == (128, 128)
-    assert rgb.dtype == road.dtype == np.float32 and 0 <= rgb.min() and rgb.max() <= 1
+    assert rgb.dtype == road.dtype == np.float32 and rgb.min() >= 0 and rgb.max() <= 1
     assert set(np.unique(road)) <= {0.0, 1.0} and weight.min() == 1
 
 

@@ -155,7 +155,7 @@ def procedural_scene(rng: np.random.Generator, size: int, resolution_m: float = 
         img = img * (1 - 0.45 * shadow[..., None])
         colour = ROOFS[rng.integers(len(ROOFS))] * rng.uniform(0.85, 1.15)
         img = img * (1 - roof[..., None]) + colour * roof[..., None]
-    for _ in range(int(rng.integers(0, 40 if settled else 80))):  # trees: dark round crowns, over anything
+    for _ in range(int(rng.integers(0, 40 if settled else 80))):  # tree crowns, over anything
         centre = tuple(int(v) for v in rng.uniform(0, size, 2))
         crown = np.zeros_like(road)
         cv2.circle(crown, centre, max(1, round(rng.uniform(1, 4) * m)), 1.0, cv2.FILLED,

@@ -156,9 +156,9 @@ def procedural_scene(rng: np.random.Generator, size: int, resolution_m: float = 
         colour = ROOFS[rng.integers(len(ROOFS))] * rng.uniform(0.85, 1.15)
         img = img * (1 - roof[..., None]) + colour * roof[..., None]
     for _ in range(int(rng.integers(0, 40 if settled else 80))):  # tree crowns, over anything
-        centre = tuple(int(v) for v in rng.uniform(0, size, 2))
+        cx, cy = (int(v) for v in rng.uniform(0, size, 2))
         crown = np.zeros_like(road)
-        cv2.circle(crown, centre, max(1, round(rng.uniform(1, 4) * m)), 1.0, cv2.FILLED,
+        cv2.circle(crown, (cx, cy), max(1, round(rng.uniform(1, 4) * m)), 1.0, cv2.FILLED,
                    cv2.LINE_AA)
         green = np.array((0.12, 0.22, 0.08), np.float32) * rng.uniform(0.7, 1.4)
         img = img * (1 - crown[..., None]) + green * crown[..., None]

@@ -21,6 +21,7 @@ import pytest
 
 from app.db.scratch import scratch_database
 from app.db.session import get_engine
+from app.routing.settings import routing_settings
 from app.settings import get_settings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -110,6 +111,19 @@ def running_server(env: dict[str, str], workers: int = 1,
                 proc.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 proc.kill()
+
+
+@pytest.fixture()
+def limits(monkeypatch: pytest.MonkeyPatch) -> Iterator:
+    """Set routing limits through the environment for one test: ``limits(max_points=3)``."""
+    def set_limits(**values: object) -> None:
+        for key, value in values.items():
+            monkeypatch.setenv(f"UGVMAP_ROUTING_{key.upper()}", str(value))
+        routing_settings.cache_clear()
+
+    yield set_limits
+    monkeypatch.undo()
+    routing_settings.cache_clear()
 
 
 @pytest.fixture(scope="session")

@@ -11,7 +11,6 @@ import pytest
 
 from app.routing import synthetic
 from app.routing.options import SERVICES
-from app.routing.settings import routing_settings
 from app.settings import get_settings
 from tests.network_helpers import bearer
 from tests.routing_support import dsn, unique, xy
@@ -34,19 +33,6 @@ def net(database_url: str) -> Iterator[dict]:
         yield {"name": name, "broken": broken,
                "points": f"{a[0]!r},{a[1]!r};{b[0]!r},{b[1]!r}", "point": f"{a[0]!r},{a[1]!r}"}
         conn.execute("DELETE FROM networks WHERE id = %s", (bid,))
-
-
-@pytest.fixture()
-def limits(monkeypatch):
-    """Set routing limits through the environment for one test."""
-    def set_limits(**values: object) -> None:
-        for key, value in values.items():
-            monkeypatch.setenv(f"UGVMAP_ROUTING_{key.upper()}", str(value))
-        routing_settings.cache_clear()
-
-    yield set_limits
-    monkeypatch.undo()
-    routing_settings.cache_clear()
 
 
 def problem(resp, status: int, code: str) -> dict:

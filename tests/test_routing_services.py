@@ -16,7 +16,6 @@ import pytest
 
 from app.routing import synthetic
 from app.routing.geometry import haversine_m
-from app.routing.settings import routing_settings
 from tests.osrm_schema import check
 from tests.routing_support import dsn, unique
 
@@ -295,18 +294,6 @@ def test_edits_reach_every_service(client, grid, writer) -> None:
 
 
 # -- bad input and limits --------------------------------------------------------------------
-@pytest.fixture()
-def limits(monkeypatch):
-    def set_limits(**values: object) -> None:
-        for key, value in values.items():
-            monkeypatch.setenv(f"UGVMAP_ROUTING_{key.upper()}", str(value))
-        routing_settings.cache_clear()
-
-    yield set_limits
-    monkeypatch.undo()
-    routing_settings.cache_clear()
-
-
 BAD = [
     ("nearest", [POINTS[0], POINTS[1]], {}, "InvalidOptions"),
     ("nearest", [(1.6, math.nan)], {}, "InvalidQuery"),

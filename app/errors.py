@@ -287,7 +287,8 @@ _BY_STATUS = {cls.status: cls for cls in (
 
 
 def allowed_methods(request: Request) -> str:
-    """Every method some route fully answers on this path (HEAD wherever GET is). Starlette's
+    """Every method some route fully answers on this path (HEAD wherever GET is, OPTIONS
+    wherever any is: :mod:`app.api.options`), or "" for a path no route serves. Starlette's
     own ``Allow`` names only the first route that matched the path, while e.g. an item's GET
     and PATCH live in different routers."""
     routes = [r for r in request.app.router.routes if not isinstance(r, Mount)]
@@ -296,6 +297,8 @@ def allowed_methods(request: Request) -> str:
                       for route in routes)}
     if "GET" in methods:
         methods.add("HEAD")
+    if methods:
+        methods.add("OPTIONS")
     return ", ".join(sorted(methods))
 
 

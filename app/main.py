@@ -17,6 +17,7 @@ from starlette.types import ASGIApp
 
 from app import errors
 from app.api import document, landing, middleware
+from app.api.wire import CanonicalHeaderCase
 from app.body_limit import JsonPayloadTooLarge
 from app.health.router import router as health_router
 from app.jobs.router import router as jobs_router
@@ -40,11 +41,12 @@ EXCEPTION_HANDLERS: dict[Any, Callable[..., Any]] = {
 
 class UgvmapApp(FastAPI):
     """FastAPI with :class:`~app.body_limit.JsonPayloadTooLarge` outside its whole stack (the
-    body limiter sits outside user middleware, so only here can its 413 be reshaped)."""
+    body limiter sits outside user middleware, so only here can its 413 be reshaped), and
+    header names spelled conventionally on every response (:mod:`app.api.wire`)."""
 
     def build_middleware_stack(self) -> ASGIApp:
         """The framework's stack, wrapped."""
-        return JsonPayloadTooLarge(super().build_middleware_stack())
+        return CanonicalHeaderCase(JsonPayloadTooLarge(super().build_middleware_stack()))
 
 
 def create_app() -> FastAPI:

@@ -44,6 +44,11 @@ class Settings(BaseSettings):
     # token only from the pages listed (none by default).
     cors_read_origins: str = "*"
     cors_write_origins: str = ""
+    # Writes without If-Match: "optional" (default) applies them to the current version and
+    # records the overwritten one in the history (QGIS never sends If-Match, and editing from
+    # QGIS is the point of OGC API Features Part 4); "required" refuses them with 428. A stale
+    # If-Match is a 412 either way, so clients that send one never lose an update.
+    if_match: Literal["optional", "required"] = "optional"
 
     @property
     def embedded(self) -> bool:

@@ -54,6 +54,16 @@ def database_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
             get_settings.cache_clear()
 
 
+@pytest.fixture()
+def if_match_required(database_url: str, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """``UGVMAP_IF_MATCH=required`` for one test: writes without If-Match are a 428."""
+    monkeypatch.setenv("UGVMAP_IF_MATCH", "required")
+    get_settings.cache_clear()
+    yield
+    monkeypatch.delenv("UGVMAP_IF_MATCH")
+    get_settings.cache_clear()
+
+
 @pytest.fixture(scope="session")
 def app(database_url: str):
     from app.main import create_app

@@ -75,6 +75,7 @@ def static_document(app: FastAPI) -> dict[str, Any]:
     for unused in ("HTTPValidationError", "ValidationError"):
         found.pop(unused, None)
     found["Feature"] = schemas.openapi_feature(None)
+    found["FeatureInput"] = schemas.openapi_feature_input()
     found["FeatureCollection"] = schemas.openapi_feature_collection("Feature")
     for kind, name in KIND_SCHEMA.items():
         found[f"{name}Feature"] = schemas.openapi_feature(kind)

@@ -1,4 +1,4 @@
-"""HTTP behaviour every endpoint shares, as ASGI middleware: HEAD, CORS and gzip.
+"""HTTP behaviour every endpoint shares, as ASGI middleware: HEAD, OPTIONS, CORS and gzip.
 
 Starlette's own CORS and gzip middleware do the work; this module only chooses their settings
 and adds what they lack: HEAD on every GET resource (FastAPI routes answer only the methods
@@ -15,6 +15,7 @@ from starlette.middleware.cors import CORSMiddleware
 from starlette.middleware.gzip import GZipMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from app.api.options import OptionsMiddleware
 from app.settings import Settings
 
 SAFE = ("GET", "HEAD")
@@ -82,8 +83,10 @@ class CorsMiddleware:
 
 
 def install(app: FastAPI, settings: Settings) -> None:
-    """Add the shared middleware, innermost first: gzip, CORS, HEAD (so a HEAD reports the
-    headers of the compressed GET, CORS headers included)."""
+    """Add the shared middleware, innermost first: OPTIONS, gzip, CORS (which answers
+    preflights before OPTIONS sees them), HEAD (so a HEAD reports the headers of the
+    compressed GET, CORS headers included)."""
+    app.add_middleware(OptionsMiddleware)
     app.add_middleware(GZipMiddleware, minimum_size=GZIP_MIN_BYTES, compresslevel=GZIP_LEVEL)
     app.add_middleware(CorsMiddleware, read_origins=settings.cors_read_origin_list,
                        write_origins=settings.cors_write_origin_list)

@@ -60,6 +60,8 @@ class UnauthorizedError(ApiError):
     """No valid token; says which scheme to use, as RFC 9110 requires for a 401."""
 
     status, code = 401, "Unauthorized"
+    # Bearer only: a Basic challenge would make browsers prompt for a password on the web
+    # map's requests. Basic credentials (what QGIS sends) are accepted without being asked for.
     default_headers: ClassVar[dict[str, str]] = {"WWW-Authenticate": 'Bearer realm="ugvmap"'}
 
 

@@ -87,26 +87,31 @@ def static_document(app: FastAPI) -> dict[str, Any]:
 
 
 def _literal(operation: dict[str, Any], collection: colls.Collection, *,
-             extra: list[dict[str, Any]], schema: str) -> dict[str, Any]:
-    """A templated items operation made literal for one collection."""
+             extra: list[dict[str, Any]], schema: str | None = None) -> dict[str, Any]:
+    """A templated items operation made literal for one collection (its page typed as
+    ``schema``, when given)."""
     op = copy.deepcopy(operation)
     op["parameters"] = [p for p in op.get("parameters", [])
                         if p.get("name") != "collection_id"] + extra
     op["operationId"] = f"{op['operationId']}_{collection.id}"
     op["summary"] = f"{op.get('summary', '')}: {collection.id}"
-    op["responses"]["200"]["content"] = {
-        GEOJSON: {"schema": {"$ref": f"#/components/schemas/{schema}"}}}
+    if schema:
+        op["responses"]["200"]["content"] = {
+            GEOJSON: {"schema": {"$ref": f"#/components/schemas/{schema}"}}}
     return op
 
 
 def with_collections(doc: dict[str, Any], found: list[colls.Collection]) -> dict[str, Any]:
-    """The document plus a literal items path for each collection."""
+    """The document plus a literal items path for each collection (reading and, OGC API
+    Features Part 4, creating: the methods its ``OPTIONS`` lists)."""
     paths = dict(doc["paths"])
     for c in found:
         name = KIND_SCHEMA[c.kind]
         filters = [ogc_params.filter_parameter(p) for p in properties.queryables(c.kind)]
-        paths[f"/collections/{c.id}/items"] = {"get": _literal(
-            doc["paths"][ITEMS]["get"], c, extra=filters, schema=f"{name}FeatureCollection")}
+        paths[f"/collections/{c.id}/items"] = {
+            "get": _literal(doc["paths"][ITEMS]["get"], c, extra=filters,
+                            schema=f"{name}FeatureCollection"),
+            "post": _literal(doc["paths"][ITEMS]["post"], c, extra=[])}
     return {**doc, "paths": paths}
 
 

@@ -14,6 +14,7 @@ one line by the CLI root, raised by ingest code as much as by the commands thems
 
 from __future__ import annotations
 
+import logging
 import re
 from http import HTTPStatus
 from typing import Any, ClassVar
@@ -54,6 +55,13 @@ class InvalidParameterValueError(ApiError):
     """A malformed query parameter, path part or body (OGC API's code for it)."""
 
     status, code = 400, "InvalidParameterValue"
+
+
+class CorsRefusedError(ApiError):
+    """A CORS preflight for an origin, method or header this service does not allow (the
+    status Starlette's CORS middleware gives it, with our body)."""
+
+    status, code = 400, "CorsRefused"
 
 
 class UnauthorizedError(ApiError):
@@ -344,7 +352,17 @@ def validation_error(_: Request, exc: Exception) -> JSONResponse:
     return api_error(_, InvalidValueError(message, errors=errors))
 
 
+log = logging.getLogger(__name__)
+
+
 def database_unavailable(request: Request, exc: Exception) -> JSONResponse:
-    """A connection error from SQLAlchemy anywhere becomes 503 with the driver's reason."""
+    """A connection error from SQLAlchemy anywhere becomes 503. The client learns the kind of
+    failure (the driver's last words, e.g. "Connection refused"); where the database lives
+    (host, port, user, database name) goes to the log, for the operator only."""
     detail = str(getattr(exc, "orig", None) or exc).strip().splitlines()[0]
-    return api_error(request, DatabaseUnavailableError(f"database unreachable: {detail}"))
+    log.warning("database unavailable: %s", detail)
+    reason = detail.rpartition(": ")[2].strip() or "no connection"
+    if re.search(r"\d+\.\d+\.\d+\.\d+|port \d+|\bat \"|host|user|database \"", reason,
+                 re.IGNORECASE):
+        reason = "no connection"
+    return api_error(request, DatabaseUnavailableError(f"database unreachable: {reason}"))

@@ -34,7 +34,9 @@ router = APIRouter(include_in_schema=False)
 ITEMS = "/collections/{collection_id}/items"
 KIND_SCHEMA: dict[colls.Kind, str] = {"segments": "Segment", "nodes": "Node"}
 SECURITY = {"bearer": {"type": "http", "scheme": "bearer",
-                       "description": "A token from `ugvmap tokens create --role ...`"}}
+                       "description": "A token from `ugvmap tokens create --role ...` (also "
+                                      "accepted as the password of HTTP Basic, any user name: "
+                                      "what QGIS sends from a connection's credentials)"}}
 
 
 def _replace_refs(node: Any, old: str, new: str) -> Any:

@@ -135,6 +135,21 @@ class DatabaseUnavailableError(ApiError):
     default_headers: ClassVar[dict[str, str]] = {"Retry-After": "5"}
 
 
+class RasterSourceMissingError(ApiError):
+    """A tile needs a COG the raster store does not have: the catalogue and the store
+    disagree (files deleted, or a process using another store); never a silent blank tile.
+    The server log names the file."""
+
+    status, code = 500, "RasterSourceMissing"
+
+
+class StoreMismatchError(ApiError):
+    """``/readyz`` only: this process's raster store is not the one the database's files are
+    in (another ``UGVMAP_RASTER_STORE`` or data directory); the server log names both."""
+
+    status, code = 503, "StoreMismatch"
+
+
 class SchemaOutOfDateError(ApiError):
     """The database is reachable but not migrated to the code's head revision."""
 

@@ -87,8 +87,9 @@ def free_port() -> int:
 
 @contextmanager
 def running_server(env: dict[str, str], workers: int = 1,
-                   timeout_s: float = 30.0) -> Iterator[str]:
-    """Run ``ugvmap serve`` as a real subprocess and yield its base URL.
+                   timeout_s: float = 30.0, drop: tuple[str, ...] = ()) -> Iterator[str]:
+    """Run ``ugvmap serve`` as a real subprocess and yield its base URL (``drop``: variables
+    of this process's environment it does not get).
 
     Its output (one JSON log line per request) goes to a temporary file, not a pipe: nobody
     reads a pipe while the tests run, and once its buffer is full the server blocks on logging.
@@ -98,7 +99,8 @@ def running_server(env: dict[str, str], workers: int = 1,
         proc = subprocess.Popen(
             [sys.executable, "-m", "cli", "serve", "--port", str(port),
              "--workers", str(workers)],
-            cwd=REPO, env={**os.environ, **env}, stdout=log, stderr=subprocess.STDOUT,
+            cwd=REPO, env={k: v for k, v in {**os.environ, **env}.items() if k not in drop},
+            stdout=log, stderr=subprocess.STDOUT,
         )
         base = f"http://127.0.0.1:{port}"
         try:
@@ -200,18 +202,29 @@ def s3_store(s3_endpoint: str, database_url: str) -> Iterator[str]:
     from sqlalchemy import text
 
     from app.tiles.catalog import delete_layer
-    from app.tiles.store import open_store, s3_client
+    from app.tiles.store import RECORD_ROOT, open_store, recorded_root, s3_client
 
     def slugs() -> set[str]:
         with get_engine().connect() as conn:
             return set(conn.execute(text("SELECT slug FROM layers")).scalars())
 
+    def record(root: str | None) -> None:
+        """The store the database's files are in (migration 0009): the test's bucket while it
+        runs, what it was afterwards."""
+        with get_engine().begin() as conn:
+            conn.execute(text("DELETE FROM raster_store"))
+            if root is not None:
+                conn.execute(text(RECORD_ROOT), {"root": root})
+
     before = slugs()
     bucket = f"ugvmap-{uuid.uuid4().hex[:8]}"
     s3_client().create_bucket(Bucket=bucket)
     previous = os.environ["UGVMAP_RASTER_STORE"]
+    with get_engine().connect() as conn:
+        previous_root = recorded_root(conn)
     os.environ["UGVMAP_RASTER_STORE"] = f"s3://{bucket}/rasters"
     get_settings.cache_clear()
+    record(open_store().root)
     try:
         yield os.environ["UGVMAP_RASTER_STORE"]
     finally:
@@ -220,3 +233,4 @@ def s3_store(s3_endpoint: str, database_url: str) -> Iterator[str]:
         open_store().delete(refs)
         os.environ["UGVMAP_RASTER_STORE"] = previous
         get_settings.cache_clear()
+        record(previous_root)

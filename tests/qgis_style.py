@@ -27,7 +27,7 @@ SUPPORTED = {"literal", "all", "any", "none", "!", "==", "!=", "<", "<=", ">", "
              "!has", "in", "!in", "get", "match", "to-string"}
 
 
-class Unsupported(ValueError):
+class UnsupportedError(ValueError):
     """An expression QGIS's converter skips."""
 
 
@@ -37,7 +37,7 @@ def expression(expr: Any) -> Callable[[Props], Any]:
         return lambda props: expr
     op = expr[0]
     if op not in SUPPORTED:
-        raise Unsupported(op)
+        raise UnsupportedError(op)
     args = [expression(e) for e in expr[1:]] if op not in ("get", "has", "!has", "literal") \
         else []
     if op == "get" or op == "has" or op == "!has":
@@ -55,13 +55,13 @@ def expression(expr: Any) -> Callable[[Props], Any]:
         equal = op == "=="
         return lambda props: (args[0](props) == args[1](props)) == equal
     if op == "match":
-        raise Unsupported("match as a filter is not used here")
+        raise UnsupportedError("match as a filter is not used here")
     compare = {"<": lambda a, b: a < b, "<=": lambda a, b: a <= b, ">": lambda a, b: a > b,
                ">=": lambda a, b: a >= b}.get(op)
     if compare:
         return lambda props: args[0](props) is not None and compare(args[0](props),
                                                                     args[1](props))
-    raise Unsupported(op)
+    raise UnsupportedError(op)
 
 
 @dataclass
@@ -89,10 +89,14 @@ def _value(layer_id: str, value: Any, warnings: list[str]) -> Any:
             return value
         try:
             expression(value)
-        except Unsupported as exc:
+        except UnsupportedError as exc:
             warnings.append(f"{layer_id}: Skipping unsupported expression ({exc})")
         return None
     return value
+
+
+def _always(props: Props) -> bool:
+    return True
 
 
 def circle_styles(style: dict[str, Any]) -> list[CircleStyle]:
@@ -102,11 +106,12 @@ def circle_styles(style: dict[str, Any]) -> list[CircleStyle]:
         if layer["type"] != "circle":
             continue
         warnings: list[str] = []
+        applies: Callable[[Props], Any] = _always
         try:
-            applies = expression(layer["filter"]) if "filter" in layer else (lambda p: True)
-        except Unsupported as exc:
+            if "filter" in layer:
+                applies = expression(layer["filter"])
+        except UnsupportedError as exc:
             warnings.append(f"{layer['id']}: unsupported filter ({exc})")
-            applies = (lambda p: True)
         paint = layer.get("paint", {})
         out.append(CircleStyle(
             layer["id"], layer["source-layer"], int(layer.get("minzoom", -1)),

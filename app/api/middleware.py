@@ -19,6 +19,7 @@ from starlette.responses import Response
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.api.options import OptionsMiddleware
+from app.api.response_start import ResponseStartMiddleware
 from app.errors import CorsRefusedError, api_error
 from app.settings import Settings
 
@@ -56,26 +57,15 @@ class HeadMiddleware:
         await self.app({**scope, "method": "GET"}, receive, without_body)
 
 
-class SecurityHeaders:
+class SecurityHeaders(ResponseStartMiddleware):
     """Add :data:`SECURITY_HEADERS` to every response (a route may set its own)."""
 
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        """Pass the request on; add the headers to the response start."""
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-
-        async def with_headers(message: Message) -> None:
-            if message["type"] == "http.response.start":
-                headers = MutableHeaders(scope=message)
-                for name, value in SECURITY_HEADERS.items():
-                    headers.setdefault(name, value)
-            await send(message)
-
-        await self.app(scope, receive, with_headers)
+    def start(self, message: Message) -> Message:
+        """The start message with the headers added."""
+        headers = MutableHeaders(scope=message)
+        for name, value in SECURITY_HEADERS.items():
+            headers.setdefault(name, value)
+        return message
 
 
 class JsonCORSMiddleware(CORSMiddleware):

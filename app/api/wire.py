@@ -20,9 +20,10 @@ from __future__ import annotations
 import json
 
 import h11
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import Message
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
+from app.api.response_start import ResponseStartMiddleware
 from app.errors import InvalidParameterValueError
 
 # Names whose conventional spelling is not plain Title-Case.
@@ -37,25 +38,12 @@ def canonical(name: bytes) -> bytes:
                                             for part in lower.split(b"-"))
 
 
-class CanonicalHeaderCase:
+class CanonicalHeaderCase(ResponseStartMiddleware):
     """ASGI middleware: response header names in their conventional case."""
 
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        """Rewrite the names of the response start message, nothing else."""
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-
-        async def spelled(message: Message) -> None:
-            if message["type"] == "http.response.start":
-                message = {**message, "headers": [(canonical(k), v)
-                                                  for k, v in message.get("headers", [])]}
-            await send(message)
-
-        await self.app(scope, receive, spelled)
+    def start(self, message: Message) -> Message:
+        """The same headers, names respelled."""
+        return {**message, "headers": [(canonical(k), v) for k, v in message.get("headers", [])]}
 
 
 class JsonErrorH11Protocol(H11Protocol):

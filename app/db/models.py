@@ -228,15 +228,15 @@ class RoadOverview(Base):
     )
 
 
-class SegmentEdit(Base):
-    """One edit of a segment (old and new values), so history and revert need no other source."""
-    __tablename__ = "segment_edits"
+class EditRow:
+    """The columns every edit history row has: which network, what was done, between which
+    versions, by whom and when, and the old and new values, so history and revert need no
+    other source."""
 
     id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
     network_id: Mapped[int] = mapped_column(
         ForeignKey("networks.id", ondelete="CASCADE"), nullable=False, index=True
     )
-    segment_id: Mapped[int] = mapped_column(BigInteger, nullable=False, index=True)
     action: Mapped[str] = mapped_column(Text, nullable=False, server_default="update")
     version_from: Mapped[int | None] = mapped_column(Integer)
     version_to: Mapped[int | None] = mapped_column(Integer)
@@ -249,23 +249,18 @@ class SegmentEdit(Base):
     new: Mapped[dict[str, Any] | None] = mapped_column(JSONB)
 
 
-class NodeEdit(Base):
-    """One edit of a node, as :class:`SegmentEdit` records one of a segment (migration 0009)."""
+class SegmentEdit(EditRow, Base):
+    """One edit of a segment."""
+    __tablename__ = "segment_edits"
+
+    segment_id: Mapped[int] = mapped_column(BigInteger, nullable=False, index=True)
+
+
+class NodeEdit(EditRow, Base):
+    """One edit of a node (migration 0009)."""
     __tablename__ = "node_edits"
 
-    id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
-    network_id: Mapped[int] = mapped_column(
-        ForeignKey("networks.id", ondelete="CASCADE"), nullable=False, index=True
-    )
     node_id: Mapped[int] = mapped_column(BigInteger, nullable=False, index=True)
-    action: Mapped[str] = mapped_column(Text, nullable=False, server_default="update")
-    version_from: Mapped[int | None] = mapped_column(Integer)
-    version_to: Mapped[int | None] = mapped_column(Integer)
-    edited_by: Mapped[str] = mapped_column(Text, nullable=False)
-    edited_at: Mapped[datetime] = _now()
-    conditional: Mapped[bool] = mapped_column(Boolean, nullable=False, server_default="true")
-    old: Mapped[dict[str, Any] | None] = mapped_column(JSONB)
-    new: Mapped[dict[str, Any] | None] = mapped_column(JSONB)
 
 
 class RasterStoreRoot(Base):

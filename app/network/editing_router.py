@@ -202,18 +202,9 @@ async def replace_item(collection_id: str, fid: str, request: Request,
     """Replace a feature (Part 4): attributes not given take their defaults, server-kept
     properties are ignored; a segment's line keeps its nodes, a node's move drags its
     segments' ends (editor)."""
-    if_match = request.headers.get("if-match")
     body = await json_body(request, FEATURE_TYPES)
-    crs = content_crs(request)
-
-    def replace(session: Session) -> dict[str, Any]:
-        c = colls.resolve(session, collection_id)
-        write = _by_kind(c, segment_editing.replace_segment, node_editing.replace_node)
-        feature: dict[str, Any] = write(session, c, parse_fid(fid),
-                                        editing.expected_version(if_match), body, crs, principal)
-        return feature
-
-    return feature_response(await _in_session(replace))
+    return await _edit_item(request, collection_id, fid, body, principal,
+                            segment_editing.replace_segment, node_editing.replace_node)
 
 
 @router.patch(ITEM, response_class=GeoJSONResponse,
@@ -224,20 +215,26 @@ async def replace_item(collection_id: str, fid: str, request: Request,
 async def patch_item(collection_id: str, fid: str, request: Request,
                      principal: EditorDep) -> Response:
     """Edit a feature's attributes or geometry with a JSON merge patch (editor)."""
-    if_match = request.headers.get("if-match")
     body = await json_body(request)
-    crs = content_crs(request)
+    return await _edit_item(request, collection_id, fid, body, principal,
+                            segment_editing.patch_segment, node_editing.patch_node)
 
-    # The collection and the feature id are resolved before the precondition (428/412),
-    # which RFC 9110 evaluates only for a request that could otherwise succeed.
-    def patch(session: Session) -> dict[str, Any]:
+
+async def _edit_item(request: Request, collection_id: str, fid: str, body: Any,
+                     principal: Principal, segments: Callable[..., dict[str, Any]],
+                     nodes: Callable[..., dict[str, Any]]) -> Response:
+    """A PUT or PATCH of one feature with the writer of its kind. The collection and the
+    feature id are resolved before the precondition (428/412), which RFC 9110 evaluates only
+    for a request that could otherwise succeed."""
+    if_match, crs = request.headers.get("if-match"), content_crs(request)
+
+    def write(session: Session) -> dict[str, Any]:
         c = colls.resolve(session, collection_id)
-        write = _by_kind(c, segment_editing.patch_segment, node_editing.patch_node)
-        feature: dict[str, Any] = write(session, c, parse_fid(fid),
-                                        editing.expected_version(if_match), body, crs, principal)
-        return feature
+        return _by_kind(c, segments, nodes)(session, c, parse_fid(fid),
+                                            editing.expected_version(if_match), body, crs,
+                                            principal)
 
-    return feature_response(await _in_session(patch))
+    return feature_response(await _in_session(write))
 
 
 @router.delete(ITEM, status_code=204, response_class=Response,

@@ -44,6 +44,7 @@ uvicorn.run("app.main:create_app", factory=True, host="127.0.0.1", port=int(sys.
 
 
 def requests_per_s(url: str, duration: int) -> float:
+    """wrk's requests per second on one URL."""
     out = subprocess.run(["wrk", "-t1", "-c8", f"-d{duration}s", url], capture_output=True,
                          text=True, check=True).stdout
     match = re.search(r"Requests/sec:\s+([0-9.]+)", out)
@@ -52,6 +53,7 @@ def requests_per_s(url: str, duration: int) -> float:
 
 
 def serve(protocol: str, workers: int, env: dict[str, str]) -> tuple[subprocess.Popen, str]:
+    """The app under uvicorn with ``protocol`` (``h11``: ours), once it answers."""
     port = free_port()
     proc = subprocess.Popen([sys.executable, "-c", SERVE, str(port), protocol, str(workers)],
                             cwd=REPO, env=env, stdout=subprocess.DEVNULL,
@@ -68,6 +70,7 @@ def serve(protocol: str, workers: int, env: dict[str, str]) -> tuple[subprocess.
 
 
 def main() -> None:
+    """Measure both protocols on the three URLs and print the table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=int, default=10)
     parser.add_argument("--workers", type=int, default=1)

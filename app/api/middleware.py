@@ -26,7 +26,8 @@ from app.settings import Settings
 SAFE = ("GET", "HEAD")
 WRITES = ("GET", "HEAD", "POST", "PATCH", "PUT", "DELETE")
 # Response headers a cross-origin script may read (the rest of the safelist is implicit).
-EXPOSED = ("ETag", "Retry-After", "WWW-Authenticate", "X-Tile-Cache", "X-Lanelet2-Origin")
+EXPOSED = ("ETag", "Retry-After", "WWW-Authenticate", "X-Tile-Cache", "X-Lanelet2-Origin",
+           "Location", "Content-Crs")
 # Every response: no MIME sniffing; never framed by another page (editors paste their token
 # into the web map, so it must not be clickjacked); no Referer leaving with URLs.
 SECURITY_HEADERS = {"X-Content-Type-Options": "nosniff", "X-Frame-Options": "DENY",
@@ -96,7 +97,8 @@ class CorsMiddleware:
                                     allow_headers=("If-None-Match",), expose_headers=EXPOSED)
         self.writes = JsonCORSMiddleware(
             app, allow_origins=write_origins, allow_methods=WRITES,
-            allow_headers=("Authorization", "Content-Type", "If-Match", "If-None-Match"),
+            allow_headers=("Authorization", "Content-Type", "Content-Crs", "If-Match",
+                           "If-None-Match"),
             allow_credentials=True, expose_headers=EXPOSED)
         self.app = app
 

@@ -209,3 +209,33 @@ def test_options_says_what_each_resource_answers(client, grid) -> None:
     conformance = client.get("/conformance").json()["conformsTo"]
     part4 = "http://www.opengis.net/spec/ogcapi-features-4/1.0/conf/"
     assert {part4 + "create-replace-delete", part4 + "update"} <= set(conformance)
+
+
+def test_concurrent_roads_ending_at_one_new_spot_share_its_node(live_server: str) -> None:
+    """Two editors draw roads from different junctions to the same new dead end at once:
+    node placement is serialised per network, so the second joins the node the first
+    created (validate finds no two nodes at one location)."""
+    import threading
+
+    import httpx
+
+    net = grid_network()
+    items = f"{live_server}/collections/{net.network}-segments/items"
+    spot = (10.0015, 49.999)
+    bodies = [_line((10.001, 50.0), spot), _line((10.002, 50.0), spot)]
+    results: list[int] = []
+    barrier = threading.Barrier(len(bodies))
+
+    def post(body: dict) -> None:
+        barrier.wait()
+        results.append(httpx.post(items, json=body, headers=bearer("editor"),
+                                  timeout=30).status_code)
+
+    threads = [threading.Thread(target=post, args=(b,)) for b in bodies]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert results == [201, 201]
+    out = _validate(net.network)
+    assert "14 segments, 10 nodes" in out and "topology OK" in out

@@ -74,6 +74,14 @@ def expected_version(header: str | None) -> int | None:
     return None if versions is None else versions[0]
 
 
+def lock_topology(session: Session, c: colls.Collection) -> None:
+    """Serialise the edits that place nodes in this network (creating a segment or a node,
+    splitting, moving a node) until the transaction ends: two of them looking for a node at
+    the same spot at once would each create one, two nodes at one location."""
+    session.execute(text("SELECT pg_advisory_xact_lock(hashtext('ugvmap.topology'), :n)"),
+                    {"n": c.network_id})
+
+
 def lock_feature(session: Session, c: colls.Collection, fid: int,
                  expected: int | None) -> dict[str, Any]:
     """Lock the feature's row; 404 if absent, 412 if ``expected`` is not its version (None:

@@ -24,7 +24,13 @@ from sqlalchemy.orm import Session
 
 from app.network import collections as colls
 from app.network import crs as crs_
-from app.network.editing import lock_feature, log_edit, unprocessable, write_change
+from app.network.editing import (
+    lock_feature,
+    lock_topology,
+    log_edit,
+    unprocessable,
+    write_change,
+)
 from app.network.feature_bodies import patch_parts, whole_parts
 from app.network.geometry_input import parse_geometry
 from app.network.segment_editing import GRID_DEG, SNAP_M, nearest_node, split_nearest_road
@@ -54,6 +60,7 @@ def _point(session: Session, raw: Any, crs: crs_.Crs) -> list[float]:
 def _move_segment_ends(session: Session, c: colls.Collection, node: int,
                        position: list[float], principal: Principal, conditional: bool) -> None:
     """Put every end of the node's segments at ``position``; refuse a spot another node has."""
+    lock_topology(session, c)
     other = session.execute(text(
         "SELECT id FROM road_nodes WHERE network_id = :n AND id <> :id AND "
         "ST_DWithin(geom, ST_SetSRID(ST_MakePoint(:x, :y), 4326), :grid) LIMIT 1"),
@@ -112,6 +119,7 @@ def create_node(session: Session, c: colls.Collection, body: Any, crs: crs_.Crs,
     values, raw_geometry = whole_parts(body, "nodes")
     position = _point(session, raw_geometry, crs)
     segments = _segments_of(c)
+    lock_topology(session, c)
     existing = nearest_node(session, c, position)
     if existing is not None:
         raise unprocessable({"geometry": f"node {existing} is already there (within "

@@ -26,7 +26,13 @@ from sqlalchemy.orm import Session
 
 from app.network import collections as colls
 from app.network import crs as crs_
-from app.network.editing import lock_feature, log_edit, unprocessable, write_change
+from app.network.editing import (
+    lock_feature,
+    lock_topology,
+    log_edit,
+    unprocessable,
+    write_change,
+)
 from app.network.feature_bodies import patch_parts, whole_parts
 from app.network.geometry_input import parse_geometry
 from app.network.tokens import Principal
@@ -169,6 +175,7 @@ def create_segment(session: Session, c: colls.Collection, body: Any, crs: crs_.C
     if errors or line is None:
         raise unprocessable(errors)
     coords = line["coordinates"]
+    lock_topology(session, c)
     source = node_for_end(session, c, coords[0], principal)
     target = node_for_end(session, c, coords[-1], principal)
     if source == target:

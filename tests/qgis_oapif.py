@@ -19,7 +19,8 @@ What QGIS sends and how it reads the answers, from its source (qgis/QGIS,
   the layer CRS is not CRS84, coordinates swapped when that CRS's axis order is inverted; the
   new id is the ``Location`` header's value after its last ``/items/``, the header found with
   ``== QByteArray("Location")`` (case-sensitive until PR 61814, 2025; QGIS issue 61729 reports
-  it on 3.34.14). Then ``GET {items}/{id}`` refreshes the feature (PR 57547).
+  it on 3.34.14). QGIS releases after PR 57547 (May 2024) then ``GET {items}/{id}`` to
+  refresh the feature; replayed too, since it must work either way.
 - ``QgsOapifPatchFeatureRequest``: ``PATCH {items}/{id}``, ``application/merge-patch+json``,
   ``{"properties": {changed fields}}`` (NULL as ``null``) or ``{"geometry": ...}`` (+
   ``Content-Crs``).

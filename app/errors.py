@@ -14,6 +14,7 @@ one line by the CLI root, raised by ingest code as much as by the commands thems
 
 from __future__ import annotations
 
+import logging
 import re
 from http import HTTPStatus
 from typing import Any, ClassVar
@@ -56,10 +57,19 @@ class InvalidParameterValueError(ApiError):
     status, code = 400, "InvalidParameterValue"
 
 
+class CorsRefusedError(ApiError):
+    """A CORS preflight for an origin, method or header this service does not allow (the
+    status Starlette's CORS middleware gives it, with our body)."""
+
+    status, code = 400, "CorsRefused"
+
+
 class UnauthorizedError(ApiError):
     """No valid token; says which scheme to use, as RFC 9110 requires for a 401."""
 
     status, code = 401, "Unauthorized"
+    # Bearer only: a Basic challenge would make browsers prompt for a password on the web
+    # map's requests. Basic credentials (what QGIS sends) are accepted without being asked for.
     default_headers: ClassVar[dict[str, str]] = {"WWW-Authenticate": 'Bearer realm="ugvmap"'}
 
 
@@ -123,6 +133,21 @@ class DatabaseUnavailableError(ApiError):
 
     status, code = 503, "DatabaseUnavailable"
     default_headers: ClassVar[dict[str, str]] = {"Retry-After": "5"}
+
+
+class RasterSourceMissingError(ApiError):
+    """A tile needs a COG the raster store does not have: the catalogue and the store
+    disagree (files deleted, or a process using another store); never a silent blank tile.
+    The server log names the file."""
+
+    status, code = 500, "RasterSourceMissing"
+
+
+class StoreMismatchError(ApiError):
+    """``/readyz`` only: this process's raster store is not the one the database's files are
+    in (another ``UGVMAP_RASTER_STORE`` or data directory); the server log names both."""
+
+    status, code = 503, "StoreMismatch"
 
 
 class SchemaOutOfDateError(ApiError):
@@ -287,7 +312,8 @@ _BY_STATUS = {cls.status: cls for cls in (
 
 
 def allowed_methods(request: Request) -> str:
-    """Every method some route fully answers on this path (HEAD wherever GET is). Starlette's
+    """Every method some route fully answers on this path (HEAD wherever GET is, OPTIONS
+    wherever any is: :mod:`app.api.options`), or "" for a path no route serves. Starlette's
     own ``Allow`` names only the first route that matched the path, while e.g. an item's GET
     and PATCH live in different routers."""
     routes = [r for r in request.app.router.routes if not isinstance(r, Mount)]
@@ -296,6 +322,8 @@ def allowed_methods(request: Request) -> str:
                       for route in routes)}
     if "GET" in methods:
         methods.add("HEAD")
+    if methods:
+        methods.add("OPTIONS")
     return ", ".join(sorted(methods))
 
 
@@ -339,7 +367,17 @@ def validation_error(_: Request, exc: Exception) -> JSONResponse:
     return api_error(_, InvalidValueError(message, errors=errors))
 
 
+log = logging.getLogger(__name__)
+
+
 def database_unavailable(request: Request, exc: Exception) -> JSONResponse:
-    """A connection error from SQLAlchemy anywhere becomes 503 with the driver's reason."""
+    """A connection error from SQLAlchemy anywhere becomes 503. The client learns the kind of
+    failure (the driver's last words, e.g. "Connection refused"); where the database lives
+    (host, port, user, database name) goes to the log, for the operator only."""
     detail = str(getattr(exc, "orig", None) or exc).strip().splitlines()[0]
-    return api_error(request, DatabaseUnavailableError(f"database unreachable: {detail}"))
+    log.warning("database unavailable: %s", detail)
+    reason = detail.rpartition(": ")[2].strip() or "no connection"
+    if re.search(r"\d+\.\d+\.\d+\.\d+|port \d+|\bat \"|host|user|database \"", reason,
+                 re.IGNORECASE):
+        reason = "no connection"
+    return api_error(request, DatabaseUnavailableError(f"database unreachable: {reason}"))

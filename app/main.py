@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 from fastapi.exceptions import RequestValidationError
 from sqlalchemy.exc import InterfaceError, OperationalError
 from starlette.exceptions import HTTPException
@@ -17,11 +17,13 @@ from starlette.types import ASGIApp
 
 from app import errors
 from app.api import document, landing, middleware
+from app.api.wire import CanonicalHeaderCase
 from app.body_limit import JsonPayloadTooLarge
 from app.health.router import router as health_router
 from app.jobs.router import router as jobs_router
 from app.logs import RequestLogMiddleware
 from app.network.router import include_network
+from app.params import single_valued_query
 from app.routing.router import include_routing
 from app.settings import get_settings
 from app.tiles.router import router as tiles_router
@@ -40,11 +42,12 @@ EXCEPTION_HANDLERS: dict[Any, Callable[..., Any]] = {
 
 class UgvmapApp(FastAPI):
     """FastAPI with :class:`~app.body_limit.JsonPayloadTooLarge` outside its whole stack (the
-    body limiter sits outside user middleware, so only here can its 413 be reshaped)."""
+    body limiter sits outside user middleware, so only here can its 413 be reshaped), and
+    header names spelled conventionally on every response (:mod:`app.api.wire`)."""
 
     def build_middleware_stack(self) -> ASGIApp:
         """The framework's stack, wrapped."""
-        return JsonPayloadTooLarge(super().build_middleware_stack())
+        return CanonicalHeaderCase(JsonPayloadTooLarge(super().build_middleware_stack()))
 
 
 def create_app() -> FastAPI:
@@ -61,12 +64,11 @@ def create_app() -> FastAPI:
         # app.api.document serves the API document as OpenAPI 3.0, and /docs on it.
         openapi_url=None, docs_url=None, redoc_url=None,
     )
-    app.include_router(landing.router)
-    app.include_router(document.router)
-    app.include_router(health_router)
-    app.include_router(jobs_router)
-    include_network(app)
-    app.include_router(tiles_router)
+    # Every endpoint refuses a repeated query parameter; routing does it with OSRM's code.
+    single = [Depends(single_valued_query)]
+    for router in (landing.router, document.router, health_router, jobs_router, tiles_router):
+        app.include_router(router, dependencies=single)
+    include_network(app, single)
     include_routing(app)
     include_web(app)
     middleware.install(app, get_settings())

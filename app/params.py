@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Any
 
+from fastapi import Request
 from pydantic import GetCoreSchemaHandler, GetJsonSchemaHandler
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema, core_schema
@@ -155,6 +156,18 @@ def parse_position(value: Any, what: str = "point", *,
         raise refuse(error, what, "must be [lon, lat]")
     lon, lat = (parse_number(v, what, error=error) for v in value)
     return check_lonlat(lon, lat, what, error=error)
+
+
+def single_valued_query(request: Request) -> None:
+    """Router dependency: a query parameter given twice is a 400, not silently the last value
+    (``revert?to=1&to=2`` would revert to one of them, ``bbox`` twice filter by one). The
+    OSRM-shaped routing URLs refuse it themselves, with OSRM's ``InvalidQuery``."""
+    seen: set[str] = set()
+    for key, _ in request.query_params.multi_items():
+        if key in seen:
+            raise InvalidParameterValueError(
+                f"query parameter {shown(key)} is given more than once; give it once")
+        seen.add(key)
 
 
 # -- FastAPI parameter types ------------------------------------------------------------------

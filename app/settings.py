@@ -1,18 +1,38 @@
 """Runtime settings, read from the environment (prefix ``UGVMAP_``) with ``DATABASE_URL`` as-is.
 
 Everything defaults to a self-contained local setup: an embedded PostGIS cluster under
-``.data/postgres`` and a raster store under ``.data/rasters``, so ``make demo`` works on a
-fresh machine; ``DATABASE_URL`` points the whole service at any other PostGIS instead.
+``<data dir>/postgres`` and a raster store under ``<data dir>/rasters``, so ``make demo``
+works on a fresh machine; ``DATABASE_URL`` points the whole service at any other PostGIS
+instead.
+
+The data directory does not depend on the working directory: it is the ``.data`` folder of
+the source checkout ugvmap runs from (where ``make demo`` puts it), or, for an installed
+package, ``$XDG_DATA_HOME/ugvmap``. It used to be ``.data`` under the current directory, so
+``ugvmap ingest raster`` run from another folder wrote its COGs into a second store that the
+server (started elsewhere) never read, while both reached the same database by its port.
 """
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+CHECKOUT = Path(__file__).resolve().parents[1]
+
+
+def default_data_dir() -> Path:
+    """``<checkout>/.data`` when running from a source checkout (``pyproject.toml`` next to
+    ``app/``: the development and ``make demo`` case), else ``$XDG_DATA_HOME/ugvmap``
+    (``~/.local/share/ugvmap``)."""
+    if (CHECKOUT / "pyproject.toml").is_file():
+        return CHECKOUT / ".data"
+    xdg = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(xdg) / "ugvmap"
 
 
 class Settings(BaseSettings):
@@ -20,7 +40,7 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="UGVMAP_", extra="ignore")
 
     database_url_override: str | None = Field(default=None, validation_alias="DATABASE_URL")
-    data_dir: Path = Path(".data")
+    data_dir: Path = Field(default_factory=default_data_dir)
     pg_port: int = 54329
     pg_database: str = "ugvmap"
     raster_store: str | None = None
@@ -44,6 +64,17 @@ class Settings(BaseSettings):
     # token only from the pages listed (none by default).
     cors_read_origins: str = "*"
     cors_write_origins: str = ""
+    # Writes without If-Match: "optional" (default) applies them to the current version and
+    # records the overwritten one in the history (QGIS never sends If-Match, and editing from
+    # QGIS is the point of OGC API Features Part 4); "required" refuses them with 428. A stale
+    # If-Match is a 412 either way, so clients that send one never lose an update.
+    if_match: Literal["optional", "required"] = "optional"
+
+    @field_validator("data_dir")
+    @classmethod
+    def _absolute(cls, value: Path) -> Path:
+        """An explicit relative ``UGVMAP_DATA_DIR`` is taken from where it was given, once."""
+        return value.resolve()
 
     @property
     def embedded(self) -> bool:
@@ -70,12 +101,12 @@ class Settings(BaseSettings):
     @property
     def pg_data_dir(self) -> Path:
         """The embedded cluster's data directory (absolute: pg_ctl runs elsewhere)."""
-        return (self.data_dir / "postgres").resolve()
+        return self.data_dir / "postgres"
 
     @property
     def raster_store_uri(self) -> str:
         """Where COGs are written: a directory by default, any GDAL-writable prefix if set."""
-        return self.raster_store or str((self.data_dir / "rasters").resolve())
+        return self.raster_store or str(self.data_dir / "rasters")
 
     @property
     def jobs_role(self) -> str | None:

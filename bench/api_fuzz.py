@@ -48,8 +48,9 @@ enabled = false
 [checks.positive_data_acceptance]
 enabled = {positive}
 
-# A missing If-Match is 428 Precondition Required (RFC 6585), which is what the code is for;
-# an unknown or read-only target (404, 405: a nodes collection) is said first, since RFC 9110
+# A missing If-Match is 428 Precondition Required (RFC 6585) where the server requires it
+# (UGVMAP_IF_MATCH=required; the document marks it optional, the default accepts writes
+# without it); an unknown target or method (404, 405) is said first, since RFC 9110
 # evaluates preconditions only for a request that could otherwise succeed.
 [checks.missing_required_header]
 expected-statuses = [400, 401, 403, 404, 405, 406, 415, 422, 428]

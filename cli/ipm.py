@@ -90,12 +90,16 @@ def _pair(kind: Callable[[str], T], sep: str
 @click.option("--title", help="Human title of the layer.")
 @click.option("--priority", default=0, show_default=True, type=int,
               help="Higher priority sources are drawn over lower ones; ties: newest on top.")
+@click.option("--replace", is_flag=True,
+              help="Zones already in the layer (the same drive again) replace their sources "
+                   "(without it such a re-ingest is refused).")
 def ingest_ipm_cmd(frames: Path, poses: Path | None, qr_corner: str | None, calib: Path,
                    slug: str, frame_times: Path | None, resolution: float, selection: slice,
                    window: float, range_m: float | None, workers: int, blend: str,
                    zone_size: tuple[int, int], zone_overlap: tuple[int, int],
                    origin: tuple[float, float] | None, max_pose_gap: float,
-                   zones_dir: Path | None, title: str | None, priority: int) -> None:
+                   zones_dir: Path | None, title: str | None, priority: int,
+                   replace: bool) -> None:
     """Stitch FRAMES (a directory with frames.csv, or a video) into layer SLUG.
 
     Each equirectangular frame is projected onto the ground plane (inverse perspective
@@ -110,7 +114,7 @@ def ingest_ipm_cmd(frames: Path, poses: Path | None, qr_corner: str | None, cali
                          frames=selection, workers=workers, blend=blend,
                          zone_size_px=zone_size, overlap_px=zone_overlap,
                          max_gap_s=max_pose_gap, origin=origin, qr_corner=qr_corner,
-                         title=title, priority=priority)
+                         title=title, priority=priority, replace=replace)
     params = {"frames": str(frames), "poses": str(poses) if poses else None,
               "calib": str(calib), "frame_times": str(frame_times) if frame_times else None,
               "qr_pose": qr_corner, "resolution": resolution, "window": window,

@@ -28,12 +28,16 @@ from cli.jobs import absolute, enqueue_job, queue_option
               help="CSV pixel_x,pixel_y,X,Y[,id] (lon/lat, or in --crs) to georeference SRC.")
 @click.option("--gcp-method", default="poly1", show_default=True,
               type=click.Choice(["poly1", "poly2", "tps"]))
+@click.option("--replace", is_flag=True,
+              help="Re-ingest files already in the layer: the sources with the same content "
+                   "or file name are replaced (without it such a file is refused).")
 @queue_option
 def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, kind: str,
                       crs: str | None, priority: int, gcps_file: Path | None,
-                      gcp_method: str, queued: bool) -> None:
+                      gcp_method: str, replace: bool, queued: bool) -> None:
     """Ingest GeoTIFFs / world-file images / zone mosaics / GCP images into layer SLUG.
 
+    A file whose content is already a source of the layer is refused unless --replace.
     With --queue, workers write one source each, in parallel, and the layer is registered
     once when all are written."""
     from app.jobs.recorder import JobRecorder
@@ -46,13 +50,13 @@ def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, k
         enqueue_job("ingest-raster", {
             "sources": [absolute(s) for s in sources], "layer": slug, "title": title,
             "kind": kind, "crs": crs, "priority": priority, "gcps": absolute(gcps_file),
-            "gcp_method": gcp_method})
+            "gcp_method": gcp_method, "replace": replace})
         return
     params = {"sources": [str(s) for s in sources], "kind": kind, "crs": crs,
               "gcps": str(gcps_file) if gcps_file else None}
     with JobRecorder("ingest-raster", slug, params) as job:
         options: dict[str, Any] = {"title": title, "kind": kind, "priority": priority,
-                   "on_progress": job.progress}
+                                   "on_progress": job.progress, "replace": replace}
         if gcps_file is None:
             report = ingest_raster(list(sources), slug, crs=crs, **options)
         else:
@@ -104,12 +108,21 @@ def layers_show(slug: str) -> None:
 
 @layers.command("delete")
 @click.argument("slug")
-def layers_delete(slug: str) -> None:
-    """Delete a layer, its catalogue rows and its COGs (files or objects) in the raster store."""
+@click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
+def layers_delete(slug: str, yes: bool) -> None:
+    """Delete a layer, its catalogue rows and its COGs (files or objects) in the raster
+    store; asks first unless --yes, like `ugvmap network delete`."""
     from app.db.session import get_engine
-    from app.tiles.catalog import delete_layer
+    from app.tiles.catalog import delete_layer, get_layer
     from app.tiles.store import remove_files
 
+    with get_engine().connect() as conn:
+        layer = get_layer(conn, slug)
+    if layer is None:
+        raise UserError(f"no raster layer {slug!r}")
+    if not yes:
+        click.confirm(f"Delete raster layer {slug!r} with its {len(layer['sources'])} sources "
+                      "and their files?", abort=True)
     with get_engine().begin() as conn:
         uris = delete_layer(conn, slug)
     if uris is None:

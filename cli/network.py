@@ -109,6 +109,22 @@ def network() -> None:
     """Road network maintenance."""
 
 
+@network.command("list")
+def network_list() -> None:
+    """One line per network: name, segments, nodes, version, last change, title (as
+    `ugvmap layers list` lists layers; `GET /networks` answers the same rows)."""
+    from sqlalchemy import text
+
+    from app.db.session import get_engine
+    from app.network.discovery import NETWORKS_SQL
+
+    with get_engine().connect() as conn:
+        rows = conn.execute(text(NETWORKS_SQL), {"name": None}).all()
+    for r in rows:
+        click.echo(f"{r.name}\t{r.segments} segments\t{r.nodes} nodes\tv{r.version}"
+                   f"\t{r.updated_at:%Y-%m-%d %H:%M}\t{r.title or ''}")
+
+
 @network.command("validate")
 @click.argument("name")
 @click.option("--json", "as_json", is_flag=True,

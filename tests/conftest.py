@@ -55,6 +55,16 @@ def database_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
             get_settings.cache_clear()
 
 
+@pytest.fixture()
+def if_match_required(database_url: str, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """``UGVMAP_IF_MATCH=required`` for one test: writes without If-Match are a 428."""
+    monkeypatch.setenv("UGVMAP_IF_MATCH", "required")
+    get_settings.cache_clear()
+    yield
+    monkeypatch.delenv("UGVMAP_IF_MATCH")
+    get_settings.cache_clear()
+
+
 @pytest.fixture(scope="session")
 def app(database_url: str):
     from app.main import create_app
@@ -78,8 +88,9 @@ def free_port() -> int:
 
 @contextmanager
 def running_server(env: dict[str, str], workers: int = 1,
-                   timeout_s: float = 30.0) -> Iterator[str]:
-    """Run ``ugvmap serve`` as a real subprocess and yield its base URL.
+                   timeout_s: float = 30.0, drop: tuple[str, ...] = ()) -> Iterator[str]:
+    """Run ``ugvmap serve`` as a real subprocess and yield its base URL (``drop``: variables
+    of this process's environment it does not get).
 
     Its output (one JSON log line per request) goes to a temporary file, not a pipe: nobody
     reads a pipe while the tests run, and once its buffer is full the server blocks on logging.
@@ -89,7 +100,8 @@ def running_server(env: dict[str, str], workers: int = 1,
         proc = subprocess.Popen(
             [sys.executable, "-m", "cli", "serve", "--port", str(port),
              "--workers", str(workers)],
-            cwd=REPO, env={**os.environ, **env}, stdout=log, stderr=subprocess.STDOUT,
+            cwd=REPO, env={k: v for k, v in {**os.environ, **env}.items() if k not in drop},
+            stdout=log, stderr=subprocess.STDOUT,
         )
         base = f"http://127.0.0.1:{port}"
         try:
@@ -204,18 +216,29 @@ def s3_store(s3_endpoint: str, database_url: str) -> Iterator[str]:
     from sqlalchemy import text
 
     from app.tiles.catalog import delete_layer
-    from app.tiles.store import open_store, s3_client
+    from app.tiles.store import RECORD_ROOT, open_store, recorded_root, s3_client
 
     def slugs() -> set[str]:
         with get_engine().connect() as conn:
             return set(conn.execute(text("SELECT slug FROM layers")).scalars())
 
+    def record(root: str | None) -> None:
+        """The store the database's files are in (migration 0009): the test's bucket while it
+        runs, what it was afterwards."""
+        with get_engine().begin() as conn:
+            conn.execute(text("DELETE FROM raster_store"))
+            if root is not None:
+                conn.execute(text(RECORD_ROOT), {"root": root})
+
     before = slugs()
     bucket = f"ugvmap-{uuid.uuid4().hex[:8]}"
     s3_client().create_bucket(Bucket=bucket)
     previous = os.environ["UGVMAP_RASTER_STORE"]
+    with get_engine().connect() as conn:
+        previous_root = recorded_root(conn)
     os.environ["UGVMAP_RASTER_STORE"] = f"s3://{bucket}/rasters"
     get_settings.cache_clear()
+    record(open_store().root)
     try:
         yield os.environ["UGVMAP_RASTER_STORE"]
     finally:
@@ -224,3 +247,4 @@ def s3_store(s3_endpoint: str, database_url: str) -> Iterator[str]:
         open_store().delete(refs)
         os.environ["UGVMAP_RASTER_STORE"] = previous
         get_settings.cache_clear()
+        record(previous_root)

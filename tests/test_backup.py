@@ -231,7 +231,7 @@ def test_file_deletion_waits_for_a_running_backup(database_url: str, tmp_path: P
     with psycopg.connect(libpq_dsn(database_url), autocommit=True) as backup:
         backup.execute("SELECT pg_advisory_lock(hashtext(%s))", (STORE_LOCK,))
         deleting = threading.Thread(
-            target=lambda: CliRunner().invoke(main, ["layers", "delete", layer]))
+            target=lambda: CliRunner().invoke(main, ["layers", "delete", layer, "--yes"]))
         deleting.start()
         deleting.join(2.0)
         assert deleting.is_alive() and all(f.exists() for f in files)

@@ -111,7 +111,8 @@ def test_reads_are_open_to_any_origin_writes_to_none_by_default(client, network)
     assert ok.status_code == 200 and ok.headers["access-control-allow-origin"] == "*"
     got = client.get(items, headers={"Origin": ELSEWHERE})
     assert got.headers["access-control-allow-origin"] == "*"
-    assert "ETag" in got.headers["access-control-expose-headers"]
+    exposed = got.headers["access-control-expose-headers"].split(",")
+    assert {"ETag", "Location", "Content-Crs"} <= {h.strip() for h in exposed}
     tile = client.get(tile_path(network, 14), headers={"Origin": ELSEWHERE})
     assert tile.headers["access-control-allow-origin"] == "*"
     write = preflight(client, f"{items}/1", "PATCH",
@@ -132,9 +133,13 @@ def test_listed_origins_may_write(database_url, network) -> None:
         assert ok.headers["access-control-allow-origin"] == ELSEWHERE
         assert ok.headers["access-control-allow-credentials"] == "true"
         assert "PATCH" in ok.headers["access-control-allow-methods"]
+        # Part 4 from a page: POST / PUT with a body in another CRS (Content-Crs).
+        for method in ("POST", "PUT"):
+            assert preflight(c, item, method,
+                             headers="authorization,content-type,content-crs").status_code == 200
         denied = preflight(c, item, "PATCH", origin="http://evil.example",
                            headers="authorization")
-        assert denied.status_code == 400
+        assert (denied.status_code, denied.json()["code"]) == (400, "CorsRefused")
     with app_with(UGVMAP_CORS_READ_ORIGINS="http://maps.example") as c:
         assert preflight(c, "/collections", "GET").status_code == 400
         listed = c.get("/collections", headers={"Origin": "http://maps.example"})

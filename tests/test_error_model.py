@@ -75,12 +75,13 @@ def test_wrong_method_is_405_with_allow(client, names) -> None:
         assert "GET" in resp.headers["allow"]
     # Allow names every method of the path, whichever router serves it (GET and PATCH of an
     # item live in different routers).
-    item = client.put(f"/collections/{names['network']}-segments/items/1")
+    item = client.post(f"/collections/{names['network']}-segments/items/1")
     _problem(item, 405, "MethodNotAllowed")
-    assert item.headers["allow"] == "DELETE, GET, HEAD, PATCH"
-    # Ours (a nodes collection is read-only) answers the same code.
-    _problem(client.patch(f"/collections/{names['network']}-nodes/items/1", json={},
-                          headers={**bearer("editor"), "If-Match": '"1"'}), 405,
+    assert item.headers["allow"] == "DELETE, GET, HEAD, OPTIONS, PATCH, PUT"
+    # Ours (nodes are not split) answers the same code.
+    _problem(client.post(f"/collections/{names['network']}-nodes/items/1/split",
+                         json={"fraction": 0.5},
+                         headers={**bearer("admin"), "If-Match": '"1"'}), 405,
              "MethodNotAllowed")
 
 

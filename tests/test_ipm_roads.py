@@ -92,12 +92,18 @@ def test_the_drive_is_kept_with_the_layer(database_url: str, drive: dict[str, Pa
     assert row.meta["frames"] == N_FRAMES
     assert row.meta["length_m"] == pytest.approx((N_FRAMES - 1) / 7.0 * DRIVE.speed_mps, rel=0.01)
 
-    ingest_ipm(drive, slug, "--frames", "0:20")  # another part of the drive: its own row
-    ingest_ipm(drive, slug)  # the same drive again: replaced, not added
+    # Another part of the drive: its own trajectory row. Its one zone comes out the same file
+    # as the whole drive's (a source of the layer already), so it needs --replace.
+    ingest_ipm(drive, slug, "--frames", "0:20", "--replace")
+    # The same drive again: refused as it is (its zones are already the layer's), and with
+    # --replace its trajectory row is replaced, not added.
+    with pytest.raises(AssertionError, match="--replace"):
+        ingest_ipm(drive, slug)
+    ingest_ipm(drive, slug, "--replace")
     rows = trajectories(slug)
     assert sorted(r.name for r in rows) == sorted([str(drive["frames"].resolve()),
                                                    f"{drive['frames'].resolve()}[0:20]"])
-    assert CliRunner().invoke(main, ["layers", "delete", slug]).exit_code == 0
+    assert CliRunner().invoke(main, ["layers", "delete", slug, "--yes"]).exit_code == 0
     with session_scope() as session:
         assert session.execute(text("SELECT count(*) FROM layer_trajectories t WHERE NOT "
                                     "EXISTS (SELECT 1 FROM layers l WHERE l.id = t.layer_id)")

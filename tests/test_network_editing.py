@@ -49,7 +49,8 @@ def test_auth_is_required_and_role_checked(client, segment) -> None:
     assert _state(client, url, fid) == before and _edits(fid) == 0
 
 
-def test_if_match_required_and_stale_version_refused(client, segment) -> None:
+def test_if_match_required_and_stale_version_refused(client, segment,
+                                                      if_match_required) -> None:
     url, fid = segment
     auth = bearer("editor")
     before = _state(client, url, fid)

@@ -90,7 +90,7 @@ def test_delete_keeps_the_topology_and_the_history(client) -> None:
     assert client.get(f"{items}/{2**62}/history").status_code == 404
 
 
-def test_delete_needs_an_editor_and_the_current_version(client) -> None:
+def test_delete_needs_an_editor_and_the_current_version(client, if_match_required) -> None:
     net = grid_network()
     items = f"/collections/{net.network}-segments/items"
     fid, _ = _corner_segments(net.network_id)
@@ -105,10 +105,14 @@ def test_delete_needs_an_editor_and_the_current_version(client) -> None:
         assert (r.status_code, r.json()["code"]) == (status, code), r.text
     assert client.delete(url, headers={**bearer("editor"), "If-Match": '"2"'}
                          ).headers["etag"] == '"1"'
-    # Nodes are not editable; unknown collections and items are not found.
+    # Deleting a node merges its two segments: admin only (403 for an editor), and a corner
+    # between two differently named streets cannot merge (422); unknown collections and
+    # items are not found.
     node = client.get(f"/collections/{net.network}-nodes/items").json()["features"][0]["id"]
     assert client.delete(f"/collections/{net.network}-nodes/items/{node}",
-                         headers={**bearer("admin"), "If-Match": '"1"'}).status_code == 405
+                         headers={**bearer("editor"), "If-Match": '"1"'}).status_code == 403
+    assert client.delete(f"/collections/{net.network}-nodes/items/{node}",
+                         headers={**bearer("admin"), "If-Match": '"1"'}).status_code == 422
     assert client.delete("/collections/nope-segments/items/1",
                          headers={**bearer("admin"), "If-Match": '"1"'}).status_code == 404
     assert client.delete(f"{items}/abc",

@@ -135,9 +135,10 @@ def test_merge_refuses_different_attributes(client) -> None:
     assert r.status_code == 422 and set(r.json()["errors"]) == {"name"}
 
 
-def test_every_write_needs_a_current_if_match(client) -> None:
-    """PATCH, revert, split and merge: 428 without ``If-Match``, 412 with a stale one, and
-    nothing changes either way (revert and merge used to go through without it)."""
+def test_every_write_needs_a_current_if_match(client, if_match_required) -> None:
+    """PATCH, revert, split and merge: 428 without ``If-Match`` (``UGVMAP_IF_MATCH=required``),
+    412 with a stale one, and nothing changes either way (revert and merge used to go through
+    without it)."""
     name = f"ifm-{uuid.uuid4().hex[:8]}"
     with session_scope() as s:
         write_network(s, name, [RoadLine([(7.0, 5.0), (7.001, 5.0)]),

@@ -110,7 +110,7 @@ def test_layers_cli_list_show_delete(existing_layer: str) -> None:
     assert shown.exit_code == 0 and "georef=file" in shown.output
     uri = shown.output.strip().splitlines()[-1].split()[-1]
     assert Path(uri).is_file()
-    deleted = run_cli("layers", "delete", existing_layer)
+    deleted = run_cli("layers", "delete", existing_layer, "--yes")
     assert deleted.exit_code == 0
     assert not Path(uri).exists()
     assert existing_layer not in run_cli("layers", "list").output

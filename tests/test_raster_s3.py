@@ -76,7 +76,7 @@ def test_large_objects_are_multipart_uploads(s3_store: str, tmp_path: Path) -> N
 def test_failed_ingest_leaves_no_object_and_registers_nothing(s3_store: str,
                                                               tmp_path: Path) -> None:
     first, _ = synthetic_utm(tmp_path / "1.tif", width=300, height=300)
-    second, _ = synthetic_utm(tmp_path / "2.tif", width=300, height=300)
+    second, _ = synthetic_utm(tmp_path / "2.tif", width=300, height=310)  # another file
     calls = []
 
     def fail_on_second(source: Source, dst: Path) -> None:
@@ -106,7 +106,7 @@ def test_killed_jobs_objects_are_swept_and_delete_removes_the_layer(s3_store: st
     stored = _objects(s3_store, name)
     assert len(stored) == 2 and orphan.removeprefix(store.prefix) not in stored
 
-    result = CliRunner().invoke(main, ["layers", "delete", name])
+    result = CliRunner().invoke(main, ["layers", "delete", name, "--yes"])
     assert result.exit_code == 0, result.output
     assert _objects(s3_store, name) == []
 

@@ -195,10 +195,14 @@ def test_etag_304_and_change_after_reingest_newer_source_on_top(client, tmp_path
     pixel = decode_rgba(second.content)[py, px]
     assert pixel[2] > 150 and pixel[0] < 50  # the newer (blue) source covers the older one
 
-    # An explicit higher priority wins over recency.
-    ingest_raster([old], name, priority=5)
+    # An explicit higher priority wins over recency: the red image again, in place of its
+    # first ingest (--replace), at priority 5, then a newer green one at 0: red stays on top.
+    ingest_raster([old], name, priority=5, replace=True)
+    green = np.zeros((3, 300, 300), np.uint8)
+    green[1] = 200
+    ingest_raster([write_tif(tmp_path / "green.tif", green, UTM33, transform)], name)
     pixel = decode_rgba(client.get(url).content)[py, px]
-    assert pixel[0] > 150 and pixel[2] < 50
+    assert pixel[0] > 150 and pixel[1] < 50 and pixel[2] < 50
 
 
 def test_layers_and_tilejson(client, tmp_path) -> None:
@@ -316,9 +320,10 @@ def test_low_zoom_tiles_come_from_the_layer_overview(client, tmp_path) -> None:
     tile_cache.cache_clear()  # render again, not from the tile cache
     try:
         assert np.array_equal(decode_rgba(client.get(url).content), tile)
+        # A zoom the sources serve: their files are gone, which is an error, not a blank.
         fine = tiles_around(*centre(info), info["maxzoom"], n=1)
-        assert decode_rgba(client.get(
-            f"/tiles/{name}/{info['maxzoom']}/{fine[0]}/{fine[1]}.png").content)[..., 3].max() == 0
+        missing = client.get(f"/tiles/{name}/{info['maxzoom']}/{fine[0]}/{fine[1]}.png")
+        assert (missing.status_code, missing.json()["code"]) == (500, "RasterSourceMissing")
     finally:
         for uri in uris:
             Path(uri + ".hidden").rename(uri)

@@ -256,8 +256,10 @@ def test_segment_click_shows_attributes_and_history(browser, world, request, tmp
     assert page.locator("#f-speed_limit_kph").is_disabled()
     # The history arrives by its own request: wait for it rather than race it.
     page.wait_for_function("document.querySelector('#seg-history').innerText.trim() !== ''")
-    # Nodes are drawn by kind: the spur meets the detour at a junction, the spur's end is not.
-    kinds_js = ("window.ugvmap.map.queryRenderedFeatures({layers: ['net-webnet-nodes']})"
+    # Nodes are drawn by kind, one style layer each: the spur meets the detour at a junction
+    # (orange layer), the spur's end is a plain node (grey layer, from z16).
+    kinds_js = ("window.ugvmap.map.queryRenderedFeatures({layers: ['net-webnet-nodes', "
+                "'net-webnet-nodes-junctions', 'net-webnet-nodes-traffic-lights']})"
                 ".map((f) => f.properties.kind)")
     page.wait_for_function(f"(() => {{ const k = {kinds_js}; "
                            "return k.includes('junction') && k.includes('endpoint'); })()")
@@ -327,12 +329,16 @@ def test_stale_edit_shows_conflict_and_reload(browser, world, request, tmp_path)
                                      "If-Match": current.headers["ETag"]})
     assert meanwhile.status_code == 200, meanwhile.text
 
+    sent: list[dict[str, str]] = []
+    page.on("request", lambda r: sent.append(r.headers) if r.method == "PATCH" else None)
     page.fill("#f-lanes_forward", "2")
     page.click("#seg-save")
     message = page.locator("#seg-message")
     page.wait_for_function("document.querySelector('#seg-message').textContent.includes('Conflict')")
     assert "not saved" in message.inner_text()
     assert httpx.get(url).json()["properties"]["lanes_forward"] == 1  # nothing changed
+    # The web map names the version it showed (If-Match), whatever UGVMAP_IF_MATCH allows.
+    assert sent and sent[0]["if-match"] == current.headers["ETag"]
     page.click("#seg-reload")
     page.wait_for_function("document.querySelector('#f-name').value === 'Renamed elsewhere'")
     assert page.locator("#seg-reload").is_hidden()

@@ -34,7 +34,9 @@ router = APIRouter(include_in_schema=False)
 ITEMS = "/collections/{collection_id}/items"
 KIND_SCHEMA: dict[colls.Kind, str] = {"segments": "Segment", "nodes": "Node"}
 SECURITY = {"bearer": {"type": "http", "scheme": "bearer",
-                       "description": "A token from `ugvmap tokens create --role ...`"}}
+                       "description": "A token from `ugvmap tokens create --role ...` (also "
+                                      "accepted as the password of HTTP Basic, any user name: "
+                                      "what QGIS sends from a connection's credentials)"}}
 
 
 def _replace_refs(node: Any, old: str, new: str) -> Any:
@@ -75,6 +77,7 @@ def static_document(app: FastAPI) -> dict[str, Any]:
     for unused in ("HTTPValidationError", "ValidationError"):
         found.pop(unused, None)
     found["Feature"] = schemas.openapi_feature(None)
+    found["FeatureInput"] = schemas.openapi_feature_input()
     found["FeatureCollection"] = schemas.openapi_feature_collection("Feature")
     for kind, name in KIND_SCHEMA.items():
         found[f"{name}Feature"] = schemas.openapi_feature(kind)
@@ -86,26 +89,31 @@ def static_document(app: FastAPI) -> dict[str, Any]:
 
 
 def _literal(operation: dict[str, Any], collection: colls.Collection, *,
-             extra: list[dict[str, Any]], schema: str) -> dict[str, Any]:
-    """A templated items operation made literal for one collection."""
+             extra: list[dict[str, Any]], schema: str | None = None) -> dict[str, Any]:
+    """A templated items operation made literal for one collection (its page typed as
+    ``schema``, when given)."""
     op = copy.deepcopy(operation)
     op["parameters"] = [p for p in op.get("parameters", [])
                         if p.get("name") != "collection_id"] + extra
     op["operationId"] = f"{op['operationId']}_{collection.id}"
     op["summary"] = f"{op.get('summary', '')}: {collection.id}"
-    op["responses"]["200"]["content"] = {
-        GEOJSON: {"schema": {"$ref": f"#/components/schemas/{schema}"}}}
+    if schema:
+        op["responses"]["200"]["content"] = {
+            GEOJSON: {"schema": {"$ref": f"#/components/schemas/{schema}"}}}
     return op
 
 
 def with_collections(doc: dict[str, Any], found: list[colls.Collection]) -> dict[str, Any]:
-    """The document plus a literal items path for each collection."""
+    """The document plus a literal items path for each collection (reading and, OGC API
+    Features Part 4, creating: the methods its ``OPTIONS`` lists)."""
     paths = dict(doc["paths"])
     for c in found:
         name = KIND_SCHEMA[c.kind]
         filters = [ogc_params.filter_parameter(p) for p in properties.queryables(c.kind)]
-        paths[f"/collections/{c.id}/items"] = {"get": _literal(
-            doc["paths"][ITEMS]["get"], c, extra=filters, schema=f"{name}FeatureCollection")}
+        paths[f"/collections/{c.id}/items"] = {
+            "get": _literal(doc["paths"][ITEMS]["get"], c, extra=filters,
+                            schema=f"{name}FeatureCollection"),
+            "post": _literal(doc["paths"][ITEMS]["post"], c, extra=[])}
     return {**doc, "paths": paths}
 
 

@@ -16,6 +16,7 @@ from pydantic import BaseModel
 
 from app import errors
 from app.errors import InvalidParameterValueError
+from app.network import crs
 from app.network.features import Link, base_url, link
 from app.web.router import index_page
 
@@ -24,12 +25,22 @@ JSON = "application/json"
 HTML = "text/html"
 FEATURES = "http://www.opengis.net/spec/ogcapi-features-1/1.0/conf/"
 FEATURES_3 = "http://www.opengis.net/spec/ogcapi-features-3/1.0/conf/"
+FEATURES_4 = "http://www.opengis.net/spec/ogcapi-features-4/1.0/conf/"
 CONFORMANCE = [
     FEATURES + "core",
     FEATURES + "geojson",
     FEATURES + "oas30",
     FEATURES_3 + "queryables",
     FEATURES_3 + "queryables-query-parameters",
+    # Part 2: crs / bbox-crs / Content-Crs (QGIS offers a collection's CRS list only then).
+    crs.CONFORMANCE,
+    # Part 4 (draft 20-002r1): POST/PUT/DELETE, PATCH, on GeoJSON features, with strong ETags
+    # and If-Match. (The draft's table spells the ETag class under /req/; its other classes
+    # and every other OGC API use /conf/, as here.) QGIS decides from OPTIONS, not from these.
+    FEATURES_4 + "create-replace-delete",
+    FEATURES_4 + "update",
+    FEATURES_4 + "features",
+    FEATURES_4 + "optimistic-locking-etags",
     # Part 5 is a draft; QGIS reads the schema (and so types every attribute right) only
     # when this class is declared.
     "http://www.opengis.net/spec/ogcapi-features-5/1.0/conf/schemas",

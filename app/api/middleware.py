@@ -1,4 +1,5 @@
-"""HTTP behaviour every endpoint shares, as ASGI middleware: HEAD, CORS and gzip.
+"""HTTP behaviour every endpoint shares, as ASGI middleware: HEAD, OPTIONS, CORS, gzip and
+the browser security headers.
 
 Starlette's own CORS and gzip middleware do the work; this module only chooses their settings
 and adds what they lack: HEAD on every GET resource (FastAPI routes answer only the methods
@@ -10,17 +11,28 @@ pages the operator trusts.
 from __future__ import annotations
 
 from fastapi import FastAPI
-from starlette.datastructures import Headers
+from starlette.datastructures import Headers, MutableHeaders
 from starlette.middleware.cors import CORSMiddleware
 from starlette.middleware.gzip import GZipMiddleware
+from starlette.requests import Request
+from starlette.responses import Response
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from app.api.options import OptionsMiddleware
+from app.api.response_start import ResponseStartMiddleware
+from app.errors import CorsRefusedError, api_error
 from app.settings import Settings
 
 SAFE = ("GET", "HEAD")
 WRITES = ("GET", "HEAD", "POST", "PATCH", "PUT", "DELETE")
 # Response headers a cross-origin script may read (the rest of the safelist is implicit).
-EXPOSED = ("ETag", "Retry-After", "WWW-Authenticate", "X-Tile-Cache", "X-Lanelet2-Origin")
+EXPOSED = ("ETag", "Retry-After", "WWW-Authenticate", "X-Tile-Cache", "X-Lanelet2-Origin",
+           "Location", "Content-Crs")
+# Every response: no MIME sniffing; never framed by another page (editors paste their token
+# into the web map, so it must not be clickjacked); no Referer leaving with URLs.
+SECURITY_HEADERS = {"X-Content-Type-Options": "nosniff", "X-Frame-Options": "DENY",
+                    "Content-Security-Policy": "frame-ancestors 'none'",
+                    "Referrer-Policy": "no-referrer"}
 GZIP_MIN_BYTES = 500
 GZIP_LEVEL = 6  # zlib's default: most of level 9's gain at a third of its CPU on big pages
 
@@ -46,6 +58,34 @@ class HeadMiddleware:
         await self.app({**scope, "method": "GET"}, receive, without_body)
 
 
+class SecurityHeaders(ResponseStartMiddleware):
+    """Add :data:`SECURITY_HEADERS` to every response (a route may set its own)."""
+
+    def start(self, message: Message) -> Message:
+        """The start message with the headers added."""
+        headers = MutableHeaders(scope=message)
+        for name, value in SECURITY_HEADERS.items():
+            headers.setdefault(name, value)
+        return message
+
+
+class JsonCORSMiddleware(CORSMiddleware):
+    """Starlette's CORS middleware whose refused preflight answers in the service's error
+    body (400 ``CorsRefused``, saying what was refused) instead of plain text."""
+
+    def preflight_response(self, request_headers: Headers) -> Response:
+        """The preflight answer; a refusal rewritten as our JSON error."""
+        response = super().preflight_response(request_headers)
+        if response.status_code < 400:
+            return response
+        reason = bytes(response.body).decode()
+        refused = api_error(Request({"type": "http", "headers": []}),
+                            CorsRefusedError(f"CORS preflight refused: {reason}"))
+        refused.headers.update({k: v for k, v in response.headers.items()
+                                if k.startswith("access-control-") or k == "vary"})
+        return refused
+
+
 class CorsMiddleware:
     """Two Starlette CORS policies: reads (GET/HEAD without a token) for ``read_origins``,
     anything else (writes, or a request that carries ``Authorization``) only for
@@ -53,11 +93,12 @@ class CorsMiddleware:
 
     def __init__(self, app: ASGIApp, read_origins: list[str],
                  write_origins: list[str]) -> None:
-        self.reads = CORSMiddleware(app, allow_origins=read_origins, allow_methods=SAFE,
+        self.reads = JsonCORSMiddleware(app, allow_origins=read_origins, allow_methods=SAFE,
                                     allow_headers=("If-None-Match",), expose_headers=EXPOSED)
-        self.writes = CORSMiddleware(
+        self.writes = JsonCORSMiddleware(
             app, allow_origins=write_origins, allow_methods=WRITES,
-            allow_headers=("Authorization", "Content-Type", "If-Match", "If-None-Match"),
+            allow_headers=("Authorization", "Content-Type", "Content-Crs", "If-Match",
+                           "If-None-Match"),
             allow_credentials=True, expose_headers=EXPOSED)
         self.app = app
 
@@ -82,9 +123,12 @@ class CorsMiddleware:
 
 
 def install(app: FastAPI, settings: Settings) -> None:
-    """Add the shared middleware, innermost first: gzip, CORS, HEAD (so a HEAD reports the
-    headers of the compressed GET, CORS headers included)."""
+    """Add the shared middleware, innermost first: OPTIONS, gzip, CORS (which answers
+    preflights before OPTIONS sees them), HEAD (so a HEAD reports the headers of the
+    compressed GET, CORS headers included)."""
+    app.add_middleware(OptionsMiddleware)
     app.add_middleware(GZipMiddleware, minimum_size=GZIP_MIN_BYTES, compresslevel=GZIP_LEVEL)
     app.add_middleware(CorsMiddleware, read_origins=settings.cors_read_origin_list,
                        write_origins=settings.cors_write_origin_list)
     app.add_middleware(HeadMiddleware)
+    app.add_middleware(SecurityHeaders)

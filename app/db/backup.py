@@ -264,6 +264,10 @@ def restore(src: Path, database_url: str, store_root: str,
         conn.execute("UPDATE ingest_jobs SET status = 'failed', finished_at = now(), "
                      "error = 'interrupted: restored from a backup taken while it ran' "
                      "WHERE status = 'running'")
+        # The files are in this store now (migration 0009 records where they are).
+        conn.execute("INSERT INTO raster_store (root) VALUES (%(root)s) ON CONFLICT (id) DO "
+                     "UPDATE SET root = EXCLUDED.root, recorded_at = now()",
+                     {"root": str(Path(store_root).resolve())})
     expected = manifest["database"]["counts"]
     if any(counts[t] != expected.get(t, counts[t]) for t in COUNTED):
         raise BackupError(f"restored row counts {counts} differ from the backup's {expected}")

@@ -227,6 +227,9 @@ def stop(cluster: Cluster) -> None:
 def status(cluster: Cluster) -> str:
     """One line for ``ugvmap db status``: initialised or not, running or stopped, and where."""
     if not cluster.initialized:
-        return f"not initialised ({cluster.data_dir})"
+        other = accepts_connections(cluster)
+        return f"not initialised ({cluster.data_dir})" + (
+            f"; but a PostgreSQL server answers on 127.0.0.1:{cluster.port}: a cluster of "
+            "another data directory? (UGVMAP_DATA_DIR, UGVMAP_PG_PORT)" if other else "")
     state = "running" if is_running(cluster) else "stopped"
     return f"{state} on 127.0.0.1:{cluster.port} ({cluster.data_dir})"

@@ -140,9 +140,11 @@ class Network(Base):
 
 
 class RoadNode(Base):
-    """A topology node where segments meet; its kind follows its degree."""
+    """A topology node where segments meet; its kind follows its degree; ``version`` is its
+    ETag for optimistic edits (migration 0009)."""
     __tablename__ = "road_nodes"
-    __table_args__ = (CheckConstraint(f"kind IN {NODE_KINDS}", name="road_nodes_kind_known"),)
+    __table_args__ = (CheckConstraint(f"kind IN {NODE_KINDS}", name="road_nodes_kind_known"),
+                      CheckConstraint("version >= 1", name="road_nodes_version_pos"))
 
     id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
     network_id: Mapped[int] = mapped_column(
@@ -154,6 +156,9 @@ class RoadNode(Base):
     kind: Mapped[str] = mapped_column(Text, nullable=False, server_default="node")
     traffic_light: Mapped[bool] = mapped_column(Boolean, nullable=False, server_default="false")
     external_id: Mapped[str | None] = mapped_column(Text)
+    version: Mapped[int] = mapped_column(Integer, nullable=False, server_default="1")
+    updated_at: Mapped[datetime] = _now()
+    updated_by: Mapped[str | None] = mapped_column(Text)
 
 
 class RoadSegment(Base):
@@ -223,22 +228,51 @@ class RoadOverview(Base):
     )
 
 
-class SegmentEdit(Base):
-    """One edit of a segment (old and new values), so history and revert need no other source."""
-    __tablename__ = "segment_edits"
+class EditRow:
+    """The columns every edit history row has: which network, what was done, between which
+    versions, by whom and when, and the old and new values, so history and revert need no
+    other source."""
 
     id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
     network_id: Mapped[int] = mapped_column(
         ForeignKey("networks.id", ondelete="CASCADE"), nullable=False, index=True
     )
-    segment_id: Mapped[int] = mapped_column(BigInteger, nullable=False, index=True)
     action: Mapped[str] = mapped_column(Text, nullable=False, server_default="update")
     version_from: Mapped[int | None] = mapped_column(Integer)
     version_to: Mapped[int | None] = mapped_column(Integer)
     edited_by: Mapped[str] = mapped_column(Text, nullable=False)
     edited_at: Mapped[datetime] = _now()
+    conditional: Mapped[bool] = mapped_column(Boolean, nullable=False, server_default="true")
+    """False when the client named no version (no ``If-Match``, allowed by
+    ``UGVMAP_IF_MATCH=optional``): it overwrote whatever was current, kept in ``old``."""
     old: Mapped[dict[str, Any] | None] = mapped_column(JSONB)
     new: Mapped[dict[str, Any] | None] = mapped_column(JSONB)
+
+
+class SegmentEdit(EditRow, Base):
+    """One edit of a segment."""
+    __tablename__ = "segment_edits"
+
+    segment_id: Mapped[int] = mapped_column(BigInteger, nullable=False, index=True)
+
+
+class NodeEdit(EditRow, Base):
+    """One edit of a node (migration 0009)."""
+    __tablename__ = "node_edits"
+
+    node_id: Mapped[int] = mapped_column(BigInteger, nullable=False, index=True)
+
+
+class RasterStoreRoot(Base):
+    """The raster store this database's relative COG references are keys of: one row,
+    recorded by the first ingest (migration 0009), so a process configured with another store
+    is refused instead of registering files no server finds."""
+    __tablename__ = "raster_store"
+    __table_args__ = (CheckConstraint("id", name="raster_store_one_row"),)
+
+    id: Mapped[bool] = mapped_column(Boolean, primary_key=True, server_default="true")
+    root: Mapped[str] = mapped_column(Text, nullable=False)
+    recorded_at: Mapped[datetime] = _now()
 
 
 class IngestJob(Base):

@@ -78,6 +78,8 @@ class RasterParams(JobParams):
     priority: int = Field(default=0, ge=-(2**31), lt=2**31)
     gcps: ServerPath | None = None
     gcp_method: Literal["poly1", "poly2", "tps"] = "poly1"
+    replace: bool = False
+    """Re-ingest files already in the layer in place of their old sources (else refused)."""
 
     @field_validator("crs")
     @classmethod

@@ -11,8 +11,13 @@ from __future__ import annotations
 import re
 from typing import Any
 
-# An absolute POSIX path or a URI (s3://, /vsis3/...), up to whitespace or a quote.
-_ABSOLUTE = re.compile(r"""(?:\b[a-z][a-z0-9+.-]*://|(?<![\w.~-])/)[^\s'"<>]*""", re.I)
+# An absolute POSIX path or a URI (s3://, /vsis3/...). Folder names may hold spaces (a
+# "/srv/survey data/zone a.tif" must not leak "survey data"): a folder runs on through single
+# spaces up to its "/"; the last part ends at whitespace or a quote. Each space-separated run
+# is either inside a folder (a "/" follows) or not, so matching stays linear.
+_ABSOLUTE = re.compile(
+    r"""(?:\b[a-z][a-z0-9+.-]*://|(?<![\w.~-])/)"""
+    r"""(?:[^\s'"<>/]*(?: [^\s'"<>/]+)*/)*[^\s'"<>]*""", re.I)
 
 
 def _last_part(match: re.Match[str]) -> str:

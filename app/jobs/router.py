@@ -81,8 +81,9 @@ def get_job(job_id: int, session: SessionDep, reader: ReaderDep) -> dict[str, An
     return job_view(rows[0], reader)
 
 
-@router.post("/jobs", status_code=202, responses=errors.responses(
-    errors.PayloadTooLargeError, errors.UnsupportedMediaTypeError))
+@router.post("/jobs", status_code=202, openapi_extra={"security": [{"bearer": []}]},
+             responses=errors.responses(errors.PayloadTooLargeError,
+                                        errors.UnsupportedMediaTypeError))
 async def post_job(request: Request,
                    admin: Annotated[Principal, Depends(require_role("admin"))]) -> JSONResponse:
     """Queue a job for ``ugvmap worker``: ``{"kind": "ingest-raster", "params": {...}}``.

@@ -28,16 +28,22 @@ SEGMENT_ATTRIBUTES = ("lanes_forward", "lanes_backward", "speed_limit_kph", "one
 # ``confidence`` is written by road extraction only: edits cannot set it (422 read-only).
 SEGMENT_READONLY = ("source_node", "target_node", "length_m", "version", "updated_at",
                     "updated_by", "confidence")
-SEGMENT_SELECT = ", ".join(("id", *SEGMENT_READONLY, *SEGMENT_ATTRIBUTES,
-                            "ST_AsGeoJSON(geom, 15) AS geometry"))
+# Columns of a segment feature before its geometry; ``segment_id`` repeats the feature id as a
+# property, since clients that read GeoJSON through OGR (QGIS, GDAL) turn the id into their
+# internal feature id and show it nowhere.
+SEGMENT_COLUMNS = ", ".join(("id", "id AS segment_id", *SEGMENT_READONLY, *SEGMENT_ATTRIBUTES))
 # Segment ends at node ``n`` (a loop counts twice), and the node kind a ``degree`` implies:
 # the one rule the API, deletions and ``ugvmap network validate`` share.
 NODE_DEGREE = ("(SELECT count(*) FROM road_segments s WHERE s.source_node = n.id) + "
                "(SELECT count(*) FROM road_segments s WHERE s.target_node = n.id)")
 KIND_OF_DEGREE = ("CASE WHEN degree >= 3 THEN 'junction' WHEN degree = 1 THEN 'endpoint' "
                   "ELSE 'node' END")
-NODE_SELECT = ("id, kind, traffic_light, external_id, ST_AsGeoJSON(geom, 15) AS geometry, "
-               f"{NODE_DEGREE} AS degree")
+NODE_ENDS = f"SELECT n.id, {NODE_DEGREE} AS degree FROM road_nodes n WHERE n.id = ANY(:ids)"
+# Editable node attributes; ``kind`` and ``degree`` follow from the segments.
+NODE_ATTRIBUTES = ("traffic_light", "external_id")
+NODE_COLUMNS = ("id, id AS node_id, kind, traffic_light, external_id, version, updated_at, "
+                f"updated_by, {NODE_DEGREE} AS degree")
+GEOMETRY = "ST_AsGeoJSON(geom, 15)"
 
 
 @dataclass(frozen=True)
@@ -57,6 +63,13 @@ class Collection:
     def table(self) -> str:
         """The table the collection's features live in."""
         return "road_segments" if self.kind == "segments" else "road_nodes"
+
+    def select(self, geometry: str = GEOMETRY) -> str:
+        """``SELECT`` list and table of its features, the geometry as ``geometry`` (SQL of
+        GeoJSON text, e.g. reprojected for Part 2)."""
+        if self.kind == "segments":
+            return f"{SEGMENT_COLUMNS}, {geometry} AS geometry FROM road_segments"
+        return f"{NODE_COLUMNS}, {geometry} AS geometry FROM road_nodes n"
 
 
 def list_collections(session: Session) -> list[Collection]:
@@ -126,10 +139,19 @@ class ItemQuery:
     updated_from: datetime | None = None
     updated_to: datetime | None = None
     equals: tuple[tuple[str, Any], ...] = ()
+    bbox_srid: int = 4326
+    """SRID of ``bbox`` (Part 2's ``bbox-crs``): 4326 for lon/lat, else projected metres."""
 
 
 def _envelope(minx: str, maxx: str) -> str:
     return f"ST_Intersects(geom, ST_MakeEnvelope({minx}, :miny, {maxx}, :maxy, 4326))"
+
+
+# A projected box becomes a lon/lat polygon before it meets the (indexed) lon/lat geometries;
+# its edges are cut into this many pieces first, so a UTM box's curved edges stay faithful.
+PROJECTED_BOX_PIECES = 64
+PROJECTED_BOX = ("ST_Intersects(geom, ST_Transform(ST_Segmentize(ST_MakeEnvelope("
+                 ":minx, :miny, :maxx, :maxy, :srid), :piece), 4326))")
 
 
 def _where(collection: Collection, query: ItemQuery) -> tuple[str, dict[str, Any]]:
@@ -140,7 +162,11 @@ def _where(collection: Collection, query: ItemQuery) -> tuple[str, dict[str, Any
     if query.bbox:
         minx, miny, maxx, maxy = query.bbox
         params.update(minx=minx, miny=miny, maxx=maxx, maxy=maxy)
-        if minx <= maxx:
+        if query.bbox_srid != 4326:
+            clauses.append(PROJECTED_BOX)
+            params.update(srid=query.bbox_srid, piece=max(maxx - minx, maxy - miny, 1e-3)
+                          / PROJECTED_BOX_PIECES)
+        elif minx <= maxx:
             clauses.append(_envelope(":minx", ":maxx"))
         else:  # across the antimeridian: the part east of minx and the part west of maxx
             clauses.append(f"({_envelope(':minx', '180')} OR {_envelope('-180', ':maxx')})")
@@ -158,31 +184,41 @@ def _where(collection: Collection, query: ItemQuery) -> tuple[str, dict[str, Any
 
 
 def query_items(session: Session, collection: Collection, query: ItemQuery, *,
-                limit: int, offset: int) -> tuple[int, list[dict[str, Any]]]:
-    """(numberMatched, features) for one page, ordered by id so paging is stable."""
+                limit: int, offset: int, geometry: str = GEOMETRY
+                ) -> tuple[int, list[dict[str, Any]]]:
+    """(numberMatched, features) for one page, ordered by id so paging is stable; the
+    geometries as the SQL ``geometry`` makes them (see :meth:`Collection.select`)."""
     where, params = _where(collection, query)
     matched: int = session.execute(text(f"SELECT count(*) FROM {collection.table} WHERE {where}"),
                               params).scalar_one()
-    select = SEGMENT_SELECT if collection.kind == "segments" else NODE_SELECT
-    alias = "" if collection.kind == "segments" else " n"
     rows = session.execute(text(
-        f"SELECT {select} FROM {collection.table}{alias} WHERE {where} "
+        f"SELECT {collection.select(geometry)} WHERE {where} "
         "ORDER BY id LIMIT :limit OFFSET :offset"),
         {**params, "limit": limit, "offset": offset}).all()
     return matched, [to_feature(r) for r in rows]
 
 
 def get_item(session: Session, collection: Collection, fid: int, *,
-             for_update: bool = False) -> dict[str, Any]:
+             for_update: bool = False, geometry: str = GEOMETRY) -> dict[str, Any]:
     """One feature as GeoJSON (404 if it is not in this collection); ``for_update`` locks its row
     for an edit in the same transaction."""
-    select = SEGMENT_SELECT if collection.kind == "segments" else NODE_SELECT
-    alias = "" if collection.kind == "segments" else " n"
     lock = " FOR UPDATE" if for_update else ""
     row = session.execute(text(
-        f"SELECT {select} FROM {collection.table}{alias} "
+        f"SELECT {collection.select(geometry)} "
         f"WHERE id = :id AND network_id = :network_id{lock}"),
         {"id": fid, "network_id": collection.network_id}).first()
     if row is None:
         raise NotFoundError(f"feature {fid} in {collection.id!r} not found")
     return to_feature(row)
+
+
+def settle_nodes(session: Session, node_ids: list[int]) -> None:
+    """After segments were added or removed at these nodes: delete the ones left without a
+    segment and give the others the kind their degree implies (what ``ugvmap network
+    validate`` checks). A node's version is not bumped: it counts edits of the node itself,
+    while its kind and degree follow its segments."""
+    ends = {"ids": sorted(set(node_ids))}
+    session.execute(text(f"DELETE FROM road_nodes WHERE id IN (SELECT id FROM ({NODE_ENDS}) d "
+                         "WHERE degree = 0)"), ends)
+    session.execute(text(f"UPDATE road_nodes n SET kind = {KIND_OF_DEGREE} FROM ({NODE_ENDS}) d "
+                         f"WHERE n.id = d.id AND n.kind <> {KIND_OF_DEGREE}"), ends)

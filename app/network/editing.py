@@ -1,31 +1,39 @@
-"""Attribute (and geometry) edits of road segments with optimistic concurrency and history.
+"""What every edit of a segment or node shares: the precondition, the row lock, the write of
+one new version, and its history row.
 
 Why a row lock plus a version check: the version in ``If-Match`` is compared with the row
 while it is locked (``SELECT ... FOR UPDATE``), so of N concurrent editors holding the same
 version exactly one wins and the rest get 412; the history row is written in the same
 transaction, so the history has no gaps and never records an edit that did not happen.
+
+The If-Match policy (``UGVMAP_IF_MATCH``): a stale ``If-Match`` is always a 412, so a client
+that sends one (the web map, scripts) never overwrites a change it has not seen. A write
+*without* ``If-Match`` is refused with 428 under ``required``; under ``optional`` (the default,
+because QGIS never sends ``If-Match`` and editing from QGIS is what OGC API Features Part 4 is
+for) it applies to the version current when the row is locked, and its history row says so
+(``conditional: false``) while keeping the overwritten version number and values: a lost
+update is then visible in the history and undone with ``revert?to=<that version>``.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from typing import Any
 
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
-from app.errors import (
-    InvalidValueError,
-    PreconditionFailedError,
-    PreconditionRequiredError,
-)
+from app.errors import InvalidValueError, PreconditionFailedError, PreconditionRequiredError
 from app.network import collections as colls
 from app.network.tokens import Principal
-from app.network.validation import field_errors, lanes_consistent, merge_patch
+from app.settings import get_settings
 
-FEATURE_KEYS = {"type", "id", "properties", "geometry", "links"}
-GRID_DEG = 1e-7
+# History table and id column of each collection kind.
+HISTORY: dict[colls.Kind, tuple[str, str]] = {"segments": ("segment_edits", "segment_id"),
+                                              "nodes": ("node_edits", "node_id")}
+# Edits a revert may undo: attribute and geometry changes. A split, merge or node move
+# changed the topology (restoring one segment's old line would detach it from its nodes).
+REVERTIBLE = ("update", "replace", "revert")
 
 
 def unprocessable(errors: dict[str, str]) -> InvalidValueError:
@@ -34,83 +42,64 @@ def unprocessable(errors: dict[str, str]) -> InvalidValueError:
                              errors=errors)
 
 
-def parse_if_match(header: str | None, count: int = 1) -> list[int]:
+def parse_if_match(header: str | None, count: int = 1) -> list[int] | None:
     """The versions an ``If-Match`` header names: ``"3"`` / ``W/"3"`` / ``3`` -> [3]; a write
     on ``count`` features (merge) names each one's ETag, comma-separated, in the order of the
-    request. Missing -> 428; anything else matches nothing -> 412."""
-    if header is None or not header.strip():
-        raise PreconditionRequiredError(
-            "If-Match with the feature's ETag (its version) is required" if count == 1 else
-            f"If-Match with the ETags of the {count} segments, in order, is required")
+    request. None when the write is unconditional: ``If-Match: *`` (RFC 9110: any current
+    version) or no header where the policy allows it (else 428). Anything else matches
+    nothing -> 412."""
+    value = (header or "").strip()
+    if value == "*":
+        return None
+    if not value:
+        if get_settings().if_match == "required":
+            raise PreconditionRequiredError(
+                "If-Match with the feature's ETag (its version) is required" if count == 1
+                else f"If-Match with the ETags of the {count} segments, in order, is required")
+        return None
     versions = []
-    for tag in header.split(","):
-        value = tag.strip().removeprefix("W/").strip('"')
-        if not value.isascii() or not value.isdigit() or len(value) > 9:
+    for tag in value.split(","):
+        tag = tag.strip().removeprefix("W/").strip('"')
+        if not tag.isascii() or not tag.isdigit() or len(tag) > 9:
             raise PreconditionFailedError("If-Match must be the ETag of the current version")
-        versions.append(int(value))
+        versions.append(int(tag))
     if len(versions) != count:
         raise PreconditionFailedError(f"If-Match must name {count} ETag(s), one per segment")
     return versions
 
 
-def split_body(body: Any) -> tuple[dict[str, Any], dict[str, Any] | None]:
-    """A merge patch of the feature (``{"properties": .., "geometry": ..}``) or of its
-    properties alone -> (property patch, new geometry or None)."""
-    if not isinstance(body, dict):
-        raise unprocessable({"body": "must be a JSON object"})
-    if not body.keys() & {"properties", "geometry"}:
-        return body, None
-    unknown = body.keys() - FEATURE_KEYS
-    if unknown:
-        raise unprocessable({k[:100]: "is not a feature member" for k in unknown})
-    properties = body.get("properties") or {}
-    if not isinstance(properties, dict):
-        raise unprocessable({"properties": "must be a JSON object"})
-    if "geometry" in body and body["geometry"] is None:
-        raise unprocessable({"geometry": "cannot be removed"})
-    return properties, body.get("geometry")
+def expected_version(header: str | None) -> int | None:
+    """The one version ``If-Match`` names for a write on one feature (None: unconditional)."""
+    versions = parse_if_match(header)
+    return None if versions is None else versions[0]
 
 
-def _check_line(geometry: Any, start: list[float], end: list[float]) -> str | None:
-    if not isinstance(geometry, dict) or geometry.get("type") != "LineString":
-        return "must be a GeoJSON LineString"
-    coords = geometry.get("coordinates")
-    if not isinstance(coords, list) or not 2 <= len(coords) <= 100_000:
-        return "must have 2 to 100000 positions"
-    for c in coords:
-        if not isinstance(c, list) or len(c) != 2 or not all(
-                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-                for v in c):
-            return "positions must be [lon, lat] pairs of finite numbers"
-        if not (-180 <= c[0] <= 180 and -90 <= c[1] <= 90):
-            return "positions must be within lon -180..180, lat -90..90"
-    if any(abs(a - b) > GRID_DEG for a, b in zip(coords[0] + coords[-1], start + end,
-                                                 strict=True)):
-        return "must start and end at the segment's nodes (topology is kept)"
-    return None
+def lock_topology(session: Session, c: colls.Collection) -> None:
+    """Serialise the edits that place nodes in this network (creating a segment or a node,
+    splitting, moving a node) until the transaction ends: two of them looking for a node at
+    the same spot at once would each create one, two nodes at one location."""
+    session.execute(text("SELECT pg_advisory_xact_lock(hashtext('ugvmap.topology'), :n)"),
+                    {"n": c.network_id})
 
 
-def _node_coords(session: Session, node_id: int) -> list[float]:
-    geometry: str = session.execute(text("SELECT ST_AsGeoJSON(geom, 15) FROM road_nodes "
-                                    "WHERE id = :id"), {"id": node_id}).scalar_one()
-    return json.loads(geometry)["coordinates"]
-
-
-def lock_segment(session: Session, c: colls.Collection, fid: int,
-                 expected: int) -> dict[str, Any]:
-    """Lock the segment row; 404 if absent, 412 if its version is not ``expected``."""
+def lock_feature(session: Session, c: colls.Collection, fid: int,
+                 expected: int | None) -> dict[str, Any]:
+    """Lock the feature's row; 404 if absent, 412 if ``expected`` is not its version (None:
+    any version, an unconditional write)."""
     feature = colls.get_item(session, c, fid, for_update=True)
     current = feature["properties"]["version"]
-    if current != expected:
-        raise PreconditionFailedError(f"the segment is at version {current}, not {expected}; "
-                                      "reload it and apply your change again",
+    if expected is not None and current != expected:
+        raise PreconditionFailedError(f"the {c.kind[:-1]} is at version {current}, not "
+                                      f"{expected}; reload it and apply your change again",
                                       headers={"ETag": f'"{current}"'})
     return feature
 
 
 def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
-                 new: dict[str, Any], principal: Principal, action: str) -> dict[str, Any]:
-    """Apply full new values of changed columns (``geometry`` as GeoJSON) and log them."""
+                 new: dict[str, Any], principal: Principal, action: str, *,
+                 conditional: bool = True) -> dict[str, Any]:
+    """Apply full new values of changed columns (``geometry`` as lon/lat GeoJSON; a segment's
+    length follows it) as one new version, and log it."""
     props = feature["properties"]
     old = {k: (feature["geometry"] if k == "geometry" else props[k]) for k in new}
     changed = {k: v for k, v in new.items() if old[k] != v}
@@ -124,93 +113,72 @@ def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
         params["attrs"] = json.dumps(changed["attrs"])
     if "geometry" in changed:
         assignments.append("geom = ST_SetSRID(ST_GeomFromGeoJSON(:geometry), 4326)")
-        assignments.append("length_m = ST_Length(ST_SetSRID(ST_GeomFromGeoJSON(:geometry), "
-                           "4326)::geography)")
+        if c.kind == "segments":
+            assignments.append("length_m = ST_Length(ST_SetSRID(ST_GeomFromGeoJSON("
+                               ":geometry), 4326)::geography)")
         params["geometry"] = json.dumps(changed["geometry"])
     version: int | None = session.execute(text(
-        f"UPDATE road_segments SET {', '.join(assignments)}, version = version + 1, "
+        f"UPDATE {c.table} SET {', '.join(assignments)}, version = version + 1, "
         "updated_at = now(), updated_by = :who WHERE id = :id AND version = :version "
         "RETURNING version"),
         {**params, "who": principal.name, "id": feature["id"],
          "version": props["version"]}).scalar_one()
     log_edit(session, c, feature["id"], action, props["version"], version, principal,
-             {k: old[k] for k in changed}, changed)
+             {k: old[k] for k in changed}, changed, conditional=conditional)
     return colls.get_item(session, c, feature["id"])
 
 
-def log_edit(session: Session, c: colls.Collection, segment_id: int, action: str,
+def log_edit(session: Session, c: colls.Collection, fid: int, action: str,
              version_from: int | None, version_to: int | None, principal: Principal,
-             old: dict[str, Any] | None, new: dict[str, Any] | None) -> None:
-    """Append the edit to ``segment_edits`` in the edit's own transaction, so history never misses a
-    committed change."""
+             old: dict[str, Any] | None, new: dict[str, Any] | None, *,
+             conditional: bool = True) -> None:
+    """Append the edit to the kind's history table in the edit's own transaction, so history
+    never misses a committed change."""
+    table, column = HISTORY[c.kind]
     session.execute(text(
-        "INSERT INTO segment_edits (network_id, segment_id, action, version_from, version_to, "
-        "edited_by, old, new) VALUES (:n, :s, :a, :vf, :vt, :who, "
+        f"INSERT INTO {table} (network_id, {column}, action, version_from, version_to, "
+        "edited_by, conditional, old, new) VALUES (:n, :s, :a, :vf, :vt, :who, :cond, "
         "CAST(:old AS jsonb), CAST(:new AS jsonb))"),
-        {"n": c.network_id, "s": segment_id, "a": action, "vf": version_from,
-         "vt": version_to, "who": principal.name,
+        {"n": c.network_id, "s": fid, "a": action, "vf": version_from, "vt": version_to,
+         "who": principal.name, "cond": conditional,
          "old": None if old is None else json.dumps(old),
          "new": None if new is None else json.dumps(new)})
 
 
-def patch_segment(session: Session, c: colls.Collection, fid: int, expected: int,
-                  body: Any, principal: Principal) -> dict[str, Any]:
-    """Apply a JSON merge patch to a segment: validate every field first (422 naming each), then
-    check the version (412) and write one new version."""
-    properties, geometry = split_body(body)
-    errors = field_errors(properties)
-    if errors:
-        raise unprocessable(errors)
-    feature = lock_segment(session, c, fid, expected)
-    props = feature["properties"]
-    new = {k: (merge_patch(props["attrs"], v) if k == "attrs" else v)
-           for k, v in properties.items()}
-    if properties.keys() & {"oneway", "lanes_forward", "lanes_backward"}:
-        errors = lanes_consistent({**props, **new})
-    if geometry is not None:
-        start = _node_coords(session, props["source_node"])
-        end = _node_coords(session, props["target_node"])
-        problem = _check_line(geometry, start, end)
-        if problem:
-            errors["geometry"] = problem
-        else:  # ends snapped onto the nodes exactly, as validate requires
-            coords = [start, *geometry["coordinates"][1:-1], end]
-            new["geometry"] = {"type": "LineString", "coordinates": coords}
-    if errors:
-        raise unprocessable(errors)
-    return write_change(session, c, feature, new, principal, "update")
-
-
 def history(session: Session, c: colls.Collection, fid: int) -> list[dict[str, Any]]:
-    """The segment's edits, oldest first; a deleted segment's too (its last edit is the
-    deletion, with the whole segment as ``old``). 404 if the collection never had it."""
+    """The feature's edits, oldest first; a deleted one's too (its last edit is the deletion,
+    with the whole feature as ``old``). 404 if the collection never had it."""
+    table, column = HISTORY[c.kind]
     rows = session.execute(text(
-        "SELECT action, version_from, version_to, edited_by, edited_at, old, new "
-        "FROM segment_edits WHERE network_id = :n AND segment_id = :s ORDER BY id"),
+        "SELECT action, version_from, version_to, edited_by, edited_at, conditional, old, new "
+        f"FROM {table} WHERE network_id = :n AND {column} = :s ORDER BY id"),
         {"n": c.network_id, "s": fid}).all()
     if not rows:
         colls.get_item(session, c, fid)
     return [{**r._mapping, "edited_at": r.edited_at.isoformat()} for r in rows]
 
 
-def revert_segment(session: Session, c: colls.Collection, fid: int, to_version: int,
-                   expected: int, principal: Principal) -> dict[str, Any]:
-    """Restore the attributes (and geometry) the segment had at ``to_version``, as a new
+def revert_feature(session: Session, c: colls.Collection, fid: int, to_version: int,
+                   expected: int | None, principal: Principal) -> dict[str, Any]:
+    """Restore the attributes (and geometry) the feature had at ``to_version``, as a new
     version: history only grows, so a revert can itself be reverted."""
-    feature = lock_segment(session, c, fid, expected)
+    feature = lock_feature(session, c, fid, expected)
     current = feature["properties"]["version"]
     if not 1 <= to_version <= current:
         raise unprocessable({"to": f"must be a version from 1 to {current}"})
+    table, column = HISTORY[c.kind]
     edits = session.execute(text(
-        "SELECT version_to, action, old FROM segment_edits "
-        "WHERE network_id = :n AND segment_id = :s AND version_to > :v AND old IS NOT NULL "
+        f"SELECT version_to, action, old FROM {table} "
+        f"WHERE network_id = :n AND {column} = :s AND version_to > :v AND old IS NOT NULL "
         "ORDER BY version_to DESC"),
         {"n": c.network_id, "s": fid, "v": to_version}).all()
     if [e.version_to for e in edits] != list(range(current, to_version, -1)):
         raise unprocessable({"to": f"the history does not reach back to version {to_version}"})
-    if any(e.action not in ("update", "revert") for e in edits):
-        raise unprocessable({"to": "cannot revert across a split or merge (topology changed)"})
+    if any(e.action not in REVERTIBLE for e in edits):
+        raise unprocessable({"to": "cannot revert across a split, merge or node move "
+                                   "(the topology changed)"})
     restored: dict[str, Any] = {}
     for edit in edits:
         restored.update(edit.old)
-    return write_change(session, c, feature, restored, principal, "revert")
+    return write_change(session, c, feature, restored, principal, "revert",
+                        conditional=expected is not None)

@@ -1,8 +1,16 @@
-"""HTTP side of editing: PATCH (JSON merge patch), DELETE, history, revert, and admin
-split/merge.
+"""HTTP side of editing: OGC API Features Part 4 on every collection (POST creates, PUT
+replaces, PATCH merge-patches, DELETE deletes, OPTIONS says which), history and revert, and
+the admin split/merge of segments.
 
-Every write needs ``Authorization: Bearer`` with role editor (attributes, deleting a segment)
-or admin (split and merge); reads are public unless ``UGVMAP_NETWORK_READ_ROLE`` is set.
+Roles: editor or admin for attribute and geometry edits, creating and deleting segments;
+admin for what splits or merges segments (``split``, ``merge``, and creating or deleting a
+node, which do exactly that). Reads are public unless ``UGVMAP_NETWORK_READ_ROLE`` is set.
+``If-Match`` follows ``UGVMAP_IF_MATCH`` (:mod:`app.network.editing`).
+
+QGIS (3.32+) finds out what it may do with ``OPTIONS`` on the items and on one item, and looks
+for ``POST``, ``PUT``, ``PATCH`` and ``DELETE`` in ``Allow``; it reads the new feature's id
+from ``Location`` after ``/items/``. Both headers leave the server in that exact case
+(:mod:`app.api.wire`), since QGIS 3.34 compares header names case-sensitively.
 """
 
 from __future__ import annotations
@@ -19,26 +27,45 @@ from starlette.concurrency import run_in_threadpool
 from app import errors
 from app.db.session import session_scope
 from app.errors import (
+    ForbiddenError,
     InvalidParameterValueError,
     MethodNotAllowedError,
     UnsupportedMediaTypeError,
+    allowed_methods,
 )
 from app.network import collections as colls
-from app.network import editing, schemas, segment_deletion, topology_edits
-from app.network.features import GEOJSON, READ_ERRORS, GeoJSONResponse, etag, parse_fid
+from app.network import crs as crs_
+from app.network import (
+    editing,
+    node_editing,
+    schemas,
+    segment_deletion,
+    segment_editing,
+    topology_edits,
+)
+from app.network.features import (
+    GEOJSON,
+    READ_ERRORS,
+    GeoJSONResponse,
+    base_url,
+    etag,
+    parse_fid,
+)
 from app.network.tokens import Principal, SessionDep, read_access, require_role
 from app.params import Int
 
-# Every write: token checks, unknown collection or feature, a nodes collection (405), a
-# rule broken (422), a lost database.
+# Every write: token checks, unknown collection or feature, a rule broken (422), a lost
+# database.
 WRITE_ERRORS = (errors.UnauthorizedError, errors.ForbiddenError, errors.NotFoundError,
-                errors.MethodNotAllowedError, errors.InvalidValueError,
-                errors.DatabaseUnavailableError)
+                errors.InvalidValueError, errors.DatabaseUnavailableError)
 router = APIRouter(tags=["Editing"])
 
 EditorDep = Annotated[Principal, Depends(require_role("editor", "admin"))]
 AdminDep = Annotated[Principal, Depends(require_role("admin"))]
 PATCH_TYPES = ("application/merge-patch+json", "application/json")
+FEATURE_TYPES = (GEOJSON, "application/json")
+ITEMS = "/collections/{collection_id}/items"
+ITEM = ITEMS + "/{fid}"
 Version = Annotated[int, Int("to", low=1, high=2**31 - 1)]
 
 
@@ -61,17 +88,32 @@ async def json_body(request: Request, accepted: tuple[str, ...] = PATCH_TYPES) -
         raise InvalidParameterValueError(f"the body is not valid JSON ({exc})"[:200]) from None
 
 
-def _segments(session: Session, collection_id: str) -> colls.Collection:
-    c = colls.resolve(session, collection_id)
+def content_crs(request: Request) -> crs_.Crs:
+    """The CRS of the body's coordinates (Part 2's ``Content-Crs``; CRS84 without one)."""
+    return crs_.parse(request.headers.get("content-crs", crs_.CRS84), "Content-Crs")
+
+
+def _segments(c: colls.Collection) -> colls.Collection:
     if c.kind != "segments":
-        raise MethodNotAllowedError("only segment collections are editable")
+        raise MethodNotAllowedError("only segment collections are split and merged")
     return c
 
 
-def feature_response(feature: dict[str, Any]) -> JSONResponse:
-    """The edited feature with its new ETag, so the client can edit again without re-reading it."""
-    return JSONResponse(feature, media_type=GEOJSON,
-                        headers={"ETag": etag(feature["properties"]["version"])})
+def _admin_for_nodes(c: colls.Collection, principal: Principal) -> None:
+    """Creating or deleting a node splits or merges segments: admin, as split and merge."""
+    if c.kind == "nodes" and principal.role != "admin":
+        raise ForbiddenError(f"role {principal.role!r} may not create or delete nodes (it "
+                             "splits or merges segments); needs admin")
+
+
+def feature_response(feature: dict[str, Any], status_code: int = 200,
+                     location: str | None = None) -> JSONResponse:
+    """The written feature with its new ETag, so the client can edit again without re-reading
+    it (and, when created, where it lives)."""
+    headers = {"ETag": etag(feature["properties"]["version"])}
+    if location:
+        headers["Location"] = location
+    return GeoJSONResponse(feature, status_code=status_code, headers=headers)
 
 
 def _body_doc(schema: dict[str, Any], media_types: tuple[str, ...],
@@ -82,120 +124,207 @@ def _body_doc(schema: dict[str, Any], media_types: tuple[str, ...],
             "parameters": list(params), "security": [{"bearer": []}]}
 
 
-IF_MATCH = {"name": "If-Match", "in": "header", "required": True,
-            "description": "The feature's ETag (its version), so edits cannot overwrite "
-                           "each other", "schema": {"type": "string"}}
+IF_MATCH = {"name": "If-Match", "in": "header", "required": False,
+            "description": "The feature's ETag (its version): a stale one is refused (412), so "
+                           "edits cannot overwrite each other. Without it the write applies "
+                           "to the current version (recorded in the history) unless the "
+                           "server requires it (`UGVMAP_IF_MATCH=required`: 428).",
+            "schema": {"type": "string"}}
+CONTENT_CRS = {"name": "Content-Crs", "in": "header", "required": False,
+               "description": "CRS of the body's coordinates (OGC API Features Part 2), e.g. "
+                              "`<http://www.opengis.net/def/crs/EPSG/0/3857>`; CRS84 without",
+               "schema": {"type": "string"}}
 FEATURE_200: dict[int | str, dict[str, Any]] = {
     200: {"content": {GEOJSON: {"schema": {"$ref": "#/components/schemas/Feature"}}}}}
 BODY_ERRORS = (errors.InvalidParameterValueError, errors.PayloadTooLargeError,
                errors.UnsupportedMediaTypeError)
 PRECONDITIONS = (errors.PreconditionFailedError, errors.PreconditionRequiredError)
+SEGMENTS_ONLY = (errors.MethodNotAllowedError,)
 
 
-async def _in_session(work: Callable[[Session], dict[str, Any] | None]) -> Response:
-    """Run blocking DB work in the thread pool, in one transaction; answer with its result
-    (204 No Content when it has none: a deletion)."""
+async def _in_session(work: Callable[[Session], Any]) -> Any:
+    """Run blocking DB work in the thread pool, in one transaction."""
 
-    def run() -> dict[str, Any] | None:
+    def run() -> Any:
         with session_scope() as session:
             return work(session)
 
-    result = await run_in_threadpool(run)
-    if result is None:
-        return Response(status_code=204)
-    if result.get("type") == "Feature":
-        return feature_response(result)
-    return JSONResponse(result, media_type=GEOJSON)
+    return await run_in_threadpool(run)
 
 
-@router.patch("/collections/{collection_id}/items/{fid}", response_class=GeoJSONResponse,
-              openapi_extra=_body_doc(schemas.openapi_patch_body(), PATCH_TYPES, IF_MATCH),
+def _by_kind(c: colls.Collection, segments: Callable[..., Any],
+             nodes: Callable[..., Any]) -> Callable[..., Any]:
+    return segments if c.kind == "segments" else nodes
+
+
+@router.options(ITEMS, include_in_schema=False, dependencies=[Depends(read_access)])
+@router.options(ITEM, include_in_schema=False, dependencies=[Depends(read_access)])
+def item_options(collection_id: str, request: Request, session: SessionDep) -> Response:
+    """Part 4's ``OPTIONS``: the methods the items (or any one item, existing or not, as QGIS
+    probes ``unknown_id`` on an empty collection) answer, in ``Allow``."""
+    colls.resolve(session, collection_id)
+    return Response(status_code=200, headers={"Allow": allowed_methods(request)})
+
+
+@router.post(ITEMS, status_code=201, response_class=GeoJSONResponse,
+             openapi_extra=_body_doc({"$ref": "#/components/schemas/FeatureInput"}, FEATURE_TYPES,
+                                     CONTENT_CRS),
+             responses={201: {"description": "Created; `Location` is the new item",
+                              "content": {GEOJSON: {"schema": {
+                                  "$ref": "#/components/schemas/Feature"}}}},
+                        **errors.responses(*WRITE_ERRORS, *BODY_ERRORS)})
+async def create_item(collection_id: str, request: Request, principal: EditorDep) -> Response:
+    """Create a feature (Part 4): a segment is noded into the network at its ends (editor); a
+    node splits the segment it lies on (admin)."""
+    body = await json_body(request, FEATURE_TYPES)
+    crs = content_crs(request)
+
+    def create(session: Session) -> dict[str, Any]:
+        c = colls.resolve(session, collection_id)
+        _admin_for_nodes(c, principal)
+        make = _by_kind(c, segment_editing.create_segment, node_editing.create_node)
+        feature: dict[str, Any] = make(session, c, body, crs, principal)
+        feature["links"] = [{"href": f"{base_url(request)}/collections/{c.id}/items/"
+                                     f"{feature['id']}", "rel": "self", "type": GEOJSON}]
+        return feature
+
+    feature = await _in_session(create)
+    return feature_response(feature, 201, feature["links"][0]["href"])
+
+
+@router.put(ITEM, response_class=GeoJSONResponse,
+            openapi_extra=_body_doc({"$ref": "#/components/schemas/FeatureInput"}, FEATURE_TYPES,
+                                    IF_MATCH, CONTENT_CRS),
+            responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS,
+                                                         *PRECONDITIONS)})
+async def replace_item(collection_id: str, fid: str, request: Request,
+                       principal: EditorDep) -> Response:
+    """Replace a feature (Part 4): attributes not given take their defaults, server-kept
+    properties are ignored; a segment's line keeps its nodes, a node's move drags its
+    segments' ends (editor)."""
+    body = await json_body(request, FEATURE_TYPES)
+    return await _edit_item(request, collection_id, fid, body, principal,
+                            segment_editing.replace_segment, node_editing.replace_node)
+
+
+@router.patch(ITEM, response_class=GeoJSONResponse,
+              openapi_extra=_body_doc(schemas.openapi_patch_body(), PATCH_TYPES, IF_MATCH,
+                                      CONTENT_CRS),
               responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS,
                                                            *PRECONDITIONS)})
 async def patch_item(collection_id: str, fid: str, request: Request,
                      principal: EditorDep) -> Response:
-    """Edit a segment's attributes or geometry (editor; ``If-Match`` required)."""
-    if_match = request.headers.get("if-match")
+    """Edit a feature's attributes or geometry with a JSON merge patch (editor)."""
     body = await json_body(request)
-    # Arguments run left to right: an unknown or read-only target (404/405) is said before
-    # the precondition (428/412), which RFC 9110 evaluates only for a request that could
-    # otherwise succeed.
-    return await _in_session(lambda s: editing.patch_segment(
-        s, _segments(s, collection_id), parse_fid(fid), editing.parse_if_match(if_match)[0],
-        body, principal))
+    return await _edit_item(request, collection_id, fid, body, principal,
+                            segment_editing.patch_segment, node_editing.patch_node)
 
 
-@router.delete("/collections/{collection_id}/items/{fid}", status_code=204,
-               response_class=Response,
+async def _edit_item(request: Request, collection_id: str, fid: str, body: Any,
+                     principal: Principal, segments: Callable[..., dict[str, Any]],
+                     nodes: Callable[..., dict[str, Any]]) -> Response:
+    """A PUT or PATCH of one feature with the writer of its kind. The collection and the
+    feature id are resolved before the precondition (428/412), which RFC 9110 evaluates only
+    for a request that could otherwise succeed."""
+    if_match, crs = request.headers.get("if-match"), content_crs(request)
+
+    def write(session: Session) -> dict[str, Any]:
+        c = colls.resolve(session, collection_id)
+        return _by_kind(c, segments, nodes)(session, c, parse_fid(fid),
+                                            editing.expected_version(if_match), body, crs,
+                                            principal)
+
+    return feature_response(await _in_session(write))
+
+
+@router.delete(ITEM, status_code=204, response_class=Response,
                openapi_extra={"security": [{"bearer": []}], "parameters": [IF_MATCH]},
-               responses={204: {"description": "Deleted; its end nodes left without segments "
-                                               "are deleted too"},
-                          **errors.responses(errors.UnauthorizedError, errors.ForbiddenError,
-                                             errors.NotFoundError,
-                                             errors.MethodNotAllowedError,
-                                             errors.DatabaseUnavailableError, *PRECONDITIONS)})
+               responses={204: {"description": "Deleted; a segment's end nodes left without "
+                                               "segments go too, a node's two segments are "
+                                               "merged"},
+                          **errors.responses(*WRITE_ERRORS, *PRECONDITIONS)})
 async def delete_item(collection_id: str, fid: str, request: Request,
                       principal: EditorDep) -> Response:
-    """Delete a segment (editor; ``If-Match`` required): orphaned end nodes go with it, the
-    others are re-kinded by degree, and the history keeps the whole segment."""
+    """Delete a segment (editor: orphaned end nodes go with it, the others are re-kinded by
+    degree, the history keeps the whole segment) or a node between two segments (admin:
+    they are merged)."""
     if_match = request.headers.get("if-match")
-    return await _in_session(lambda s: segment_deletion.delete_segment(
-        s, _segments(s, collection_id), parse_fid(fid), editing.parse_if_match(if_match)[0],
-        principal))
+
+    def delete(session: Session) -> None:
+        c = colls.resolve(session, collection_id)
+        _admin_for_nodes(c, principal)
+        remove = _by_kind(c, segment_deletion.delete_segment, node_editing.delete_node)
+        remove(session, c, parse_fid(fid), editing.expected_version(if_match), principal)
+
+    await _in_session(delete)
+    return Response(status_code=204)
 
 
-@router.get("/collections/{collection_id}/items/{fid}/history",
-            dependencies=[Depends(read_access)],
-            responses=errors.responses(*READ_ERRORS, errors.NotFoundError,
-                                       errors.MethodNotAllowedError))
-def item_history(collection_id: str, fid: str,
-                 session: SessionDep) -> dict[str, Any]:
-    """A segment's edit history."""
-    c = _segments(session, collection_id)
+@router.get(ITEM + "/history", dependencies=[Depends(read_access)],
+            responses=errors.responses(*READ_ERRORS, errors.NotFoundError))
+def item_history(collection_id: str, fid: str, session: SessionDep) -> dict[str, Any]:
+    """A feature's edit history, oldest first (``conditional: false``: written without
+    ``If-Match``, over whatever version was current)."""
+    c = colls.resolve(session, collection_id)
     return {"id": parse_fid(fid), "edits": editing.history(session, c, parse_fid(fid))}
 
 
-@router.post("/collections/{collection_id}/items/{fid}/revert", response_class=GeoJSONResponse,
+@router.post(ITEM + "/revert", response_class=GeoJSONResponse,
              openapi_extra={"security": [{"bearer": []}], "parameters": [IF_MATCH]},
              responses={**FEATURE_200, **errors.responses(
                  *WRITE_ERRORS, errors.InvalidParameterValueError, *PRECONDITIONS)})
 async def revert_item(collection_id: str, fid: str, to: Version, request: Request,
                       principal: EditorDep) -> Response:
-    """Restore a segment to an earlier version, as a new version (editor; ``If-Match``
-    required: reverting over an edit the client has not seen would silently undo it)."""
+    """Restore a feature to an earlier version, as a new version (editor; a stale
+    ``If-Match`` is refused: reverting over an edit the client has not seen would undo it)."""
     if_match = request.headers.get("if-match")
-    return await _in_session(lambda s: editing.revert_segment(
-        s, _segments(s, collection_id), parse_fid(fid), to,
-        editing.parse_if_match(if_match)[0], principal))
+
+    def revert(session: Session) -> dict[str, Any]:
+        c = colls.resolve(session, collection_id)
+        return editing.revert_feature(session, c, parse_fid(fid), to,
+                                      editing.expected_version(if_match), principal)
+
+    return feature_response(await _in_session(revert))
 
 
-@router.post("/collections/{collection_id}/items/{fid}/split", response_class=GeoJSONResponse,
+@router.post(ITEM + "/split", response_class=GeoJSONResponse,
              openapi_extra=_body_doc(schemas.SPLIT_BODY, ("application/json",), IF_MATCH),
              responses={200: {"content": {GEOJSON: {"schema": {
                  "$ref": "#/components/schemas/FeatureCollection"}}}},
-                 **errors.responses(*WRITE_ERRORS, *BODY_ERRORS, *PRECONDITIONS)})
+                 **errors.responses(*WRITE_ERRORS, *SEGMENTS_ONLY, *BODY_ERRORS,
+                                    *PRECONDITIONS)})
 async def split_item(collection_id: str, fid: str, request: Request,
                      principal: AdminDep) -> Response:
-    """Split a segment at a fraction or point into two, adding a node (admin; ``If-Match``)."""
+    """Split a segment at a fraction or point into two, adding a node (admin)."""
     if_match = request.headers.get("if-match")
     body = await json_body(request, ("application/json",))
-    return await _in_session(lambda s: topology_edits.split_segment(
-        s, _segments(s, collection_id), parse_fid(fid), editing.parse_if_match(if_match)[0],
-        body, principal))
+
+    def split(session: Session) -> dict[str, Any]:
+        c = _segments(colls.resolve(session, collection_id))
+        return topology_edits.split_segment(session, c, parse_fid(fid),
+                                            editing.expected_version(if_match), body,
+                                            principal)
+
+    return GeoJSONResponse(await _in_session(split))
 
 
 @router.post("/collections/{collection_id}/merge", response_class=GeoJSONResponse,
              openapi_extra=_body_doc(schemas.MERGE_BODY, ("application/json",), {
                  **IF_MATCH, "description": "Both segments' ETags, in the order of `segments`, "
                                             'e.g. `"3", "5"`'}),
-             responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS,
-                                                          *PRECONDITIONS)})
+             responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *SEGMENTS_ONLY,
+                                                          *BODY_ERRORS, *PRECONDITIONS)})
 async def merge_items(collection_id: str, request: Request,
                       principal: AdminDep) -> Response:
     """Merge two segments that meet at a node only they share (admin; ``If-Match`` names both
     segments' ETags in the order of ``segments``, e.g. ``"3", "5"``)."""
     if_match = request.headers.get("if-match")
     body = await json_body(request, ("application/json",))
-    return await _in_session(lambda s: topology_edits.merge_segments(
-        s, _segments(s, collection_id), body, editing.parse_if_match(if_match, count=2),
-        principal))
+
+    def merge(session: Session) -> dict[str, Any]:
+        c = _segments(colls.resolve(session, collection_id))
+        return topology_edits.merge_segments(session, c, body,
+                                             editing.parse_if_match(if_match, count=2),
+                                             principal)
+
+    return feature_response(await _in_session(merge))

@@ -17,13 +17,14 @@ from pydantic import BaseModel
 from sqlalchemy.orm import Session
 
 from app import errors
-from app.errors import NotFoundError
+from app.errors import InvalidParameterValueError, NotFoundError
 from app.network import collections as colls
+from app.network import crs as crs_
 from app.network import ogc_params, schemas
 from app.network.tokens import SessionDep, read_access
 
 GEOJSON = "application/geo+json"
-CRS84 = ogc_params.CRS84
+CRS84 = crs_.CRS84
 GREGORIAN = "http://www.opengis.net/def/uom/ISO-8601/0/Gregorian"
 OGC_REL = "http://www.opengis.net/def/rel/ogc/1.0/"
 MAX_FID = 2**63 - 1
@@ -37,13 +38,14 @@ router = APIRouter(tags=["OGC API Features"], dependencies=[Depends(read_access)
 
 class GeoJSONResponse(JSONResponse):
     """JSON served as ``application/geo+json``, as the GeoJSON conformance class requires,
-    saying its CRS the way Part 2 clients (GDAL) look for it."""
+    saying its CRS the way Part 2 clients (GDAL, QGIS) look for it."""
 
     media_type = GEOJSON
 
     def __init__(self, content: Any, status_code: int = 200,
-                 headers: dict[str, str] | None = None, **kw: Any) -> None:
-        super().__init__(content, status_code, {"Content-Crs": f"<{CRS84}>", **(headers or {})},
+                 headers: dict[str, str] | None = None, crs: crs_.Crs = crs_.DEFAULT,
+                 **kw: Any) -> None:
+        super().__init__(content, status_code, {"Content-Crs": crs.header, **(headers or {})},
                          **kw)
 
 
@@ -116,12 +118,13 @@ def describe(request: Request, session: Session, c: colls.Collection) -> dict[st
     """A collection's description: extent (space, and time for segments) and the links
     clients follow to its items, queryables and schemas."""
     base = f"{base_url(request)}/collections/{c.id}"
+    extent = colls.extent(session, c)
     doc: dict[str, Any] = {
         "id": c.id,
         "title": f"{c.title or c.network} {c.kind}",
         "description": f"Road {c.kind} of network {c.network}",
         "itemType": "feature",
-        "crs": [CRS84],
+        "crs": crs_.advertised(extent.bbox),
         "storageCrs": CRS84,
         "links": [
             link(base, "self", "application/json"),
@@ -138,9 +141,9 @@ def describe(request: Request, session: Session, c: colls.Collection) -> dict[st
             link(f"{base}/queryables", "queryables", schemas.SCHEMA_JSON),
         ],
     }
-    extent = _extent(colls.extent(session, c))
-    if extent:
-        doc["extent"] = extent
+    described = _extent(extent)
+    if described:
+        doc["extent"] = described
     return doc
 
 
@@ -183,8 +186,10 @@ def items(collection_id: str, request: Request,
     c = colls.resolve(session, collection_id)
     query = dict(request.query_params)
     item_query = ogc_params.item_query(c.kind, query)
+    crs = ogc_params.output_crs(query)
     limit, offset = ogc_params.paging(query)
-    matched, features = colls.query_items(session, c, item_query, limit=limit, offset=offset)
+    matched, features = colls.query_items(session, c, item_query, limit=limit, offset=offset,
+                                          geometry=crs.output_sql())
     base = f"{base_url(request)}/collections/{c.id}/items"
     kept = {k: v for k, v in query.items() if k not in ("limit", "offset")}
 
@@ -200,7 +205,7 @@ def items(collection_id: str, request: Request,
     body = {"type": "FeatureCollection", "features": features, "numberMatched": matched,
             "numberReturned": len(features),
             "timeStamp": datetime.now(UTC).isoformat(timespec="seconds"), "links": links}
-    return GeoJSONResponse(body)
+    return GeoJSONResponse(body, crs=crs)
 
 
 def etag(version: int) -> str:
@@ -209,20 +214,28 @@ def etag(version: int) -> str:
 
 
 @router.get("/collections/{collection_id}/items/{fid}", response_class=GeoJSONResponse,
+            openapi_extra={"parameters": [ogc_params.parameter_ref("crs"),
+                                          ogc_params.parameter_ref("f")]},
             responses={200: {"content": {GEOJSON: {"schema": {
-                "$ref": "#/components/schemas/Feature"}}}}, **NOT_FOUND})
+                "$ref": "#/components/schemas/Feature"}}}},
+                **errors.responses(errors.InvalidParameterValueError, errors.NotFoundError)})
 def item(collection_id: str, fid: str, request: Request,
          session: SessionDep) -> GeoJSONResponse:
-    """One feature; segments carry their version as ETag for ``If-Match`` edits."""
+    """One feature, with its version as ETag for ``If-Match`` edits (``crs``: Part 2)."""
     c = colls.resolve(session, collection_id)
-    feature = colls.get_item(session, c, parse_fid(fid))
+    query = dict(request.query_params)
+    unknown = sorted(set(query) - {"crs", "f"})
+    if unknown:
+        raise InvalidParameterValueError(f"unknown query parameter {unknown[0][:100]!r}")
+    if query.get("f", "json") not in ("json", "geojson"):
+        raise InvalidParameterValueError("f must be json or geojson")
+    crs = ogc_params.output_crs(query)
+    feature = colls.get_item(session, c, parse_fid(fid), geometry=crs.output_sql())
     base = f"{base_url(request)}/collections/{c.id}"
     feature["links"] = [link(f"{base}/items/{feature['id']}", "self", GEOJSON),
                         link(base, "collection", "application/json")]
-    headers = {}
-    if c.kind == "segments":
-        headers["ETag"] = etag(feature["properties"]["version"])
-    return GeoJSONResponse(feature, headers=headers)
+    return GeoJSONResponse(feature, headers={"ETag": etag(feature["properties"]["version"])},
+                           crs=crs)
 
 
 def _schema(session: Session, collection_id: str, request: Request,

@@ -9,16 +9,17 @@ declarations live under ``components/parameters`` with the names QGIS and GDAL l
 
 from __future__ import annotations
 
-import math
 import re
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Any
 
 from app.errors import InvalidParameterValueError
+from app.network import crs as crs_
 from app.network import properties as props
 from app.network.collections import ItemQuery, Kind
+from app.params import parse_float
 
-CRS84 = "http://www.opengis.net/def/crs/OGC/1.3/CRS84"
+CRS84 = crs_.CRS84
 DEFAULT_LIMIT = 10
 MAX_LIMIT = 10_000
 MAX_OFFSET = 2**63 - 1
@@ -47,14 +48,16 @@ PARAMETERS: dict[str, dict[str, Any]] = {
     },
     "bbox-crs": {
         "name": "bbox-crs", "in": "query", "required": False, "style": "form", "explode": False,
-        "description": "CRS of bbox; only CRS84 (lon/lat) is offered.",
-        "schema": {"type": "string", "format": "uri", "enum": [CRS84]},
+        "description": "CRS of bbox (Part 2): CRS84 (default), EPSG 4326 (lat, lon order), "
+                       "EPSG 3857 or a WGS 84 UTM zone, as `http://www.opengis.net/def/crs/"
+                       "EPSG/0/<code>`.",
+        "schema": {"type": "string", "format": "uri", "default": CRS84},
     },
     "crs": {
         "name": "crs", "in": "query", "required": False, "style": "form", "explode": False,
-        "description": "CRS of the returned coordinates (Part 2's parameter, which GDAL "
-                       "sends); only CRS84 (lon/lat) is offered.",
-        "schema": {"type": "string", "format": "uri", "enum": [CRS84]},
+        "description": "CRS of the returned coordinates (Part 2; the `Content-Crs` header "
+                       "names it): the same choices as `bbox-crs`.",
+        "schema": {"type": "string", "format": "uri", "default": CRS84},
     },
     "datetime": {
         "name": "datetime", "in": "query", "required": False, "style": "form", "explode": False,
@@ -107,24 +110,29 @@ def paging(query: dict[str, str]) -> tuple[int, int]:
     return min(limit, MAX_LIMIT), int_param("offset", query.get("offset"), 0, 0, MAX_OFFSET)
 
 
-def parse_bbox(value: str | None) -> tuple[float, float, float, float] | None:
-    """``minlon,minlat,maxlon,maxlat`` (or 6 numbers with heights, which are dropped) as
-    finite numbers; anything else is a 400 rather than a query that silently matches nothing.
-    """
+def parse_bbox(value: str | None, crs: crs_.Crs = crs_.DEFAULT
+               ) -> tuple[float, float, float, float] | None:
+    """``minx,miny,maxx,maxy`` (or 6 numbers with heights, which are dropped) in ``crs``, as
+    finite ASCII numbers within the CRS's range (``1_0`` or ``٣`` are not numbers here, a
+    longitude of -500 is not a longitude): anything else is a 400 rather than a query that
+    silently matches something else. EPSG:4326 boxes come latitude first and are returned
+    lon/lat; lon/lat boxes may cross the antimeridian (minlon > maxlon), projected ones not."""
     if value is None:
         return None
-    try:
-        box = [float(v) for v in value.split(",")]
-    except ValueError:
+    box = [parse_float(v, "bbox") for v in value.split(",")]
+    if len(box) not in (4, 6):
         raise InvalidParameterValueError(
-            "bbox must be 4 or 6 numbers: minlon,minlat[,minh],maxlon,maxlat[,maxh]") from None
-    if len(box) not in (4, 6) or not all(math.isfinite(v) for v in box):
-        raise InvalidParameterValueError(
-            "bbox must be 4 or 6 finite numbers: minlon,minlat[,minh],maxlon,maxlat[,maxh]")
+            "bbox must be 4 or 6 numbers: minx,miny[,minz],maxx,maxy[,maxz]")
     if len(box) == 6:
         box = [box[0], box[1], box[3], box[4]]
-    if box[1] > box[3]:
-        raise InvalidParameterValueError("bbox minlat must not exceed maxlat")
+    if crs.lat_first:
+        box = [box[1], box[0], box[3], box[2]]
+    for x, y in (box[:2], box[2:]):
+        problem = crs.check_position(*((y, x) if crs.lat_first else (x, y)))
+        if problem:
+            raise InvalidParameterValueError(f"bbox {problem.replace('positions', 'corners')}")
+    if box[1] > box[3] or (crs.projected and box[0] > box[2]):
+        raise InvalidParameterValueError("bbox minimum must not exceed its maximum")
     return box[0], box[1], box[2], box[3]
 
 
@@ -169,12 +177,16 @@ def item_query(kind: Kind, query: dict[str, str]) -> ItemQuery:
     unknown = sorted(set(query) - set(ITEM_PARAMS) - set(queryable))
     if unknown:
         raise InvalidParameterValueError(f"unknown query parameter {unknown[0][:100]!r}")
-    for name in ("bbox-crs", "crs"):
-        if query.get(name, CRS84) != CRS84:
-            raise InvalidParameterValueError(f"{name} must be {CRS84}")
     if query.get("f", "json") not in ("json", "geojson"):
         raise InvalidParameterValueError("f must be json or geojson")
+    bbox_crs = crs_.parse(query.get("bbox-crs", CRS84), "bbox-crs")
     start, stop = parse_datetime(query.get("datetime"))
     equals = tuple((name, queryable[name].parse_filter(value))
                    for name, value in sorted(query.items()) if name in queryable)
-    return ItemQuery(parse_bbox(query.get("bbox")), start, stop, equals)
+    return ItemQuery(parse_bbox(query.get("bbox"), bbox_crs), start, stop, equals,
+                     bbox_srid=bbox_crs.srid)
+
+
+def output_crs(query: dict[str, str]) -> crs_.Crs:
+    """The CRS the items are returned in (``crs``; CRS84 when absent)."""
+    return crs_.parse(query.get("crs", CRS84), "crs")

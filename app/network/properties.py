@@ -88,6 +88,8 @@ def _editable(name: str, type_: JsonType, description: str, **kw: Any) -> Proper
 
 PROPERTIES: dict[Kind, tuple[Property, ...]] = {
     "segments": (
+        Property("segment_id", "integer", "The segment's id (the feature id, repeated as a "
+                 "property: clients reading GeoJSON through OGR show no feature id)"),
         Property("source_node", "integer", "Node the segment starts at (its geometry's "
                  "first point)", queryable=True),
         Property("target_node", "integer", "Node the segment ends at", queryable=True),
@@ -119,11 +121,16 @@ PROPERTIES: dict[Kind, tuple[Property, ...]] = {
         _editable("attrs", "object", "Other source attributes"),
     ),
     "nodes": (
+        Property("node_id", "integer", "The node's id (the feature id, repeated as a "
+                 "property: clients reading GeoJSON through OGR show no feature id)"),
         Property("kind", "string", "junction (3+ segments), endpoint (1) or node (2)",
                  enum=NODE_KINDS, queryable=True),
-        Property("traffic_light", "boolean", "Traffic signals at the node", queryable=True),
-        Property("external_id", "string", "Id in the source data (e.g. OSM node id)",
-                 nullable=True, queryable=True),
+        _editable("traffic_light", "boolean", "Traffic signals at the node", queryable=True),
+        _editable("external_id", "string", "Id in the source data (e.g. OSM node id)",
+                  nullable=True, queryable=True),
+        Property("version", "integer", "Edit version; the item's ETag"),
+        Property("updated_at", "string", "When the node last changed", format="date-time"),
+        Property("updated_by", "string", "Who changed it last", nullable=True),
         Property("degree", "integer", "Number of segment ends at the node"),
     ),
 }

@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 from fastapi import FastAPI
 
 from app.lanelet2 import router as lanelet2
 from app.network import discovery, editing_router, features, tiles
 
 
-def include_network(app: FastAPI) -> None:
+def include_network(app: FastAPI, dependencies: Sequence[Any] = ()) -> None:
     """Mount the OGC API Features, editing, vector-tile, network discovery and Lanelet2 map
-    routers."""
-    app.include_router(features.router)
-    app.include_router(editing_router.router)
-    app.include_router(discovery.router)
-    app.include_router(tiles.router)
-    app.include_router(lanelet2.router)
+    routers, each with ``dependencies``."""
+    for router in (features.router, editing_router.router, discovery.router, tiles.router,
+                   lanelet2.router):
+        app.include_router(router, dependencies=list(dependencies))

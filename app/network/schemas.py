@@ -101,8 +101,8 @@ def openapi_feature_collection(item: str) -> dict[str, Any]:
             }}
 
 
-def _editable_schema() -> dict[str, Any]:
-    """What a segment merge patch may set, with the editing rules as schema constraints
+def _editable_schema(kind: Kind) -> dict[str, Any]:
+    """What a merge patch of a kind may set, with the editing rules as schema constraints
     (``null`` removes a nullable value, as RFC 7396 says)."""
     limits: dict[str, dict[str, Any]] = {
         "lanes_forward": {"minimum": 0, "maximum": v.MAX_LANES},
@@ -116,18 +116,30 @@ def _editable_schema() -> dict[str, Any]:
     }
     return {"type": "object", "additionalProperties": False, "minProperties": 1,
             "properties": {p.name: {**p.openapi_schema(), **limits.get(p.name, {})}
-                           for p in PROPERTIES["segments"] if not p.read_only}}
+                           for p in PROPERTIES[kind] if not p.read_only}}
 
 
 def openapi_patch_body() -> dict[str, Any]:
-    """The PATCH body: a merge patch of the properties, or of the feature (properties and a
-    new geometry that keeps its end nodes)."""
-    editable = _editable_schema()
-    return {"anyOf": [editable, {
-        "type": "object", "minProperties": 1,
-        "properties": {"type": {"type": "string", "enum": ["Feature"]},
-                       "properties": editable,
-                       "geometry": _geometry("segments")}}]}
+    """The PATCH body: a merge patch of a segment's or a node's properties, or of the feature
+    (properties and a new geometry: a segment's keeps its end nodes, a node's moves it)."""
+    options: list[dict[str, Any]] = []
+    for kind in ("segments", "nodes"):
+        editable = _editable_schema(kind)
+        options += [editable, {
+            "type": "object", "minProperties": 1,
+            "properties": {"type": {"type": "string", "enum": ["Feature"]},
+                           "properties": editable,
+                           "geometry": _geometry(kind)}}]
+    return {"anyOf": options}
+
+
+def openapi_feature_input() -> dict[str, Any]:
+    """A whole feature sent to POST (create) or PUT (replace): its geometry is required, its
+    properties are those a client holds (server-kept ones are ignored)."""
+    return {"type": "object", "required": ["type", "geometry"],
+            "properties": {"type": {"type": "string", "enum": ["Feature"]},
+                           "geometry": {"type": "object"},
+                           "properties": {"type": "object", "nullable": True}}}
 
 
 SPLIT_BODY: dict[str, Any] = {"oneOf": [

@@ -18,18 +18,16 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.network import collections as colls
-from app.network.collections import KIND_OF_DEGREE, NODE_DEGREE
-from app.network.editing import lock_segment, log_edit
+from app.network.editing import lock_feature, log_edit
 from app.network.tokens import Principal
 
-_ENDS = f"SELECT n.id, {NODE_DEGREE} AS degree FROM road_nodes n WHERE n.id = ANY(:ids)"
 
-
-def delete_segment(session: Session, c: colls.Collection, fid: int, expected: int,
+def delete_segment(session: Session, c: colls.Collection, fid: int, expected: int | None,
                    principal: Principal) -> None:
-    """Delete segment ``fid`` if it is at version ``expected`` (404 / 412 otherwise), drop the
-    end nodes it orphans and re-kind the others, and log it, all in the caller's transaction."""
-    feature = lock_segment(session, c, fid, expected)
+    """Delete segment ``fid`` if it is at version ``expected`` (404 / 412 otherwise; None:
+    whatever version is current), drop the end nodes it orphans and re-kind the others, and
+    log it, all in the caller's transaction."""
+    feature = lock_feature(session, c, fid, expected)
     props = feature["properties"]
     ends = {"ids": sorted({props["source_node"], props["target_node"]})}
     # Lock the end nodes before counting their segments: two deletions of the two segments
@@ -39,9 +37,7 @@ def delete_segment(session: Session, c: colls.Collection, fid: int, expected: in
     session.execute(text("SELECT id FROM road_nodes WHERE id = ANY(:ids) ORDER BY id "
                          "FOR UPDATE"), ends)
     session.execute(text("DELETE FROM road_segments WHERE id = :id"), {"id": fid})
-    session.execute(text(f"DELETE FROM road_nodes WHERE id IN (SELECT id FROM ({_ENDS}) d "
-                         "WHERE degree = 0)"), ends)
-    session.execute(text(f"UPDATE road_nodes n SET kind = {KIND_OF_DEGREE} FROM ({_ENDS}) d "
-                         f"WHERE n.id = d.id AND n.kind <> {KIND_OF_DEGREE}"), ends)
+    colls.settle_nodes(session, ends["ids"])
     log_edit(session, c, fid, "delete", props["version"], None, principal,
-             {**props, "geometry": feature["geometry"]}, None)
+             {**props, "geometry": feature["geometry"]}, None,
+             conditional=expected is not None)

@@ -106,10 +106,19 @@ def _class_colour() -> list[Any]:
     return [*expression, OTHER_COLOUR]
 
 
-def _by_node(light: Any, junction: Any, other: Any) -> list[Any]:
-    """A value per node: traffic light, junction, other."""
-    return ["case", ["get", "traffic_light"], light,
-            ["==", ["get", "kind"], "junction"], junction, other]
+# Nodes by what they are: (style layer id, filter, colour, radius, stroke width, min zoom).
+# One style layer per kind with fixed paint values, not one layer with data-driven ``case``
+# expressions: QGIS's MapLibre style converter (QgsMapBoxGlStyleConverter) understands a
+# layer ``filter`` and fixed values but drops ``case``/``step`` paint expressions, which drew
+# junctions and traffic lights alike in QGIS. Plain nodes only from z16.
+NODE_STYLES: tuple[tuple[str, list[Any], str, float, float, int], ...] = (
+    ("nodes", ["all", ["!=", ["get", "traffic_light"], True],
+               ["!=", ["get", "kind"], "junction"]], "#607080", 2.5, 1, 16),
+    ("nodes-junctions", ["all", ["!=", ["get", "traffic_light"], True],
+                         ["==", ["get", "kind"], "junction"]], "#ff9800", 4, 1, NODES_MINZOOM),
+    ("nodes-traffic-lights", ["==", ["get", "traffic_light"], True], "#e02020", 6, 2,
+     NODES_MINZOOM),
+)
 
 
 def _line_width(extra: float) -> list[Any]:
@@ -120,7 +129,8 @@ def _line_width(extra: float) -> list[Any]:
 def style(network: NetworkInfo, tilejson_url: str) -> dict[str, Any]:
     """A MapLibre style drawing the network: roads coloured by class over a dark casing (so a
     road of any colour shows over imagery), junctions orange, traffic lights red (plain nodes
-    from z16). No glyphs or sprites, so it loads offline."""
+    from z16), in constructs QGIS's style converter keeps (:data:`NODE_STYLES`). No glyphs or
+    sprites, so it loads offline."""
     source = network.name
     line = {"line-cap": "round", "line-join": "round"}
     return {
@@ -137,16 +147,11 @@ def style(network: NetworkInfo, tilejson_url: str) -> dict[str, Any]:
             {"id": "segments", "type": "line", "source": source, "source-layer": "segments",
              "layout": line, "paint": {"line-color": _class_colour(),
                                        "line-width": _line_width(0)}},
-            {"id": "nodes", "type": "circle", "source": source, "source-layer": "nodes",
-             "minzoom": NODES_MINZOOM,
-             "paint": {
-                 # Zoom must be the input of the top-level step, so the node cases repeat.
-                 "circle-radius": ["step", ["zoom"], _by_node(6, 4, 0), 16,
-                                   _by_node(6, 4, 2.5)],
-                 "circle-stroke-width": ["step", ["zoom"], _by_node(2, 1, 0), 16,
-                                         _by_node(2, 1, 1)],
-                 "circle-color": _by_node("#e02020", "#ff9800", "#607080"),
-                 "circle-stroke-color": "#ffffff"}},
+            *({"id": layer_id, "type": "circle", "source": source, "source-layer": "nodes",
+               "minzoom": minzoom, "filter": node_filter,
+               "paint": {"circle-color": colour, "circle-radius": radius,
+                         "circle-stroke-width": stroke, "circle-stroke-color": "#ffffff"}}
+              for layer_id, node_filter, colour, radius, stroke, minzoom in NODE_STYLES),
         ],
     }
 

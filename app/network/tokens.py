@@ -13,6 +13,8 @@ and the request's own transaction never holds a lock on the token row.
 
 from __future__ import annotations
 
+import base64
+import binascii
 import hashlib
 import re
 import secrets
@@ -111,19 +113,39 @@ def revoke_token(session: Session, ref: str) -> dict[str, Any]:
     return dict(rows[0]._mapping)
 
 
+def presented_token(authorization: str | None) -> str:
+    """The token of an ``Authorization`` header: ``Bearer <token>``, or HTTP Basic with the
+    token as the password (any user name). Basic is what QGIS sends from a connection's user
+    name and password (its OAPIF provider has no bearer-token field), so a QGIS user pastes
+    the token into the password box; the user name is ignored (the token says who it is)."""
+    scheme, _, credentials = (authorization or "").partition(" ")
+    credentials = credentials.strip()
+    if scheme.lower() == "basic" and credentials:
+        try:
+            decoded = base64.b64decode(credentials, validate=True).decode("utf-8")
+        except (binascii.Error, UnicodeDecodeError):
+            raise UnauthorizedError("HTTP Basic credentials must be base64 of "
+                                    "'user:token'") from None
+        credentials = decoded.partition(":")[2]
+    elif scheme.lower() != "bearer":
+        credentials = ""
+    if not credentials:
+        raise UnauthorizedError("an 'Authorization: Bearer <token>' header (or HTTP Basic "
+                                "with the token as password) is required")
+    return credentials
+
+
 def authenticate(session: Session, authorization: str | None) -> Principal:
-    """The principal a bearer token belongs to; 401 with a challenge when it is missing,
-    unknown, revoked or expired (read from the database on every request)."""
-    scheme, _, token = (authorization or "").partition(" ")
-    if scheme.lower() != "bearer" or not token.strip():
-        raise UnauthorizedError("an 'Authorization: Bearer <token>' header is required")
+    """The principal a token belongs to; 401 with a challenge when it is missing, unknown,
+    revoked or expired (read from the database on every request)."""
+    token = presented_token(authorization)
     row = session.execute(text(
         "SELECT id, name, role, revoked_at IS NOT NULL AS revoked, "
         "       expires_at IS NOT NULL AND expires_at <= now() AS expired, "
         "       last_used_at IS NULL OR last_used_at < now() - make_interval(secs => :every) "
         "         AS touch "
         "FROM api_tokens WHERE token_hash = :h"),
-        {"h": hash_token(token.strip()), "every": TOUCH_EVERY_S}).first()
+        {"h": hash_token(token), "every": TOUCH_EVERY_S}).first()
     if row is None:
         raise UnauthorizedError("the token is unknown")
     if row.revoked or row.expired:

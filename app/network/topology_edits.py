@@ -12,7 +12,13 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.network import collections as colls
-from app.network.editing import lock_segment, log_edit, unprocessable, write_change
+from app.network.editing import (
+    lock_feature,
+    lock_topology,
+    log_edit,
+    unprocessable,
+    write_change,
+)
 from app.network.tokens import Principal
 from app.params import parse_number, parse_position
 
@@ -29,6 +35,9 @@ def _fraction(session: Session, feature: dict[str, Any], body: Any) -> float:
     if not isinstance(body, dict) or len(body.keys() & {"fraction", "point"}) != 1:
         raise unprocessable({"body": 'give exactly one of "fraction" (0..1) or "point" '
                                      "([lon, lat])"})
+    unknown = sorted(body.keys() - {"fraction", "point"})
+    if unknown:
+        raise unprocessable({k[:100]: "is not a split parameter" for k in unknown})
     if "fraction" in body:
         fraction = parse_number(body["fraction"], "fraction", low=0, high=1)
     else:
@@ -44,12 +53,25 @@ def _fraction(session: Session, feature: dict[str, Any], body: Any) -> float:
     return fraction
 
 
-def split_segment(session: Session, c: colls.Collection, fid: int, expected: int, body: Any,
-                  principal: Principal) -> dict[str, Any]:
+def split_segment(session: Session, c: colls.Collection, fid: int, expected: int | None,
+                  body: Any, principal: Principal) -> dict[str, Any]:
     """Split at a fraction of the length or at the point nearest to a given one. The original
     keeps its id (first part, new version); the second part is a new segment, same attributes."""
-    feature = lock_segment(session, c, fid, expected)
-    fraction = _fraction(session, feature, body)
+    feature = lock_feature(session, c, fid, expected)
+    parts = split_at(session, c, feature, _fraction(session, feature, body), principal,
+                     conditional=expected is not None)
+    return {"type": "FeatureCollection", "features": list(parts)}
+
+
+def split_at(session: Session, c: colls.Collection, feature: dict[str, Any], fraction: float,
+             principal: Principal, *, conditional: bool = True
+             ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Split the locked segment ``feature`` at ``fraction`` of its length (at least
+    :data:`MIN_PART_M` from either end) through a new node: (first part, keeping the id and
+    gaining a version; second part, a new segment with the same attributes). Also how a
+    created segment or node joins a road in its middle."""
+    fid = feature["id"]
+    lock_topology(session, c)
     halves = session.execute(text(
         "SELECT ST_AsGeoJSON(ST_LineSubstring(geom, 0, :f), 15), "
         "ST_AsGeoJSON(ST_LineSubstring(geom, :f, 1), 15) FROM road_segments WHERE id = :id"),
@@ -61,12 +83,12 @@ def split_segment(session: Session, c: colls.Collection, fid: int, expected: int
                                                   second["coordinates"][-1]):
         raise unprocessable({"fraction": "the split point is too close to an end"})
     node: int = session.execute(text(
-        "INSERT INTO road_nodes (network_id, geom, kind) VALUES "
-        "(:n, ST_SetSRID(ST_MakePoint(:x, :y), 4326), 'node') RETURNING id"),
-        {"n": c.network_id, "x": cut[0], "y": cut[1]}).scalar_one()
+        "INSERT INTO road_nodes (network_id, geom, kind, updated_by) VALUES "
+        "(:n, ST_SetSRID(ST_MakePoint(:x, :y), 4326), 'node', :who) RETURNING id"),
+        {"n": c.network_id, "x": cut[0], "y": cut[1], "who": principal.name}).scalar_one()
     old_target = feature["properties"]["target_node"]
     kept = write_change(session, c, feature, {"geometry": first, "target_node": node},
-                        principal, "split")
+                        principal, "split", conditional=conditional)
     columns = ", ".join((*colls.SEGMENT_ATTRIBUTES, "confidence"))  # both parts as sure
     new_id: int = session.execute(text(
         f"INSERT INTO road_segments (network_id, source_node, target_node, geom, length_m, "
@@ -77,9 +99,8 @@ def split_segment(session: Session, c: colls.Collection, fid: int, expected: int
         {"node": node, "target": old_target, "g": json.dumps(second), "who": principal.name,
          "id": fid}).scalar_one()
     log_edit(session, c, new_id, "split", None, 1, principal, None,
-             {"split_from": fid, "geometry": second})
-    return {"type": "FeatureCollection",
-            "features": [kept, colls.get_item(session, c, new_id)]}
+             {"split_from": fid, "geometry": second}, conditional=conditional)
+    return kept, colls.get_item(session, c, new_id)
 
 
 def _flipped(props: dict[str, Any]) -> dict[str, Any]:
@@ -99,18 +120,24 @@ def merged_confidence(a: dict[str, Any], b: dict[str, Any]) -> float | None:
     return sum(c * length for c, length in known) / sum(length for _, length in known)
 
 
-def merge_segments(session: Session, c: colls.Collection, body: Any, expected: list[int],
-                   principal: Principal) -> dict[str, Any]:
+def merge_segments(session: Session, c: colls.Collection, body: Any,
+                   expected: list[int] | None, principal: Principal) -> dict[str, Any]:
     """Merge two segments meeting at a node that no other segment uses; the first keeps its
     id and orientation, the second and the shared node are deleted. ``expected`` holds the
-    versions the client saw, in the order of ``segments`` (412 if either moved on)."""
+    versions the client saw, in the order of ``segments`` (412 if either moved on; None:
+    whatever versions are current)."""
+    if isinstance(body, dict) and body.keys() - {"segments"}:
+        raise unprocessable({k[:100]: "is not a merge parameter"
+                             for k in sorted(body.keys() - {"segments"})})
     ids = body.get("segments") if isinstance(body, dict) else None
     if not (isinstance(ids, list) and len(ids) == 2 and all(
             isinstance(i, int) and not isinstance(i, bool) and 0 < i < 2**63 for i in ids)
             and ids[0] != ids[1]):
         raise unprocessable({"segments": "must be two different segment ids"})
-    versions = dict(zip(ids, expected, strict=True))
-    locked = {i: lock_segment(session, c, i, versions[i]) for i in sorted(ids)}
+    given: list[int | None] = list(expected) if expected else [None, None]
+    versions = dict(zip(ids, given, strict=True))
+    locked = {i: lock_feature(session, c, i, versions[i]) for i in sorted(ids)}
+    conditional = expected is not None
     a, b = locked[ids[0]], locked[ids[1]]
     pa, pb = a["properties"], b["properties"]
     shared = {pa["source_node"], pa["target_node"]} & {pb["source_node"], pb["target_node"]}
@@ -142,10 +169,11 @@ def merge_segments(session: Session, c: colls.Collection, body: Any, expected: l
         new_ends = {"source_node": pa["source_node"], "target_node": oriented_b["target_node"]}
     session.execute(text("DELETE FROM road_segments WHERE id = :id"), {"id": b["id"]})
     log_edit(session, c, b["id"], "merge", pb["version"], None, principal,
-             {**pb, "geometry": b["geometry"]}, {"merged_into": a["id"]})
+             {**pb, "geometry": b["geometry"]}, {"merged_into": a["id"]},
+             conditional=conditional)
     merged = write_change(session, c, a, {"geometry": {"type": "LineString",
                                                        "coordinates": coords}, **new_ends,
                                           "confidence": merged_confidence(pa, pb)},
-                          principal, "merge")
+                          principal, "merge", conditional=conditional)
     session.execute(text("DELETE FROM road_nodes WHERE id = :n"), {"n": node})
     return merged

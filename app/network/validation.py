@@ -13,7 +13,7 @@ from collections.abc import Callable
 from typing import Any
 
 from app.db.models import ONEWAY_VALUES
-from app.network.collections import SEGMENT_ATTRIBUTES, SEGMENT_READONLY
+from app.network.collections import NODE_ATTRIBUTES, SEGMENT_ATTRIBUTES, Kind
 
 ROAD_CLASSES = (
     "motorway", "motorway_link", "trunk", "trunk_link", "primary", "primary_link",
@@ -28,6 +28,15 @@ MAX_NAME = 200
 MAX_SHORT_TEXT = 64
 MAX_ATTRS_BYTES = 16_384
 NULLABLE = {"speed_limit_kph", "name", "surface", "width_m", "external_id", "attrs"}
+# What a whole feature (POST, PUT) gets for an editable attribute it does not give: the
+# columns' defaults, so a road drawn in QGIS with its form left empty is a plain two-way road.
+DEFAULTS: dict[Kind, dict[str, Any]] = {
+    "segments": {"lanes_forward": 1, "lanes_backward": 1, "speed_limit_kph": None,
+                 "oneway": "none", "road_class": "unclassified", "is_junction": False,
+                 "name": None, "surface": None, "width_m": None, "external_id": None,
+                 "attrs": {}},
+    "nodes": {"traffic_light": False, "external_id": None},
+}
 
 
 def text_problem(value: str, limit: int) -> str | None:
@@ -117,23 +126,31 @@ RULES: dict[str, Callable[[Any], str | None]] = {
     "external_id": _text(MAX_NAME),
     "attrs": _attrs,
 }
-assert set(RULES) == set(SEGMENT_ATTRIBUTES)
+NODE_RULES: dict[str, Callable[[Any], str | None]] = {
+    "traffic_light": _bool,
+    "external_id": _text(MAX_NAME),
+}
+assert set(RULES) == set(SEGMENT_ATTRIBUTES) == set(DEFAULTS["segments"])
+assert set(NODE_RULES) == set(NODE_ATTRIBUTES) == set(DEFAULTS["nodes"])
 
 
-def field_errors(properties: dict[str, Any]) -> dict[str, str]:
-    """One message per offending field of a merge patch of segment properties."""
+def field_errors(properties: dict[str, Any], kind: Kind = "segments",
+                 read_only: frozenset[str] = frozenset()) -> dict[str, str]:
+    """One message per offending field of a merge patch of a feature's properties
+    (``read_only``: the kind's properties the server maintains)."""
+    rules = RULES if kind == "segments" else NODE_RULES
     errors: dict[str, str] = {}
     for key, value in properties.items():
         label = key[:100]
-        if key in SEGMENT_READONLY:
+        if key in read_only:
             errors[label] = "is read-only"
-        elif key not in RULES:
-            errors[label] = "is not a segment attribute"
+        elif key not in rules:
+            errors[label] = f"is not a {kind[:-1]} attribute"
         elif value is None:
             if key not in NULLABLE:
                 errors[label] = "cannot be removed (null)"
         else:
-            problem = RULES[key](value)
+            problem = rules[key](value)
             if problem:
                 errors[label] = problem
     return errors

@@ -17,6 +17,7 @@ from rasterio.enums import Resampling
 from rasterio.errors import RasterioIOError
 from rasterio.windows import Window
 
+from app.errors import RasterSourceMissingError
 from app.grid import tile_bounds
 from app.tiles.catalog import TileQuery, TileSource
 from app.tiles.encode import encode
@@ -50,9 +51,12 @@ def paint(canvas: np.ndarray, source: TileSource,
     """Paint ``source`` into ``canvas`` (H x W x 4, BGRA) where the source has valid pixels."""
     try:
         ds = open_dataset(source.uri)
-    except RasterioIOError:
-        log.warning("raster source %s is missing; skipped", source.uri)
-        return
+    except RasterioIOError as exc:
+        # A blank tile would hide the problem from everyone: the client gets an error, the
+        # operator the file that is missing.
+        log.error("raster source %s cannot be read: %s", source.uri, exc)
+        raise RasterSourceMissingError("a source file of this layer is missing from the "
+                                       "raster store (the server log names it)") from None
     size_y, size_x = canvas.shape[:2]
     left, top = ds.transform.c, ds.transform.f
     res_x, res_y = ds.transform.a, -ds.transform.e

@@ -162,7 +162,8 @@ def tilejson(slug: LayerSlug, request: Request, response: Response,
 @router.get("/tiles/{slug}/{z}/{x}/{tile}", response_model=None,
             responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}},
                        304: {"description": "Not modified: If-None-Match holds the ETag"},
-                       **errors.responses(errors.LayerNotFoundError, errors.TileOutOfRangeError)})
+                       **errors.responses(errors.LayerNotFoundError, errors.TileOutOfRangeError,
+                                          errors.RasterSourceMissingError)})
 def tile(slug: LayerSlug, z: TileZ, x: TileXY, tile: TileName, request: Request) -> Response:
     """One XYZ tile (256 px, or 512 px with ``@2x``) composed from all sources meeting it."""
     match = TILE_RE.match(tile)

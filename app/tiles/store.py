@@ -36,10 +36,10 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from sqlalchemy import Engine, text
+from sqlalchemy import Connection, Engine, text
 
 from app.errors import UserError
-from app.settings import get_settings
+from app.settings import default_data_dir, get_settings
 
 #: Set around each /vsis3/ open (thread-local, via ``rasterio.Env``), not process-wide: they
 #: would change how *local* inputs open (no sidecar files, no world files).
@@ -348,3 +348,38 @@ def remove_files(engine: Engine, refs: Iterable[str],
     """Delete store objects whose references were just deleted (missing ones are fine)."""
     with deleting_files(engine):
         (store or open_store()).delete(refs)
+
+
+# -- the store a database's files live in ------------------------------------------------------
+RECORD_ROOT = ("INSERT INTO raster_store (root) VALUES (:root) ON CONFLICT (id) DO UPDATE "
+               "SET root = EXCLUDED.root, recorded_at = now()")
+
+
+def recorded_root(conn: Connection) -> str | None:
+    """The raster store this database's relative references are keys of (None: no ingest
+    has recorded one yet)."""
+    root: str | None = conn.execute(text("SELECT root FROM raster_store")).scalar()
+    return root
+
+
+def mismatch(recorded: str, configured: str) -> str:
+    """Why a process configured with store ``configured`` must not use this database's files,
+    and how to fix it."""
+    return (f"this database's rasters are in {recorded}, but this process's raster store is "
+            f"{configured} (UGVMAP_RASTER_STORE, else UGVMAP_DATA_DIR/rasters, else "
+            f"{default_data_dir()}/rasters). Run it with UGVMAP_RASTER_STORE={recorded}, or, if "
+            f"the files were moved, `ugvmap db store --set NEW_ROOT`")
+
+
+def claim_root(conn: Connection) -> None:
+    """Before an ingest writes into the configured store: record it as the database's store
+    (the first ingest), or refuse with :func:`mismatch` when the database's files are
+    elsewhere, so no layer gets registered whose files no server finds."""
+    root = store_root()
+    recorded = recorded_root(conn)
+    if recorded is None:
+        conn.execute(text("INSERT INTO raster_store (root) VALUES (:root) "
+                          "ON CONFLICT (id) DO NOTHING"), {"root": root})
+        recorded = recorded_root(conn)
+    if recorded != root:
+        raise StoreError(mismatch(recorded or "", root))

@@ -77,6 +77,9 @@ class IpmOptions:
     qr_corner: str | None = None
     title: str | None = None
     priority: int = 0
+    replace: bool = False
+    """Zones already in the layer (the same drive again) replace their sources (else the
+    ingest is refused, as ``ugvmap ingest raster`` refuses a file already in the layer)."""
 
 
 @dataclass
@@ -348,6 +351,7 @@ def ingest_ipm(frames_path: Path, layer: str, calib_path: Path, poses_path: Path
             report = ingest_raster(
                 stitcher.written, layer, title=options.title, kind="ipm-mosaic",
                 priority=options.priority, database_url=database_url, store=store,
+                replace=options.replace,
                 on_progress=lambda f, step: progress(FRAMES_SHARE + (1 - FRAMES_SHARE) * f,
                                                      f"zone COG {step}"),
                 after_register=keep_trajectory)

@@ -274,3 +274,29 @@ def write_drive(folder: Path, drive: Drive, camera: Camera, times: np.ndarray,
     calib = folder / "calib.json"
     calib.write_text(json.dumps(camera.calibration(), indent=1))
     return {"frames": frames, "poses": poses, "calib": calib, "mask": folder / "mask.png"}
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m ingest.ipm.synthetic OUT [--frames N]``: write the synthetic drive of the
+    tests (frames, poses, calibration, roof mask) into folder OUT, ready for ``ugvmap ingest
+    ipm OUT/frames --poses OUT/poses.csv --calib OUT/calib.json --layer SLUG``."""
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m ingest.ipm.synthetic",
+        description="Write a synthetic panorama drive with known truth (a right-hand bend at "
+                    "17.6 E 48.15 N) for `ugvmap ingest ipm`.")
+    parser.add_argument("out", type=Path, help="folder to write frames/, poses.csv, "
+                                               "calib.json and mask.png into")
+    parser.add_argument("--frames", type=int, default=36,
+                        help="frames at 7 Hz (default 36, about 5 s of driving)")
+    args = parser.parse_args(argv)
+    if args.frames < 2:
+        parser.error("--frames must be at least 2")
+    written = write_drive(args.out, Drive(), Camera(), frame_times(args.frames))
+    for what, path in written.items():
+        print(f"{what}: {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -78,8 +78,8 @@ def _network_id(session: Session, network: str, replace: bool) -> int:
     has_data: bool = session.execute(text("SELECT EXISTS (SELECT 1 FROM road_segments "
                                     "WHERE network_id = :id)"), {"id": network_id}).scalar_one()
     if has_data and not replace:
-        raise NetworkExistsError(f"network {network!r} already has segments; "
-                                 "use replace to overwrite it")
+        raise NetworkExistsError(f"network {network!r} already has segments; replace them "
+                                 "with --replace (POST /jobs: \"replace\": true)")
     for table in ("segment_edits", "road_segments", "road_nodes"):
         session.execute(text(f"DELETE FROM {table} WHERE network_id = :id"), {"id": network_id})
     return network_id

@@ -35,11 +35,13 @@ from app.jobs.kinds import RasterParams
 from app.jobs.lease import Lease, worker_name
 from app.jobs.queue import NAMESPACE, defer
 from app.jobs.rows import lock_running, record_progress, succeed_in
-from app.tiles.store import RasterStore, open_store, remove_files
+from app.tiles.store import RasterStore, claim_root, open_store, remove_files
 from ingest.raster.gcps import gcp_writer, inspect_with_gcps, read_gcps
 from ingest.raster.job import (
     WrittenSource,
+    checksum,
     layer_lock,
+    refuse_duplicates,
     register,
     sweep_leftovers,
     write_source,
@@ -78,8 +80,11 @@ def _from_json(data: dict[str, Any]) -> WrittenSource:
 def run(job_id: int, params: RasterParams) -> None:
     """Validate every source, then queue one :func:`write_part` task per source."""
     check, _ = _reader(params)
-    for path in params.sources:
-        check(Path(path))
+    names = [check(Path(path)).name for path in params.sources]
+    if not params.replace:
+        with get_engine().connect() as conn:
+            refuse_duplicates(conn, params.layer, names,
+                              [checksum(Path(p)) for p in params.sources])
     with session_scope() as session:
         if not lock_running(session.connection(), job_id):
             return
@@ -111,6 +116,8 @@ def write_part(job_id: int, part: int) -> None:
     store, prefix = open_store(), job_prefix(params.layer, job_id)
     with Lease(get_engine(), job_id), store.staging(prefix) as staging:
         try:
+            with get_engine().begin() as conn:  # a worker with another store writes nothing
+                claim_root(conn)
             written = write_source(check(Path(source)), store, staging, prefix, to_cog)
         except BaseException:
             with get_engine().begin() as conn:
@@ -173,7 +180,8 @@ def finish(job_id: int) -> None:
                     "SELECT result FROM ingest_job_parts WHERE job_id = :id ORDER BY part"),
                     {"id": job_id})]
                 version, replaced = register(session, written, params.layer, params.title,
-                                             params.kind, params.priority, overview, store)
+                                             params.kind, params.priority, overview, store,
+                                             params.replace)
                 # The rest of the job's folder (files of killed attempts) goes before the job
                 # is said to have succeeded: whoever sees it done finds only registered COGs.
                 kept = {w.uri for w in written}
@@ -187,7 +195,7 @@ def finish(job_id: int) -> None:
                 store.delete([store.ref(f"{params.layer}/{overview.name}")])
             raise
     if replaced:
-        remove_files(get_engine(), [replaced], store)
+        remove_files(get_engine(), replaced, store)
 
 
 def discard(job_id: int) -> None:

@@ -14,11 +14,19 @@ Order matters for atomicity:
 A job killed between 2 and 3 leaves at most unregistered objects, which are never served
 (tiles are only read from sources the catalogue lists) and which the next ingest into the
 layer deletes (jobs on one layer are serialised by an advisory lock, so that is safe).
+
+Re-ingesting: a source is its input file's content (SHA-256, kept as the source's checksum).
+A file whose content is already a source of the layer is refused (it would stack a duplicate,
+drawn twice over itself) unless ``replace``: then every source of the layer with the same
+content or the same file name is replaced by the new one, in the registering transaction,
+and its COG deleted after the commit. A new file with a new name is a new source (a
+re-survey drawn on top).
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import re
 import sys
@@ -35,7 +43,14 @@ from app.db.models import LAYER_KINDS, SLUG_RE
 from app.db.session import get_engine, session_scope
 from app.grid import ground_resolution_m, tile_bounds
 from app.tiles.catalog import tile_sources
-from app.tiles.store import RasterStore, deleting_files, open_store, remove_files
+from app.tiles.store import (
+    RasterStore,
+    claim_root,
+    deleting_files,
+    open_store,
+    remove_files,
+    store_root,
+)
 from ingest.raster.cog import measure_cog, write_cog
 from ingest.raster.overview import build_overview
 from ingest.raster.sources import Source, SourceError, inspect
@@ -56,6 +71,8 @@ class WrittenSource:
     minzoom: int
     resolution_m: float
     meta: dict
+    checksum: str = ""
+    """``sha256:<hex>`` of the input file (what makes a re-ingest "the same file")."""
 
 
 @dataclass(frozen=True)
@@ -66,12 +83,43 @@ class IngestReport:
     sources: list[WrittenSource]
 
 
+def checksum(path: Path) -> str:
+    """``sha256:<hex>`` of a file's content, read in 1 MiB blocks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(1 << 20):
+            digest.update(block)
+    return f"sha256:{digest.hexdigest()}"
+
+
+REPLACE_HINT = "re-ingest it in its place with --replace (POST /jobs: \"replace\": true)"
+
+
+def refuse_duplicates(conn: Connection, layer: str, names: Sequence[str],
+                      checksums: Sequence[str]) -> None:
+    """Refuse files already among the layer's sources (same content), or given twice."""
+    twice = sorted({n for n, c in zip(names, checksums, strict=True)
+                    if checksums.count(c) > 1})
+    if twice:
+        raise SourceError(f"{', '.join(twice)}: the same file is given more than once")
+    row = conn.execute(text(
+        "SELECT s.id, s.name, s.checksum, s.ingested_at FROM raster_sources s JOIN layers l "
+        "ON l.id = s.layer_id WHERE l.slug = :layer AND s.checksum = ANY(:sums) "
+        "ORDER BY s.id LIMIT 1"), {"layer": layer, "sums": list(checksums)}).first()
+    if row is not None:
+        given = names[list(checksums).index(row.checksum)]
+        raise SourceError(f"{given}: layer {layer} already has this file as source {row.id} "
+                          f"({row.name}, ingested {row.ingested_at:%Y-%m-%d %H:%M}); "
+                          f"{REPLACE_HINT}")
+
+
 def write_source(source: Source, store: RasterStore, staging: Path, layer: str,
                  to_cog: Callable[[Source, Path], None] | None = None,
-                 stored: list[str] | None = None) -> WrittenSource:
+                 stored: list[str] | None = None, content: str | None = None) -> WrittenSource:
     """Write one validated source as a COG in ``staging``, measure what the catalogue needs,
     then put it into the store (its catalogue value is appended to ``stored`` first, so a
-    caller can clean up after a failure at any point)."""
+    caller can clean up after a failure at any point). ``content``: the input's
+    :func:`checksum`, when the caller has it already."""
     key = f"{layer}/{uuid.uuid4().hex}.tif"
     dst = staging / key.rpartition("/")[2]
     if to_cog is None:
@@ -95,7 +143,8 @@ def write_source(source: Source, store: RasterStore, staging: Path, layer: str,
                              footprint_wkb=cog.footprint.wkb, width=cog.width,
                              height=cog.height, band_count=cog.band_count, dtype=cog.dtype,
                              zoom=cog.zoom, minzoom=cog.minzoom,
-                             resolution_m=ground_resolution_m(cog.zoom, lat), meta=meta)
+                             resolution_m=ground_resolution_m(cog.zoom, lat), meta=meta,
+                             checksum=content or checksum(source.path))
     except BaseException:
         dst.unlink(missing_ok=True)
         raise
@@ -103,11 +152,13 @@ def write_source(source: Source, store: RasterStore, staging: Path, layer: str,
 
 def register(session: Session, written: Sequence[WrittenSource], layer: str,
              title: str | None, kind: str, priority: int, overview: Path,
-             store: RasterStore) -> tuple[int, str | None]:
-    """Upsert the layer, insert its new sources, render its new overview into the local file
-    ``overview``, put it into the store as ``layer/<name>`` and point the layer at it, in the
-    caller's transaction (so the layer changes at once, on commit; a queued job commits its
-    own success with it); return the new version and the replaced overview (to delete)."""
+             store: RasterStore, replace: bool = False) -> tuple[int, list[str]]:
+    """Upsert the layer, insert its new sources (replacing, with ``replace``, those with the
+    same content or file name; else refusing a duplicate), render its new overview into the
+    local file ``overview``, put it into the store as ``layer/<name>`` and point the layer at
+    it, in the caller's transaction (so the layer changes at once, on commit; a queued job
+    commits its own success with it); return the new version and the references it replaced
+    (the old overview, replaced sources' COGs: to delete after the commit)."""
     overview_ref = store.ref(f"{layer}/{overview.name}")
     old_overview = session.execute(
         text("SELECT overview_uri FROM layers WHERE slug = :slug FOR UPDATE"),
@@ -122,13 +173,22 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
          "overview": overview_ref},
     ).one()
     layer_id, version = int(row[0]), int(row[1])
+    names, sums = [w.name for w in written], [w.checksum for w in written]
+    replaced: list[str] = [old_overview] if old_overview else []
+    if replace:
+        replaced += session.execute(text(
+            "DELETE FROM raster_sources WHERE layer_id = :id AND (checksum = ANY(:sums) "
+            "OR name = ANY(:names)) RETURNING uri"),
+            {"id": layer_id, "sums": sums, "names": names}).scalars()
+    else:  # again, in the transaction: another ingest may have registered it meanwhile
+        refuse_duplicates(session.connection(), layer, names, sums)
     for src in written:
         session.execute(text(
             "INSERT INTO raster_sources (layer_id, name, uri, footprint, priority, width, "
-            " height, band_count, dtype, resolution_m, meta) VALUES (:layer_id, :name, :uri,"
-            " ST_Multi(ST_SetSRID(ST_GeomFromWKB(:wkb), 3857)), :priority, :width, :height,"
-            " :bands, :dtype, :res, CAST(:meta AS jsonb))"),
-            {"layer_id": layer_id, "name": src.name, "uri": src.uri,
+            " height, band_count, dtype, resolution_m, meta, checksum) VALUES (:layer_id, "
+            " :name, :uri, ST_Multi(ST_SetSRID(ST_GeomFromWKB(:wkb), 3857)), :priority, "
+            " :width, :height, :bands, :dtype, :res, CAST(:meta AS jsonb), :checksum)"),
+            {"layer_id": layer_id, "name": src.name, "uri": src.uri, "checksum": src.checksum,
              "wkb": src.footprint_wkb, "priority": priority, "width": src.width,
              "height": src.height, "bands": src.band_count, "dtype": src.dtype,
              "res": src.resolution_m, "meta": json.dumps(src.meta)})
@@ -145,7 +205,7 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
         "WHERE l.id = :id"), {"id": layer_id})
     render_overview(session.connection(), layer_id, layer, overview)
     store.put(overview, f"{layer}/{overview.name}")
-    return version, old_overview
+    return version, replaced
 
 
 def render_overview(conn: Connection, layer_id: int, layer: str, dst: Path) -> None:
@@ -211,8 +271,10 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
                   database_url: str | None = None,
                   store: RasterStore | Path | str | None = None,
                   on_progress: Callable[[float, str], None] | None = None,
-                  after_register: Callable[[Session], None] | None = None) -> IngestReport:
-    """Ingest ``paths`` into layer ``layer``; raise :class:`SourceError` on bad input.
+                  after_register: Callable[[Session], None] | None = None,
+                  replace: bool = False) -> IngestReport:
+    """Ingest ``paths`` into layer ``layer``; raise :class:`SourceError` on bad input,
+    including a file already in the layer unless ``replace`` (module docstring).
 
     ``inspect_source``/``to_cog`` let the GCP path plug in its own georeferencing and warp;
     ``on_progress(fraction, step)`` is told before each step (e.g. to update a job row);
@@ -224,8 +286,15 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
     if kind not in LAYER_KINDS:
         raise SourceError(f"--kind must be one of {', '.join(LAYER_KINDS)}")
     raster_store = open_store(store)
+    if raster_store.root == store_root():  # relative references: the database's own store
+        with get_engine(database_url).begin() as conn:
+            claim_root(conn)
     check = inspect_source or (lambda p: inspect(p, crs=crs))
     sources = [check(Path(p)) for p in paths]
+    sums = [checksum(source.path) for source in sources]
+    if not replace:
+        with get_engine(database_url).connect() as conn:
+            refuse_duplicates(conn, layer, [s.name for s in sources], sums)
     written: list[WrittenSource] = []
     created: list[str] = []
     bar = tqdm([*sources, None], desc=f"ingest {layer}", unit="step",
@@ -239,12 +308,12 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
                     on_progress(done / len(bar), source.name if source else "layer overview")
                 if source is not None:
                     written.append(write_source(source, raster_store, staging, layer, to_cog,
-                                                created))
+                                                created, sums[done]))
             overview = staging / f"overview-{uuid.uuid4().hex}.tif"
             created.append(raster_store.ref(f"{layer}/{overview.name}"))
             with session_scope(database_url) as session:
                 version, replaced = register(session, written, layer, title, kind, priority,
-                                             overview, raster_store)
+                                             overview, raster_store, replace)
                 if after_register is not None:
                     after_register(session)
         except BaseException:
@@ -252,5 +321,5 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
                 raster_store.delete(created)
             raise
     if replaced:
-        remove_files(get_engine(database_url), [replaced], raster_store)
+        remove_files(get_engine(database_url), replaced, raster_store)
     return IngestReport(layer=layer, version=version, sources=written)

@@ -33,7 +33,7 @@ function matchRows(expression) {
 export function segmentsLayerId(name) { return `net-${name}-segments`; }
 function casingLayerId(name) { return `net-${name}-segments-casing`; }
 export function arrowsLayerId(name) { return `net-${name}-oneway`; }
-function nodesLayerId(name) { return `net-${name}-nodes`; }
+function nodeLayerId(name, styleId) { return `net-${name}-${styleId}`; }
 function selectedLayerId(name) { return `net-${name}-selected`; }
 function sourceId(name) { return `net-${name}`; }
 
@@ -64,7 +64,8 @@ function arrowImage() {
 }
 
 /** Add one network: its tiles as described by its TileJSON, its style's layers renamed for
- * this map, one-way arrows, and a highlight layer for the selected segments. */
+ * this map, one-way arrows, and a highlight layer for the selected segments. Returns the
+ * road-class colours and the ids of the node layers. */
 function addNetwork(map, name, tilejson, style) {
   map.addSource(sourceId(name), {
     type: 'vector', tiles: tilejson.tiles, bounds: tilejson.bounds,
@@ -91,8 +92,13 @@ function addNetwork(map, name, tilejson, style) {
       'icon-rotation-alignment': 'map', 'icon-allow-overlap': true, 'icon-ignore-placement': true,
     },
   });
-  map.addLayer(own(styled.nodes, nodesLayerId(name)));
-  return styled.segments.paint['line-color'];
+  // Nodes come as one style layer per kind (junctions, traffic lights, plain nodes), each
+  // with fixed colours, the form QGIS's style converter also reads.
+  const nodeLayers = style.layers.filter((l) => l['source-layer'] === 'nodes')
+    .map((layer) => nodeLayerId(name, layer.id));
+  style.layers.filter((l) => l['source-layer'] === 'nodes')
+    .forEach((layer, i) => map.addLayer(own(layer, nodeLayers[i])));
+  return { classColours: styled.segments.paint['line-color'], nodeLayers };
 }
 
 function legendRows(mode, classColours) {
@@ -133,6 +139,7 @@ export class Networks {
     this.extents = [];
     this.bounds = {};
     this.tilejsonUrls = {};
+    this.nodeLayers = {};
     this.classColours = ['match', ['get', 'road_class'], 'other'];
     this.mode = 'road_class';
     this.filter = null;
@@ -162,7 +169,9 @@ export class Networks {
       }
       this.names.push(network.name);
       this.tilejsonUrls[network.name] = network.links.tilejson;
-      this.classColours = addNetwork(this.map, network.name, tilejson.body, style.body);
+      const added = addNetwork(this.map, network.name, tilejson.body, style.body);
+      this.classColours = added.classColours;
+      this.nodeLayers[network.name] = added.nodeLayers;
       if (network.bounds) {
         this.extents.push(network.bounds);
         this.bounds[network.name] = network.bounds;
@@ -196,7 +205,7 @@ export class Networks {
 
   layerIds(name) {
     return [casingLayerId(name), segmentsLayerId(name), selectedLayerId(name), arrowsLayerId(name),
-      nodesLayerId(name)];
+      ...this.nodeLayers[name]];
   }
 
   setMode(mode) {

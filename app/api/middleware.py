@@ -1,10 +1,10 @@
 """HTTP behaviour every endpoint shares, as ASGI middleware: HEAD, CORS and gzip.
 
-Starlette's own CORS and gzip middleware do the work; this module only chooses their settings
-and adds what they lack: HEAD on every GET resource (FastAPI routes answer only the methods
-they declare) and two CORS policies, because reading public map data from any web page is
-the point of a tile server while writes (and anything carrying a token) must come only from
-pages the operator trusts.
+Starlette's own CORS and gzip middleware do the work (gzip with ISA-L's deflate:
+:mod:`app.api.compression`); this module only chooses their settings and adds what they lack:
+HEAD on every GET resource (FastAPI routes answer only the methods they declare) and two CORS
+policies, because reading public map data from any web page is the point of a tile server
+while writes (and anything carrying a token) must come only from pages the operator trusts.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from __future__ import annotations
 from fastapi import FastAPI
 from starlette.datastructures import Headers
 from starlette.middleware.cors import CORSMiddleware
-from starlette.middleware.gzip import GZipMiddleware
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from app.api.compression import IsalGZipMiddleware
 from app.settings import Settings
 
 SAFE = ("GET", "HEAD")
@@ -22,7 +22,6 @@ WRITES = ("GET", "HEAD", "POST", "PATCH", "PUT", "DELETE")
 # Response headers a cross-origin script may read (the rest of the safelist is implicit).
 EXPOSED = ("ETag", "Retry-After", "WWW-Authenticate", "X-Tile-Cache", "X-Lanelet2-Origin")
 GZIP_MIN_BYTES = 500
-GZIP_LEVEL = 6  # zlib's default: most of level 9's gain at a third of its CPU on big pages
 
 
 class HeadMiddleware:
@@ -84,7 +83,7 @@ class CorsMiddleware:
 def install(app: FastAPI, settings: Settings) -> None:
     """Add the shared middleware, innermost first: gzip, CORS, HEAD (so a HEAD reports the
     headers of the compressed GET, CORS headers included)."""
-    app.add_middleware(GZipMiddleware, minimum_size=GZIP_MIN_BYTES, compresslevel=GZIP_LEVEL)
+    app.add_middleware(IsalGZipMiddleware, minimum_size=GZIP_MIN_BYTES)
     app.add_middleware(CorsMiddleware, read_origins=settings.cors_read_origin_list,
                        write_origins=settings.cors_write_origin_list)
     app.add_middleware(HeadMiddleware)

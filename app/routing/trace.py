@@ -77,6 +77,11 @@ class Trace:
         """The pieces as runs (coordinates and bearings of each)."""
         return runs_of(self.graph, self.pieces)
 
+    @cached_property
+    def ends(self) -> Ends:
+        """Each piece's first coordinate and end bearings (what steps need of the runs)."""
+        return ends_of(self.graph, self.pieces)
+
 
 def location(graph: RoadGraph, snap: Snap) -> list[float]:
     """Where a snapped point lies on its segment (lon, lat)."""
@@ -86,34 +91,60 @@ def location(graph: RoadGraph, snap: Snap) -> list[float]:
     return list(point_at(coords, fracs, snap.fraction))
 
 
-def runs_of(graph: RoadGraph, pieces: list[Piece]) -> list[Run]:
-    """The runs of ``pieces``: coordinates cut at their fractions, bearings at their ends.
-    Per-piece numbers are read for all pieces at once (a city route has ~100): whole
-    segments take their precomputed end bearings, cut ones measure theirs."""
-    if not pieces:
-        return []
+@dataclass(frozen=True)
+class Ends:
+    """Each piece's first coordinate (its own segment's vertex, or the cut point) and its
+    bearings leaving that coordinate and reaching its last, in driving order, as lists: what
+    steps read at every joint, found for all pieces at once (whole segments take their
+    precomputed end bearings; only cut pieces, at most the leg's first and last, are cut)."""
+
+    first: list[list[float]]
+    b_out: list[float]
+    b_in: list[float]
+
+
+def ends_of(graph: RoadGraph, pieces: list[Piece]) -> Ends:
+    """The :class:`Ends` of ``pieces``."""
     rows = np.array([p.row for p in pieces], np.int64)
     f_from = np.array([p.f_from for p in pieces])
     f_to = np.array([p.f_to for p in pieces])
     start, end = graph.bearing_start[rows], graph.bearing_end[rows]
     forward = f_to >= f_from
+    offsets, coords = graph.segs.offsets, graph.segs.coords
+    first = coords[np.where(forward, offsets[rows], offsets[rows + 1] - 1)].tolist()
     b_out = np.where(forward, start, (end + 180.0) % 360.0).tolist()
     b_in = np.where(forward, end, (start + 180.0) % 360.0).tolist()
+    whole = (np.minimum(f_from, f_to) == 0.0) & (np.maximum(f_from, f_to) == 1.0)
+    for k in np.flatnonzero(~whole).tolist():
+        line, line_fracs = graph.line(pieces[k].row)
+        cut = cut_with_fractions(line, line_fracs, pieces[k].f_from, pieces[k].f_to)[0]
+        first[k] = cut[0].tolist()
+        b_out[k] = bearing(cut[0], cut[1])
+        b_in[k] = bearing(cut[-2], cut[-1])
+    return Ends(first, b_out, b_in)
+
+
+def runs_of(graph: RoadGraph, pieces: list[Piece]) -> list[Run]:
+    """The runs of ``pieces``: coordinates cut at their fractions, bearings at their ends
+    (:func:`ends_of`). Per-piece numbers are read for all pieces at once (a city route has
+    ~100)."""
+    if not pieces:
+        return []
+    rows = np.array([p.row for p in pieces], np.int64)
+    f_from = np.array([p.f_from for p in pieces])
+    f_to = np.array([p.f_to for p in pieces])
+    ends = ends_of(graph, pieces)
     lengths = graph.segs.length_m[rows]
     speeds = graph.speed_kph[rows] / 3.6
     distances = np.abs(f_to - f_from) * lengths
-    whole = (np.minimum(f_from, f_to) == 0.0) & (np.maximum(f_from, f_to) == 1.0)
     runs = []
     for k, (p, sid, length, speed, distance, duration) in enumerate(zip(
             pieces, graph.segs.ids[rows].tolist(), lengths.tolist(), speeds.tolist(),
             distances.tolist(), (distances / speeds).tolist(), strict=True)):
         line, line_fracs = graph.line(p.row)
         coords, fracs = cut_with_fractions(line, line_fracs, p.f_from, p.f_to)
-        if not whole[k]:
-            b_out[k] = bearing(coords[0], coords[1])
-            b_in[k] = bearing(coords[-2], coords[-1])
-        runs.append(Run(p, sid, coords, fracs, length, speed, b_out[k], b_in[k], distance,
-                        duration))
+        runs.append(Run(p, sid, coords, fracs, length, speed, ends.b_out[k], ends.b_in[k],
+                        distance, duration))
     return runs
 
 

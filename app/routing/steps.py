@@ -87,9 +87,8 @@ class _Leg:
     def of(ctx: StepContext, t: Trace) -> _Leg:
         """Read the leg's runs."""
         s, graph = ctx.graph.segs, ctx.graph
-        rows = np.array([p.row for p in t.pieces], np.int64)
-        ends_at_v = np.array([p.f_to == 1.0 for p in t.pieces[:-1]], bool)
-        nodes = np.where(ends_at_v, graph.v[rows[:-1]], graph.u[rows[:-1]])
+        rows = t.rows
+        nodes = np.where(t.f_to[:-1] == 1.0, graph.v[rows[:-1]], graph.u[rows[:-1]])
         lanes = np.where(t.forward, s.lanes_forward[rows], s.lanes_backward[rows])
         attrs: list[Attrs] = [
             (name or "", ref or "", n, None if limit != limit else limit, kph, cls)

@@ -133,6 +133,12 @@ _cache: OrderedDict[int, Junctions] = OrderedDict()
 _lock = threading.Lock()
 
 
+def junctions_built(graph: RoadGraph) -> bool:
+    """Whether the index of ``graph``'s shape is built (:func:`junctions` will not build it)."""
+    with _lock:
+        return id(graph.shape) in _cache
+
+
 def junctions(graph: RoadGraph) -> Junctions:
     """The index of ``graph``'s shape (built on first use per shape)."""
     shape = graph.shape

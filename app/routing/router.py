@@ -246,10 +246,6 @@ def _post_endpoint(service: Service) -> Callable[..., Any]:
     return endpoint
 
 
-for _service in ("route", "table", "match", "trip"):
-    router.add_api_route(f"/{{name}}/{_service}", _post_endpoint(_service), methods=["POST"])
-
-
 def _as_osrm(exc: errors.ApiError) -> errors.ApiError:
     """The same fault as OSRM answers it on its own URLs (400 with OSRM's code)."""
     for ours, osrm in _OSRM_FAULTS.items():
@@ -297,6 +293,10 @@ for _service in SERVICES:
     router.add_api_route(f"/{{name}}/{_service}/{{version}}/{{profile}}/{{coordinates}}",
                          _osrm_endpoint(_service), methods=["GET"],
                          openapi_extra=_service_doc(_service, "osrm"))
+# The POST bodies after the GETs: FastAPI tries a router's routes in order, and every GET of
+# OSRM's URL shape (most requests) would otherwise be matched against these first.
+for _service in ("route", "table", "match", "trip"):
+    router.add_api_route(f"/{{name}}/{_service}", _post_endpoint(_service), methods=["POST"])
 
 
 @router.get("/{name}/{service}/{version}/{profile}", include_in_schema=False)

@@ -6,7 +6,8 @@ lives in the folder of its capability, every error class in :mod:`app.errors`.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
 from typing import Any
 
 from fastapi import Depends, FastAPI
@@ -15,7 +16,7 @@ from sqlalchemy.exc import InterfaceError, OperationalError
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp
 
-from app import errors
+from app import collector, errors
 from app.api import document, landing, middleware
 from app.api.wire import CanonicalHeaderCase
 from app.body_limit import JsonPayloadTooLarge
@@ -50,6 +51,13 @@ class UgvmapApp(FastAPI):
         return CanonicalHeaderCase(JsonPayloadTooLarge(super().build_middleware_stack()))
 
 
+@asynccontextmanager
+async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+    """Once the process serves: garbage-collector settings for serving (:mod:`app.collector`)."""
+    collector.tune_for_serving()
+    yield
+
+
 def create_app() -> FastAPI:
     """Build the app; a factory so each uvicorn worker and each test gets a fresh one."""
     app = UgvmapApp(
@@ -61,6 +69,7 @@ def create_app() -> FastAPI:
         version="0.1.0",
         description="Map tiles, road network and routes for unmanned ground vehicles.",
         exception_handlers=EXCEPTION_HANDLERS,
+        lifespan=lifespan,
         # app.api.document serves the API document as OpenAPI 3.0, and /docs on it.
         openapi_url=None, docs_url=None, redoc_url=None,
     )

@@ -158,14 +158,28 @@ def compare(http: httpx.Client, conn: psycopg.Connection, base: str, name: str, 
 
 def _cpu_s(pids: list[int]) -> float:
     """CPU seconds (user + system) the processes ``pids`` have used so far."""
-    total = 0
-    for pid in pids:
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue  # ended meanwhile
-        total += int(fields[11]) + int(fields[12])
-    return total / os.sysconf("SC_CLK_TCK")
+    return sum(_ticks(Path(f"/proc/{pid}/stat")) for pid in pids) / os.sysconf("SC_CLK_TCK")
+
+
+def _ticks(stat: Path) -> int:
+    """User + system clock ticks of a process or thread (0 once it has ended)."""
+    try:
+        fields = stat.read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0
+    return int(fields[11]) + int(fields[12])
+
+
+def _cpu_parts(pids: list[int]) -> dict[str, float]:
+    """CPU seconds so far of the server's event-loop thread (its main thread), its other
+    threads (the thread pool, the change listener) and its database backends (``pids``: the
+    server, then the backends, as :func:`server_pids` lists them)."""
+    server, backends = pids[0], pids[1:]
+    tick = os.sysconf("SC_CLK_TCK")
+    tasks = {t.name: _ticks(t / "stat") for t in Path(f"/proc/{server}/task").iterdir()}
+    loop = tasks.pop(str(server), 0)
+    return {"event loop": loop / tick, "other threads": sum(tasks.values()) / tick,
+            "database": _cpu_s(backends)}
 
 
 def server_pids(base: str, conn: psycopg.Connection) -> list[int]:
@@ -187,12 +201,19 @@ def _cmdline(proc: Path) -> str:
         return ""
 
 
+# Our requests are timed this many times over the pairs: /proc counts CPU in 10 ms ticks,
+# 0.1 ms per request over a hundred pairs. pgr_dijkstra's, milliseconds to seconds, once.
+CPU_ROUNDS = 3
+
+
 def cpu_per_request(http: httpx.Client, conn: psycopg.Connection, base: str, name: str,
                     edges: str, pairs: list) -> None:
     """CPU milliseconds per request, of the server and the database backends it uses, against
     the CPU of the backend that runs pgr_dijkstra: unlike wall time, it does not count the
     waits for a CPU that other jobs on a shared box add to every hop (HTTP, thread pool,
-    database) a request makes, so it is steadier from run to run."""
+    database) a request makes, so it is steadier from run to run. Ours is split into the
+    server's event-loop thread, its other threads and its database backends: where a
+    request's CPU goes."""
     ours = server_pids(base, conn)
     mine = [conn.execute("SELECT pg_backend_pid()").fetchone()[0]]
     urls = {
@@ -201,13 +222,16 @@ def cpu_per_request(http: httpx.Client, conn: psycopg.Connection, base: str, nam
         OSRM_URL: lambda a, b: (f"/networks/{name}/route/v1/driving/"
                                 f"{a[1]!r},{a[2]!r};{b[1]!r},{b[2]!r}", {}),
     }
-    cpu = {}
+    cpu, parts = {}, {}
+    n = len(pairs) * CPU_ROUNDS
     for key, url in urls.items():
-        before = _cpu_s(ours)
-        for a, b in pairs:
+        before, split = _cpu_s(ours), _cpu_parts(ours)
+        for a, b in pairs * CPU_ROUNDS:
             path, params = url(a, b)
             http.get(path, params=params)
-        cpu[key] = (_cpu_s(ours) - before) / len(pairs) * 1e3
+        cpu[key] = (_cpu_s(ours) - before) / n * 1e3
+        parts[key] = {part: (seconds - split[part]) / n * 1e3
+                      for part, seconds in _cpu_parts(ours).items()}
     before = _cpu_s(mine)
     for a, b in pairs:
         conn.execute("SELECT agg_cost FROM pgr_dijkstra(%s, %s::bigint, %s::bigint)",
@@ -215,7 +239,9 @@ def cpu_per_request(http: httpx.Client, conn: psycopg.Connection, base: str, nam
     cpu[PGR] = (_cpu_s(mine) - before) / len(pairs) * 1e3
     for key in (OURS, OSRM_URL, PGR):
         print(f"  CPU per request {key:30s} {cpu[key]:7.2f} ms"
-              + (f"   ratio {cpu[key] / cpu[PGR]:6.3f}" if key != PGR else ""))
+              + (f"   ratio {cpu[key] / cpu[PGR]:6.3f}   ("
+                 + ", ".join(f"{part} {ms:.2f}" for part, ms in parts[key].items()) + ")"
+                 if key != PGR else ""))
 
 
 def _p50_ms(call, runs: int) -> float:

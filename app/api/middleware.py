@@ -1,11 +1,11 @@
 """HTTP behaviour every endpoint shares, as ASGI middleware: HEAD, OPTIONS, CORS, gzip and
 the browser security headers.
 
-Starlette's own CORS and gzip middleware do the work; this module only chooses their settings
-and adds what they lack: HEAD on every GET resource (FastAPI routes answer only the methods
-they declare) and two CORS policies, because reading public map data from any web page is
-the point of a tile server while writes (and anything carrying a token) must come only from
-pages the operator trusts.
+Starlette's own CORS and gzip middleware do the work (gzip with ISA-L's deflate:
+:mod:`app.api.compression`); this module only chooses their settings and adds what they lack:
+HEAD on every GET resource (FastAPI routes answer only the methods they declare) and two CORS
+policies, because reading public map data from any web page is the point of a tile server
+while writes (and anything carrying a token) must come only from pages the operator trusts.
 """
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ from __future__ import annotations
 from fastapi import FastAPI
 from starlette.datastructures import Headers, MutableHeaders
 from starlette.middleware.cors import CORSMiddleware
-from starlette.middleware.gzip import GZipMiddleware
 from starlette.requests import Request
 from starlette.responses import Response
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from app.api.compression import IsalGZipMiddleware
 from app.api.options import OptionsMiddleware
 from app.api.response_start import ResponseStartMiddleware
 from app.errors import CorsRefusedError, api_error
@@ -34,7 +34,6 @@ SECURITY_HEADERS = {"X-Content-Type-Options": "nosniff", "X-Frame-Options": "DEN
                     "Content-Security-Policy": "frame-ancestors 'none'",
                     "Referrer-Policy": "no-referrer"}
 GZIP_MIN_BYTES = 500
-GZIP_LEVEL = 6  # zlib's default: most of level 9's gain at a third of its CPU on big pages
 
 
 class HeadMiddleware:
@@ -127,7 +126,7 @@ def install(app: FastAPI, settings: Settings) -> None:
     preflights before OPTIONS sees them), HEAD (so a HEAD reports the headers of the
     compressed GET, CORS headers included)."""
     app.add_middleware(OptionsMiddleware)
-    app.add_middleware(GZipMiddleware, minimum_size=GZIP_MIN_BYTES, compresslevel=GZIP_LEVEL)
+    app.add_middleware(IsalGZipMiddleware, minimum_size=GZIP_MIN_BYTES)
     app.add_middleware(CorsMiddleware, read_origins=settings.cors_read_origin_list,
                        write_origins=settings.cors_write_origin_list)
     app.add_middleware(HeadMiddleware)

@@ -219,6 +219,12 @@ class CostGraph:
         self.hierarchy.answered += 1
         return i, j, self.arcs.row[arcs], self.arcs.way[arcs]
 
+    def answers_fast(self) -> bool:
+        """Whether the hierarchy answers for this version now (no wait): a search is then
+        a fraction of a millisecond whatever the network's size."""
+        return self.hierarchy is not None and self.hierarchy.metric(
+            self.hierarchy_key, self.version, self.arc_costs, self.max_rate) is not None
+
     def metric(self) -> Metric | None:
         """The hierarchy's metric for this cost model at this version, when it can answer
         (waiting briefly for an update that is bringing it here), else ``None``."""
@@ -453,6 +459,12 @@ class RoadGraph:
             if self._index is None:
                 self._index = SegmentIndex.of(self)
             return self._index
+
+    def built(self, cost: Cost, avoid: frozenset[str]) -> CostGraph | None:
+        """The cost graph of ``(cost, avoid)`` if it is built and the snapping index too;
+        ``None`` when a request would build either first."""
+        with self._lock:
+            return self._costs.get((cost, avoid)) if self._index is not None else None
 
     def _carry_index(self, graph: RoadGraph, changed: np.ndarray) -> RoadGraph:
         """``graph`` (the next version, where segments ``changed`` were added or edited) with

@@ -91,6 +91,12 @@ class GraphRegistry:
                 return self._reload(network_id, min_version)  # a notification was lost
         return graph
 
+    def current(self, network_id: int, min_version: int) -> RoadGraph | None:
+        """The network's graph if it is loaded and at ``min_version`` or later; ``None`` when
+        :meth:`get` would have to wait for the listener or load it."""
+        graph = self._graphs.get(network_id)
+        return graph if graph is not None and graph.version >= min_version else None
+
     def _moved(self, network_id: int, seen: int) -> bool:
         return self._graphs[network_id].version > seen
 

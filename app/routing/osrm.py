@@ -81,10 +81,9 @@ class Shaper:
         return encode(coords, self.opts.geometries)
 
     def _summary(self, t: Trace) -> str:
-        names = self.graph.segs.name
         length: dict[str, float] = {}
-        for piece, metres in zip(t.pieces, t.distance.tolist(), strict=True):
-            name = names[piece.row] or ""
+        for name, metres in zip(self.graph.segs.name[t.rows].tolist(), t.distance.tolist(),
+                                strict=True):
             if name:
                 length[name] = length.get(name, 0.0) + metres
         longest = sorted(length, key=length.__getitem__, reverse=True)[:2]
@@ -122,11 +121,12 @@ class Shaper:
             "distance": float(t.distance.sum()), "duration": float(t.duration.sum()),
             "weight": t.leg.weight, "summary": self._summary(t),
             "steps": leg_steps(self.context, t) if self.context is not None else [],
-            "segments": [{"id": i, "forward": f, "from_fraction": p.f_from,
-                          "to_fraction": p.f_to, "distance": d, "duration": s}
-                         for i, f, p, d, s in zip(t.segment_ids.tolist(), t.forward.tolist(),
-                                                  t.pieces, t.distance.tolist(),
-                                                  t.duration.tolist(), strict=True)],
+            "segments": [{"id": i, "forward": f, "from_fraction": a, "to_fraction": b,
+                          "distance": d, "duration": s}
+                         for i, f, a, b, d, s in zip(
+                             t.segment_ids.tolist(), t.forward.tolist(), t.f_from.tolist(),
+                             t.f_to.tolist(), t.distance.tolist(), t.duration.tolist(),
+                             strict=True)],
         }
         if self.opts.annotations:
             out["annotation"] = self._annotation(t)

@@ -17,12 +17,13 @@ from app.grid import pixel_size_m
 VIEWPORT_PX = 1024
 MAX_ZOOM = 18  # OSRM's highest simplification level
 MERCATOR_R = 6_378_137.0  # EPSG:3857's sphere
+PIXEL_M = tuple(pixel_size_m(zoom) for zoom in range(MAX_ZOOM + 1))  # read once, not per route
 
 
 def fitted_zoom(span_m: float) -> int:
     """The largest zoom (<= :data:`MAX_ZOOM`) where ``span_m`` mercator metres fit the viewport."""
     for zoom in range(MAX_ZOOM, -1, -1):
-        if span_m <= VIEWPORT_PX * pixel_size_m(zoom):
+        if span_m <= VIEWPORT_PX * PIXEL_M[zoom]:
             return zoom
     return 0
 
@@ -38,7 +39,7 @@ def simplify(lonlat: np.ndarray) -> np.ndarray:
     if not (np.isfinite(x).all() and np.isfinite(y).all()):  # off the globe: leave it be
         return lonlat
     span = float(max(np.ptp(x), np.ptp(y)))
-    tolerance = pixel_size_m(fitted_zoom(span))
+    tolerance = PIXEL_M[fitted_zoom(span)]
     # Each vertex carries its index as Z, which simplification keeps with the vertex.
     line = shapely.linestrings(x, y, np.arange(len(x), dtype=np.float64))
     kept = shapely.get_coordinates(shapely.simplify(line, tolerance, preserve_topology=False),

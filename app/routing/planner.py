@@ -13,6 +13,7 @@ from app.routing.alternatives import alternatives
 from app.routing.engine import Leg
 from app.routing.graph import RoadGraph
 from app.routing.isochrone import isochrone_geojson
+from app.routing.junctions import junctions_built
 from app.routing.live import registry
 from app.routing.optimize import best_order
 from app.routing.options import IsochroneOptions, RouteOptions
@@ -23,10 +24,37 @@ from app.routing.table import matrices
 from app.routing.waypoints import dense_waypoints
 from app.settings import get_settings
 
+# A route is quick (answered on the event loop, without a worker thread: app.routing.router)
+# when it is a few points on a network whose longest route is shaped in a few milliseconds,
+# and everything it needs is built: the graph at the version read, the snapping index, the
+# cost model, the junctions for steps, and a search that is the hierarchy's or a Dijkstra
+# over a small network (~1 ms at 3k segments, tens of ms at 100k).
+QUICK_MAX_POINTS = 3
+QUICK_MAX_SEGMENTS = 200_000
+QUICK_DIJKSTRA_SEGMENTS = 10_000
+
 
 def graph_at(network_id: int, version: int) -> RoadGraph:
     """This process's graph of a network, holding at least ``version``."""
     return registry(get_settings().database_url).get(network_id, version)
+
+
+def current_graph(network_id: int, version: int) -> RoadGraph | None:
+    """:func:`graph_at` if it needs no wait and no load, else ``None``."""
+    return registry(get_settings().database_url).current(network_id, version)
+
+
+def quick_route(graph: RoadGraph, n_points: int, opts: RouteOptions) -> bool:
+    """Whether :func:`plan_route` answers in a few milliseconds on ``graph`` (see
+    :data:`QUICK_MAX_POINTS`): no alternatives, optimisation or straight-on constraint, which
+    run several searches, and the OSRM answer (dense waypoints may be many)."""
+    if (n_points > QUICK_MAX_POINTS or opts.alternatives or opts.optimize
+            or opts.continue_straight or opts.format != "osrm"
+            or len(graph.segs) > QUICK_MAX_SEGMENTS):
+        return False
+    cg = graph.built(opts.cost, opts.avoid)
+    return (cg is not None and (not opts.steps or junctions_built(graph))
+            and (len(graph.segs) <= QUICK_DIJKSTRA_SEGMENTS or cg.answers_fast()))
 
 
 def visit_order(router: engine.Router) -> list[int]:

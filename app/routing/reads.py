@@ -1,25 +1,36 @@
-"""The database reads of a routing request, on a small pool of autocommit connections.
+"""The one database read of a routing request: the network's id and version.
 
-Every request reads the network's id and version, so that it routes on a graph holding every
-edit committed before it (:mod:`app.routing.live`), and nothing else: snapping happens in
-memory (:mod:`app.routing.nearby`), and the graph holds the OSM tags steps need.
+Every request reads ``networks.version``, so that it routes on a graph holding every edit
+committed before it (:mod:`app.routing.live`), and nothing else: snapping happens in memory
+(:mod:`app.routing.nearby`), and the graph holds the OSM tags steps need.
 
-Why not the service's SQLAlchemy engine: its pool pings each connection on checkout, a round
-trip as long as the version read itself, and its statement layer costs more than the read.
-Here a request takes an idle psycopg connection (autocommit: one statement needs no
-BEGIN/COMMIT) and runs prepared statements on it. A connection that broke while idle (the
-database restarted) is dropped and the read retried once on a fresh one, which is what the
-ping bought; a database that cannot be reached is a 503 the client may retry.
+An HTTP request reads it on the event loop, before its planner runs (:class:`VersionReader`):
+libpq's non-blocking calls (``psycopg.pq``) on an idle autocommit connection with a prepared
+statement, the loop waiting for the socket like for any other. Why not in the worker thread
+with the rest of the request: a read there kept the planner in a thread even when the planner
+itself is a millisecond (:mod:`app.routing.planner` answers those on the loop), and psycopg's
+statement layer cost more CPU than the round trip (21 us against 5 us in the client per read).
+Why not psycopg's async connection: its waiting machinery cost ~0.15 ms of the loop per read.
+
+A connection that broke while idle (the database restarted) is dropped and the read retried
+once on a fresh one; a database that cannot be reached is a 503 the client may retry. New
+connections are opened in a worker thread (connecting blocks), only when none is idle.
+
+The CLI reads the same on a connection of its own (:func:`read_connection`).
 """
 
 from __future__ import annotations
 
+import asyncio
 import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from dataclasses import dataclass
+from typing import Protocol
 
+import anyio.to_thread
 import psycopg
+from psycopg import pq
 
 from app.db.session import libpq_dsn
 from app.errors import DatabaseUnavailableError, NotFoundError
@@ -27,75 +38,130 @@ from app.settings import get_settings
 
 MAX_IDLE = 8  # connections kept per process; a burst beyond opens (and then closes) more
 NETWORK_SQL = "SELECT id, version FROM networks WHERE name = %s"
+STATEMENT = b"ugvmap_network_version"  # NETWORK_SQL, prepared on each pooled connection
+STATEMENT_SQL = b"SELECT id, version FROM networks WHERE name = $1"
 
 
-class Reads:
-    """One request's reads, on one pooled connection."""
-
-    def __init__(self, pool: ReadPool, conn: psycopg.Connection, reused: bool) -> None:
-        self._pool, self.conn, self._reused = pool, conn, reused
-
-    def _rows(self, sql: str, args: Sequence[Any]) -> list[tuple[Any, ...]]:
-        try:
-            return self.conn.execute(sql, args, prepare=True).fetchall()
-        except psycopg.OperationalError:
-            if not self._reused:
-                raise
-            self.conn.close()  # broke while idle: one retry on a fresh connection
-            self.conn, self._reused = self._pool.connect(), False
-            return self.conn.execute(sql, args, prepare=True).fetchall()
+class Reads(Protocol):
+    """What planners read from the database."""
 
     def network(self, name: str) -> tuple[int, int]:
         """(id, version) of the network ``name``; 404 when there is none."""
-        rows = self._rows(NETWORK_SQL, (name,))
-        if not rows:
-            raise NotFoundError(f"network {name!r} does not exist")
-        return int(rows[0][0]), int(rows[0][1])
+        ...
 
 
-class ReadPool:
-    """Idle autocommit connections to one database, shared by a process's request threads."""
+@dataclass(frozen=True)
+class ReadAhead:
+    """A request's version read, done before its planner runs."""
+
+    name: str
+    network_id: int
+    version: int
+
+    def network(self, name: str) -> tuple[int, int]:
+        """(id, version) of the network read, which must be ``name``."""
+        if name != self.name:
+            raise ValueError(f"read {self.name!r}, asked for {name!r}")
+        return self.network_id, self.version
+
+
+class VersionReader:
+    """Idle connections to one database on which the event loop reads versions."""
 
     def __init__(self, database_url: str) -> None:
         self._dsn = libpq_dsn(database_url)
         self._idle: list[psycopg.Connection] = []
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # several loops (test clients) may share a reader
 
-    def connect(self) -> psycopg.Connection:
-        """A new connection, or 503 when the database cannot be reached."""
-        try:
-            return psycopg.connect(self._dsn, autocommit=True,
-                                   connect_timeout=get_settings().db_connect_timeout_s)
-        except psycopg.OperationalError as exc:
-            raise unavailable(exc) from exc
-
-    @contextmanager
-    def reads(self) -> Iterator[Reads]:
-        """A request's reads on an idle connection (or a new one), given back afterwards
-        unless it broke."""
+    async def read(self, name: str) -> ReadAhead:
+        """The network's id and version (404 when there is none, 503 when the database cannot
+        be reached)."""
         with self._lock:
             conn = self._idle.pop() if self._idle else None
-        reads = Reads(self, conn, True) if conn is not None else Reads(self, self.connect(),
-                                                                          False)
+        reused = conn is not None
         try:
-            yield reads
+            if conn is None:
+                conn = await self._connect()
+            try:
+                row = await _query(conn.pgconn, name)
+            except psycopg.OperationalError:
+                conn.close()
+                if not reused:
+                    raise
+                conn = await self._connect()  # broke while idle: one retry on a fresh one
+                row = await _query(conn.pgconn, name)
         except psycopg.OperationalError as exc:
-            reads.conn.close()
+            if conn is not None:
+                conn.close()
             raise unavailable(exc) from exc
-        except BaseException:
-            self._give_back(reads.conn)
+        except BaseException:  # cancelled mid-read: the connection's state is unknown
+            if conn is not None:
+                conn.close()
             raise
-        self._give_back(reads.conn)
+        self._give_back(conn)
+        if row is None:
+            raise NotFoundError(f"network {name!r} does not exist")
+        return ReadAhead(name, *row)
+
+    async def _connect(self) -> psycopg.Connection:
+        return await anyio.to_thread.run_sync(self._open)
+
+    def _open(self) -> psycopg.Connection:
+        conn = psycopg.connect(self._dsn, autocommit=True,
+                               connect_timeout=get_settings().db_connect_timeout_s)
+        prepared = conn.pgconn.prepare(STATEMENT, STATEMENT_SQL)
+        if prepared.status != pq.ExecStatus.COMMAND_OK:
+            conn.close()
+            raise psycopg.errors.error_from_result(prepared)
+        conn.pgconn.nonblocking = 1
+        return conn
 
     def _give_back(self, conn: psycopg.Connection) -> None:
-        if conn.closed or conn.info.transaction_status != psycopg.pq.TransactionStatus.IDLE:
-            conn.close()
-            return
         with self._lock:
             if len(self._idle) < MAX_IDLE:
                 self._idle.append(conn)
                 return
         conn.close()
+
+
+async def _query(pg: pq.abc.PGconn, name: str) -> tuple[int, int] | None:
+    """Run the prepared read on a non-blocking connection, waiting on the event loop."""
+    pg.send_query_prepared(STATEMENT, [name.encode()])
+    while pg.flush():  # 1: the rest of the query waits for room in the socket
+        await _socket_ready(pg.socket, write=True)
+    while True:
+        pg.consume_input()
+        if not pg.is_busy():
+            break
+        await _socket_ready(pg.socket, write=False)
+    result = pg.get_result()
+    while pg.get_result() is not None:  # the end of the query's results
+        pass
+    if result is None or result.status != pq.ExecStatus.TUPLES_OK:
+        if result is None:
+            raise psycopg.OperationalError("the database sent no result")
+        raise psycopg.errors.error_from_result(result)
+    if not result.ntuples:
+        return None
+    network_id, version = result.get_value(0, 0), result.get_value(0, 1)
+    assert network_id is not None and version is not None
+    return int(network_id), int(version)
+
+
+async def _socket_ready(fd: int, write: bool) -> None:
+    """Until the event loop sees ``fd`` readable (or writable)."""
+    loop = asyncio.get_running_loop()
+    ready = loop.create_future()
+
+    def wake() -> None:
+        if not ready.done():
+            ready.set_result(None)
+
+    (loop.add_writer if write else loop.add_reader)(fd, wake)
+    try:
+        await ready
+    finally:
+        (loop.remove_writer if write else loop.remove_reader)(fd)
 
 
 def unavailable(exc: Exception) -> DatabaseUnavailableError:
@@ -104,17 +170,41 @@ def unavailable(exc: Exception) -> DatabaseUnavailableError:
     return DatabaseUnavailableError(f"database unreachable: {detail}")
 
 
-_pools: dict[str, ReadPool] = {}
-_pools_lock = threading.Lock()
+_readers: dict[str, VersionReader] = {}
+_readers_lock = threading.Lock()
+
+
+def version_reader(database_url: str | None = None) -> VersionReader:
+    """The process's reader for the configured database (or ``database_url``)."""
+    url = database_url or get_settings().database_url
+    with _readers_lock:
+        if url not in _readers:
+            _readers[url] = VersionReader(url)
+        return _readers[url]
+
+
+class _ConnectionReads:
+    """The reads of one command on its own connection."""
+
+    def __init__(self, conn: psycopg.Connection) -> None:
+        self._conn = conn
+
+    def network(self, name: str) -> tuple[int, int]:
+        """(id, version) of the network ``name``; 404 when there is none."""
+        row = self._conn.execute(NETWORK_SQL, (name,)).fetchone()
+        if row is None:
+            raise NotFoundError(f"network {name!r} does not exist")
+        return int(row[0]), int(row[1])
 
 
 @contextmanager
 def read_connection(database_url: str | None = None) -> Iterator[Reads]:
-    """The reads of one routing request (or CLI command) on the configured database."""
+    """The reads of one CLI command, on a connection of its own; 503 when the database cannot
+    be reached."""
     url = database_url or get_settings().database_url
-    with _pools_lock:
-        if url not in _pools:
-            _pools[url] = ReadPool(url)
-        pool = _pools[url]
-    with pool.reads() as reads:
-        yield reads
+    try:
+        with psycopg.connect(libpq_dsn(url), autocommit=True,
+                             connect_timeout=get_settings().db_connect_timeout_s) as conn:
+            yield _ConnectionReads(conn)
+    except psycopg.OperationalError as exc:
+        raise unavailable(exc) from exc

@@ -7,14 +7,15 @@ Responses follow OSRM's services. Errors are ``{"code", "message"}`` with OSRM's
 URLs they take the service's statuses (400 malformed, 422 a value that breaks a rule or a
 point that cannot snap or connect), on the OSRM-shaped URLs every OSRM code is a 400 as OSRM
 answers it (:func:`_as_osrm`). Reads need ``UGVMAP_NETWORK_READ_ROLE`` when it is set, like
-every other read of network data. Each request does its database read and search in one
-thread-pool hop (:func:`_answer`).
+every other read of network data. Each request reads the network's version on the event
+loop, then plans on the loop when that is quick, else in one thread-pool hop (:func:`_answer`).
 """
 
 from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Annotated, Any
 
 import orjson
@@ -27,6 +28,7 @@ from app.db.session import session_scope
 from app.network.tokens import read_access
 from app.routing import params
 from app.routing.bodies import ServiceBody, body_model
+from app.routing.graph import RoadGraph
 from app.routing.options import (
     ISOCHRONE_OPTIONS,
     SERVICES,
@@ -38,8 +40,8 @@ from app.routing.options import (
     parse_points,
     service_docs,
 )
-from app.routing.planner import plan_isochrone, plan_route
-from app.routing.reads import read_connection
+from app.routing.planner import current_graph, plan_isochrone, plan_route, quick_route
+from app.routing.reads import version_reader
 from app.routing.service_options import parse_match, parse_nearest, parse_table, parse_trip
 from app.routing.services import plan_match, plan_nearest, plan_table, plan_trip
 from app.routing.settings import routing_settings
@@ -114,15 +116,28 @@ def _json(body: dict[str, Any]) -> Response:
                     media_type="application/json")
 
 
-async def _answer(plan: Callable[..., dict[str, Any]], *args: Any) -> Response:
-    """Run a planner call, with its own connection, in one worker-thread hop: the snap blocks
-    on the database and the search is CPU-bound, so neither may run on the event loop (and a
-    connection dependency would cost two more hops per request)."""
-    def work() -> Response:
-        with read_connection() as conn:
-            return _json(plan(conn, *args))
+@dataclass(frozen=True)
+class Call:
+    """A planner call answering a request: the function, its arguments after the reads and
+    the network name, and whether it is quick on a given graph."""
 
-    return await run_in_threadpool(work)
+    plan: Callable[..., dict[str, Any]]
+    args: tuple
+    quick: Callable[[RoadGraph], bool] = lambda graph: False
+
+
+async def _answer(name: str, call: Call) -> Response:
+    """Read the network's version on the event loop, then run the planner: on the loop when
+    it is quick there (a route of a few points, everything it needs built: see
+    :func:`app.routing.planner.quick_route`), since a worker-thread hop cost more than such a
+    planner (two thread wake-ups per request: ~0.2 ms of wall time and of CPU, measured on
+    Andorra); else in one worker-thread hop (a search, a load or a catch-up that may take
+    long must not hold the loop)."""
+    ahead = await version_reader().read(name)
+    graph = current_graph(ahead.network_id, ahead.version)
+    if graph is not None and call.quick(graph):
+        return _json(call.plan(ahead, name, *call.args))
+    return await run_in_threadpool(lambda: _json(call.plan(ahead, name, *call.args)))
 
 
 def _raw(request: Request) -> dict[str, str]:
@@ -143,26 +158,24 @@ def _most_points(service: Service) -> int:
 
 
 def _request(service: Service, raw: dict[str, str], profile: Profile,
-             points: list[tuple[float, float]]) -> tuple[Callable[..., dict[str, Any]], tuple]:
-    """The planner call answering a request: the function and its arguments after the
-    database reads and the network name."""
+             points: list[tuple[float, float]]) -> Call:
+    """The planner call answering a request."""
     opts = parse(raw, profile, len(points), service)
     n = len(points)
     if service == "nearest":
-        return plan_nearest, (points[0], opts, parse_nearest(raw, n))
+        return Call(plan_nearest, (points[0], opts, parse_nearest(raw, n)))
     if service == "table":
-        return plan_table, (points, opts, parse_table(raw, n))
+        return Call(plan_table, (points, opts, parse_table(raw, n)))
     if service == "match":
-        return plan_match, (points, opts, parse_match(raw, n))
+        return Call(plan_match, (points, opts, parse_match(raw, n)))
     if service == "trip":
-        return plan_trip, (points, opts, parse_trip(raw, n))
-    return plan_route, (points, opts)
+        return Call(plan_trip, (points, opts, parse_trip(raw, n)))
+    return Call(plan_route, (points, opts), lambda graph: quick_route(graph, n, opts))
 
 
 async def _own(service: Service, name: str, raw: dict[str, str],
                points: list[tuple[float, float]]) -> Response:
-    plan, args = _request(service, raw, "ugvmap", points)
-    return await _answer(plan, name, *args)
+    return await _answer(name, _request(service, raw, "ugvmap", points))
 
 
 def _query_points(service: Service, raw: dict[str, str]) -> list[tuple[float, float]]:
@@ -233,10 +246,6 @@ def _post_endpoint(service: Service) -> Callable[..., Any]:
     return endpoint
 
 
-for _service in ("route", "table", "match", "trip"):
-    router.add_api_route(f"/{{name}}/{_service}", _post_endpoint(_service), methods=["POST"])
-
-
 def _as_osrm(exc: errors.ApiError) -> errors.ApiError:
     """The same fault as OSRM answers it on its own URLs (400 with OSRM's code)."""
     for ours, osrm in _OSRM_FAULTS.items():
@@ -259,8 +268,7 @@ async def _osrm(service: Service, name: str, request: Request, version: str, pro
         if coordinates.endswith(".flatbuffers"):
             raise errors.NotImplementedOptionError("only the json format is served")
         points = parse_points(coordinates.removesuffix(".json"), _most_points(service))
-        plan, args = _request(service, _raw(request), "osrm", points)
-        return await _answer(plan, name, *args)
+        return await _answer(name, _request(service, _raw(request), "osrm", points))
     except errors.ApiError as exc:
         raise _as_osrm(exc) from exc
 
@@ -285,6 +293,10 @@ for _service in SERVICES:
     router.add_api_route(f"/{{name}}/{_service}/{{version}}/{{profile}}/{{coordinates}}",
                          _osrm_endpoint(_service), methods=["GET"],
                          openapi_extra=_service_doc(_service, "osrm"))
+# The POST bodies after the GETs: FastAPI tries a router's routes in order, and every GET of
+# OSRM's URL shape (most requests) would otherwise be matched against these first.
+for _service in ("route", "table", "match", "trip"):
+    router.add_api_route(f"/{{name}}/{_service}", _post_endpoint(_service), methods=["POST"])
 
 
 @router.get("/{name}/{service}/{version}/{profile}", include_in_schema=False)
@@ -314,4 +326,4 @@ async def osrm_other_service(name: str, service: str, profile: str,
 async def isochrone(name: str, request: Request) -> Response:
     """Segments (partly) reachable from the point within ``seconds`` or ``meters``."""
     params.network_name(name)
-    return await _answer(plan_isochrone, name, parse_isochrone(_raw(request)))
+    return await _answer(name, Call(plan_isochrone, (parse_isochrone(_raw(request)),)))

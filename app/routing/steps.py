@@ -31,8 +31,8 @@ import numpy as np
 from app.routing.costs import Cost
 from app.routing.geometry import side_of
 from app.routing.graph import RoadGraph
-from app.routing.junctions import Junctions
-from app.routing.trace import Run, Trace
+from app.routing.junctions import Crossings, Junctions
+from app.routing.trace import Trace
 
 STRAIGHT_DEG = 30.0
 SLIGHT_DEG = 60.0
@@ -65,33 +65,51 @@ class StepContext:
     driving_side: str
     encode: Callable[[np.ndarray], Any]
 
-    def roundabout(self, run: Run) -> bool:
-        """Is the run on a roundabout (OSM ``junction=roundabout|circular``)?"""
-        return bool(self.graph.segs.roundabout[run.piece.row])
 
-    def attrs(self, t: Trace) -> list[dict[str, Any]]:
-        """Per-step attributes of each run of a leg (a new step starts where any of them
-        changes), read for all runs at once."""
-        s = self.graph.segs
-        rows = np.array([p.row for p in t.pieces], np.int64)
+# Per run, what a new step starts at when it changes: name, ref, lanes, speed limit, speed,
+# class (compared as one tuple per run; a step's dictionary is made once per step).
+Attrs = tuple[str, str, int, float | None, float, str]
+
+
+@dataclass(frozen=True)
+class _Leg:
+    """A leg's runs as Python lists, and the roads at each joint: every lookup the grouping
+    loop makes, read for the whole leg at once (a grid route has ~300 runs)."""
+
+    t: Trace
+    attrs: list[Attrs]
+    roundabout: list[bool]
+    segment_ids: list[int]
+    nodes: list[int]  # graph node where run k ends, for k before the last
+    crossings: Crossings  # joint k - 1: between runs k - 1 and k
+
+    @staticmethod
+    def of(ctx: StepContext, t: Trace) -> _Leg:
+        """Read the leg's runs."""
+        s, graph = ctx.graph.segs, ctx.graph
+        rows = t.rows
+        nodes = np.where(t.f_to[:-1] == 1.0, graph.v[rows[:-1]], graph.u[rows[:-1]])
         lanes = np.where(t.forward, s.lanes_forward[rows], s.lanes_backward[rows])
-        return [{"name": name or "", "ref": ref or "", "lanes": n,
-                 "speed_limit_kph": None if limit != limit else limit, "speed_kph": kph,
-                 "road_class": cls}
-                for name, ref, n, limit, kph, cls in zip(
-                    s.name[rows].tolist(), s.ref[rows].tolist(), lanes.tolist(),
-                    s.speed_limit[rows].tolist(), self.graph.speed_kph[rows].tolist(),
-                    s.road_class[rows].tolist(), strict=True)]
+        attrs: list[Attrs] = [
+            (name or "", ref or "", n, None if limit != limit else limit, kph, cls)
+            for name, ref, n, limit, kph, cls in zip(
+                s.name[rows].tolist(), s.ref[rows].tolist(), lanes.tolist(),
+                s.speed_limit[rows].tolist(), graph.speed_kph[rows].tolist(),
+                s.road_class[rows].tolist(), strict=True)]
+        crossings = ctx.junctions.crossings(
+            graph, nodes, (rows[:-1], t.forward[:-1]), (rows[1:], ~t.forward[1:]), ctx.avoid)
+        return _Leg(t, attrs, s.roundabout[rows].tolist(), t.segment_ids.tolist(),
+                    nodes.tolist(), crossings)
 
-    def node_after(self, run: Run) -> int:
-        """Graph node index where a run ends at a segment end."""
-        row = run.piece.row
-        return int(self.graph.v[row] if run.piece.f_to == 1.0 else self.graph.u[row])
+    def intersection(self, k: int) -> dict[str, Any]:
+        """OSRM's intersection where run ``k`` starts (k >= 1)."""
+        return self.crossings.intersection(k - 1, self.t.ends.first[k])
 
 
 @dataclass
 class _Step:
-    """A step being built: its runs, maneuver and the intersections it passes."""
+    """A step being built: its runs ``first`` .. ``end`` - 1, maneuver and the intersections
+    it passes."""
 
     kind: str
     turn: str | None
@@ -99,21 +117,20 @@ class _Step:
     location: list[float]
     before: float
     after: float
-    attrs: dict[str, Any]
-    runs: list[Run] = field(default_factory=list)
+    attrs: Attrs
+    end: int = 0  # one past its last run
     intersections: list[dict[str, Any]] = field(default_factory=list)
     exit: int | None = None
 
 
-def _same_road(a: dict[str, Any], b: dict[str, Any]) -> bool:
-    return bool(a["name"] or a["ref"]) and (a["name"], a["ref"]) == (b["name"], b["ref"])
+def _same_road(a: Attrs, b: Attrs) -> bool:
+    return bool(a[0] or a[1]) and a[:2] == b[:2]
 
 
-def _exits_passed(ctx: StepContext, runs: list[Run]) -> int:
+def _exits_passed(ctx: StepContext, leg: _Leg, step: _Step) -> int:
     """Nodes between consecutive roundabout runs where a road leaves the roundabout."""
     count = 0
-    for prev in runs[:-1]:
-        node = ctx.node_after(prev)
+    for node in leg.nodes[step.first:step.end - 1]:
         for road in ctx.junctions.roads(node):
             if not ctx.graph.segs.roundabout[road.row] and \
                     ctx.junctions.enterable(ctx.graph, road, ctx.avoid):
@@ -122,62 +139,52 @@ def _exits_passed(ctx: StepContext, runs: list[Run]) -> int:
     return count
 
 
-def _intersection(ctx: StepContext, prev: Run, run: Run) -> dict[str, Any]:
-    node = ctx.node_after(prev)
-    return ctx.junctions.intersection(ctx.graph, node, run.coords[0].tolist(),
-                                      (prev.piece.row, prev.forward),
-                                      (run.piece.row, not run.forward), ctx.avoid)
-
-
-def _group(ctx: StepContext, t: Trace, all_attrs: list[dict[str, Any]]) -> list[_Step]:
+def _group(ctx: StepContext, leg: _Leg) -> list[_Step]:
     """The leg's runs grouped into steps (before ``arrive``)."""
-    steps: list[_Step] = []
-    prev: Run | None = None
-    for k, (run, attrs) in enumerate(zip(t.runs, all_attrs, strict=True)):
-        if prev is None:
-            steps.append(_Step("depart", None, 0, t.start, 0.0, run.b_out, attrs, [run], [{
-                "location": t.start, "bearings": [round(run.b_out) % 360], "entry": [True],
-                "out": 0}]))
-            prev = run
-            continue
-        step = steps[-1]
-        turn = modifier(prev.b_in, run.b_out)
-        on_roundabout = step.kind == "roundabout" and ctx.roundabout(run)
+    t, ends = leg.t, leg.t.ends
+    if not t.pieces:
+        return []
+    steps = [_Step("depart", None, 0, t.start, 0.0, ends.b_out[0], leg.attrs[0], 1, [{
+        "location": t.start, "bearings": [round(ends.b_out[0]) % 360], "entry": [True],
+        "out": 0}])]
+    for k in range(1, len(t.pieces)):
+        attrs, step = leg.attrs[k], steps[-1]
+        turn = modifier(ends.b_in[k - 1], ends.b_out[k])
+        on_roundabout = step.kind == "roundabout" and leg.roundabout[k]
         if on_roundabout or (turn == "straight" and attrs == step.attrs
                              and step.kind != "roundabout"):
-            step.runs.append(run)
-            if ctx.junctions.degree(ctx.node_after(prev)) >= 3:
-                step.intersections.append(_intersection(ctx, prev, run))
-            prev = run
+            step.end = k + 1
+            if leg.crossings.degree(k - 1) >= 3:
+                step.intersections.append(leg.intersection(k))
             continue
-        inter = _intersection(ctx, prev, run)
-        if ctx.roundabout(run) and not ctx.roundabout(prev):
-            steps.append(_Step("roundabout", turn, k, run.coords[0].tolist(), prev.b_in,
-                               run.b_out, attrs, [run], [inter]))
+        inter = leg.intersection(k)
+        if leg.roundabout[k] and not leg.roundabout[k - 1]:
+            steps.append(_Step("roundabout", turn, k, ends.first[k], ends.b_in[k - 1],
+                               ends.b_out[k], attrs, k + 1, [inter]))
+            continue
+        if step.kind == "roundabout":
+            kind = "exit roundabout"
+            step.exit = _exits_passed(ctx, leg, step) + 1
+            step.turn = modifier(step.before, ends.b_out[k])
+            step.attrs = (attrs[0], attrs[1], *step.attrs[2:])
+        elif turn == "uturn" or _same_road(attrs, step.attrs):
+            kind = "continue"
         else:
-            if step.kind == "roundabout":
-                kind = "exit roundabout"
-                step.exit = _exits_passed(ctx, step.runs) + 1
-                step.turn = modifier(step.before, run.b_out)
-                step.attrs = {**step.attrs, "name": attrs["name"], "ref": attrs["ref"]}
-            elif turn == "uturn" or _same_road(attrs, step.attrs):
-                kind = "continue"
-            else:
-                kind = "new name" if turn == "straight" else "turn"
-            new = _Step(kind, turn, k, run.coords[0].tolist(), prev.b_in, run.b_out, attrs,
-                        [run], [inter])
-            new.exit = step.exit if kind == "exit roundabout" else None
-            steps.append(new)
-        prev = run
-    if steps and steps[-1].kind == "roundabout":  # arriving on the roundabout
-        steps[-1].exit = _exits_passed(ctx, steps[-1].runs) + 1
-        steps[-1].turn = modifier(steps[-1].before, steps[-1].runs[-1].b_in)
+            kind = "new name" if turn == "straight" else "turn"
+        new = _Step(kind, turn, k, ends.first[k], ends.b_in[k - 1], ends.b_out[k], attrs,
+                    k + 1, [inter])
+        new.exit = step.exit if kind == "exit roundabout" else None
+        steps.append(new)
+    if steps[-1].kind == "roundabout":  # arriving on the roundabout
+        steps[-1].exit = _exits_passed(ctx, leg, steps[-1]) + 1
+        steps[-1].turn = modifier(steps[-1].before, ends.b_in[steps[-1].end - 1])
     return steps
 
 
-def _render(ctx: StepContext, t: Trace, s: _Step) -> dict[str, Any]:
-    last = s.first + len(s.runs)
-    coords = t.coords[t.starts[s.first]:t.starts[last] + 1]
+def _render(ctx: StepContext, leg: _Leg, s: _Step, distance: float, duration: float
+            ) -> dict[str, Any]:
+    t = leg.t
+    coords = t.coords[t.starts[s.first]:t.starts[s.end] + 1]
     maneuver: dict[str, Any] = {"type": s.kind, "location": s.location,
                                 "bearing_before": round(s.before) % 360,
                                 "bearing_after": round(s.after) % 360}
@@ -185,29 +192,27 @@ def _render(ctx: StepContext, t: Trace, s: _Step) -> dict[str, Any]:
         maneuver["modifier"] = s.turn
     if s.exit is not None:
         maneuver["exit"] = s.exit
-    distance = float(t.distance[s.first:last].sum())
-    duration = float(t.duration[s.first:last].sum())
+    name, ref, lanes, limit, kph, road_class = s.attrs
     out: dict[str, Any] = {
         "distance": distance, "duration": duration,
         "weight": duration if ctx.cost is Cost.TIME else distance,
-        "geometry": ctx.encode(coords), "name": s.attrs["name"], "mode": "driving",
+        "geometry": ctx.encode(coords), "name": name, "mode": "driving",
         "driving_side": ctx.driving_side, "maneuver": maneuver,
         "intersections": s.intersections,
-        "segment_ids": [r.segment_id for r in s.runs],
-        **{k: v for k, v in s.attrs.items() if k not in ("name", "ref")},
+        "segment_ids": leg.segment_ids[s.first:s.end],
+        "lanes": lanes, "speed_limit_kph": limit, "speed_kph": kph, "road_class": road_class,
     }
-    if s.attrs["ref"]:
-        out["ref"] = s.attrs["ref"]
+    if ref:
+        out["ref"] = ref
     return out
 
 
 def _arrive(ctx: StepContext, t: Trace, name: str) -> dict[str, Any]:
-    last = t.runs[-1] if t.runs else None
-    heading = last.b_in if last is not None else 0.0
+    heading = t.ends.b_in[-1] if t.pieces else 0.0
     maneuver: dict[str, Any] = {"type": "arrive", "location": t.end,
                                 "bearing_before": round(heading) % 360, "bearing_after": 0}
     snap = t.leg.end
-    if last is not None and snap.distance_m > ON_ROAD_M:
+    if t.pieces and snap.distance_m > ON_ROAD_M:
         maneuver["modifier"] = "right" if side_of(t.end, heading, snap.point) > 0 else "left"
     return {
         "distance": 0.0, "duration": 0.0, "weight": 0.0,
@@ -221,6 +226,12 @@ def _arrive(ctx: StepContext, t: Trace, name: str) -> dict[str, Any]:
 
 def leg_steps(ctx: StepContext, t: Trace) -> list[dict[str, Any]]:
     """The OSRM steps of one leg, ending with ``arrive``."""
-    attrs = ctx.attrs(t)
-    return [*(_render(ctx, t, s) for s in _group(ctx, t, attrs)),
-            _arrive(ctx, t, attrs[-1]["name"] if attrs else "")]
+    leg = _Leg.of(ctx, t)
+    steps = _group(ctx, leg)
+    bounds = [s.first for s in steps] + [len(t.pieces)]
+    # Each step's distance and duration: numpy's sum over the step's pieces, for all at once.
+    distance = np.add.reduceat(t.distance, bounds[:-1]).tolist() if steps else []
+    duration = np.add.reduceat(t.duration, bounds[:-1]).tolist() if steps else []
+    return [*(_render(ctx, leg, s, d, u) for s, d, u in zip(steps, distance, duration,
+                                                            strict=True)),
+            _arrive(ctx, t, leg.attrs[-1][0] if t.pieces else "")]

@@ -63,6 +63,9 @@ class Trace:
     leg: Leg
     graph: RoadGraph
     pieces: list[Piece]
+    rows: np.ndarray  # segment row of each piece
+    f_from: np.ndarray  # ... and the fractions it is driven from and to
+    f_to: np.ndarray
     segment_ids: np.ndarray
     forward: np.ndarray
     distance: np.ndarray  # metres per piece
@@ -77,6 +80,11 @@ class Trace:
         """The pieces as runs (coordinates and bearings of each)."""
         return runs_of(self.graph, self.pieces)
 
+    @cached_property
+    def ends(self) -> Ends:
+        """Each piece's first coordinate and end bearings (what steps need of the runs)."""
+        return ends_of(self.graph, self.rows, self.f_from, self.f_to)
+
 
 def location(graph: RoadGraph, snap: Snap) -> list[float]:
     """Where a snapped point lies on its segment (lon, lat)."""
@@ -86,34 +94,56 @@ def location(graph: RoadGraph, snap: Snap) -> list[float]:
     return list(point_at(coords, fracs, snap.fraction))
 
 
-def runs_of(graph: RoadGraph, pieces: list[Piece]) -> list[Run]:
-    """The runs of ``pieces``: coordinates cut at their fractions, bearings at their ends.
-    Per-piece numbers are read for all pieces at once (a city route has ~100): whole
-    segments take their precomputed end bearings, cut ones measure theirs."""
-    if not pieces:
-        return []
-    rows = np.array([p.row for p in pieces], np.int64)
-    f_from = np.array([p.f_from for p in pieces])
-    f_to = np.array([p.f_to for p in pieces])
+@dataclass(frozen=True)
+class Ends:
+    """Each piece's first coordinate (its own segment's vertex, or the cut point) and its
+    bearings leaving that coordinate and reaching its last, in driving order, as lists: what
+    steps read at every joint, found for all pieces at once (whole segments take their
+    precomputed end bearings; only cut pieces, at most the leg's first and last, are cut)."""
+
+    first: list[list[float]]
+    b_out: list[float]
+    b_in: list[float]
+
+
+def ends_of(graph: RoadGraph, rows: np.ndarray, f_from: np.ndarray, f_to: np.ndarray
+            ) -> Ends:
+    """The :class:`Ends` of the pieces (segment ``rows`` driven from ``f_from`` to ``f_to``)."""
     start, end = graph.bearing_start[rows], graph.bearing_end[rows]
     forward = f_to >= f_from
+    offsets, coords = graph.segs.offsets, graph.segs.coords
+    first = coords[np.where(forward, offsets[rows], offsets[rows + 1] - 1)].tolist()
     b_out = np.where(forward, start, (end + 180.0) % 360.0).tolist()
     b_in = np.where(forward, end, (start + 180.0) % 360.0).tolist()
+    whole = (np.minimum(f_from, f_to) == 0.0) & (np.maximum(f_from, f_to) == 1.0)
+    for k in np.flatnonzero(~whole).tolist():
+        line, line_fracs = graph.line(int(rows[k]))
+        cut = cut_with_fractions(line, line_fracs, float(f_from[k]), float(f_to[k]))[0]
+        first[k] = cut[0].tolist()
+        b_out[k] = bearing(cut[0], cut[1])
+        b_in[k] = bearing(cut[-2], cut[-1])
+    return Ends(first, b_out, b_in)
+
+
+def runs_of(graph: RoadGraph, pieces: list[Piece]) -> list[Run]:
+    """The runs of ``pieces``: coordinates cut at their fractions, bearings at their ends
+    (:func:`ends_of`). Per-piece numbers are read for all pieces at once (a city route has
+    ~100)."""
+    if not pieces:
+        return []
+    rows, f_from, f_to = _arrays(pieces)
+    ends = ends_of(graph, rows, f_from, f_to)
     lengths = graph.segs.length_m[rows]
     speeds = graph.speed_kph[rows] / 3.6
     distances = np.abs(f_to - f_from) * lengths
-    whole = (np.minimum(f_from, f_to) == 0.0) & (np.maximum(f_from, f_to) == 1.0)
     runs = []
     for k, (p, sid, length, speed, distance, duration) in enumerate(zip(
             pieces, graph.segs.ids[rows].tolist(), lengths.tolist(), speeds.tolist(),
             distances.tolist(), (distances / speeds).tolist(), strict=True)):
         line, line_fracs = graph.line(p.row)
         coords, fracs = cut_with_fractions(line, line_fracs, p.f_from, p.f_to)
-        if not whole[k]:
-            b_out[k] = bearing(coords[0], coords[1])
-            b_in[k] = bearing(coords[-2], coords[-1])
-        runs.append(Run(p, sid, coords, fracs, length, speed, b_out[k], b_in[k], distance,
-                        duration))
+        runs.append(Run(p, sid, coords, fracs, length, speed, ends.b_out[k], ends.b_in[k],
+                        distance, duration))
     return runs
 
 
@@ -122,33 +152,57 @@ def run_of(graph: RoadGraph, p: Piece) -> Run:
     return runs_of(graph, [p])[0]
 
 
+def _arrays(pieces: list[Piece]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, f_from, f_to) of ``pieces``."""
+    n = len(pieces)
+    return (np.fromiter((p.row for p in pieces), np.int64, n),
+            np.fromiter((p.f_from for p in pieces), np.float64, n),
+            np.fromiter((p.f_to for p in pieces), np.float64, n))
+
+
 def trace(graph: RoadGraph, leg: Leg) -> Trace:
     """The leg's pieces and coordinates. What every answer needs is read for all pieces at
-    once (a city route has ~100): whole segments contribute a view of the graph's
-    coordinates, only the cut ends are interpolated."""
+    once (a city route has ~100): whole segments contribute the graph's coordinates, only the
+    cut ends are interpolated."""
     pieces = [p for p in leg.pieces if p.f_from != p.f_to]
     start, end = location(graph, leg.start), location(graph, leg.end)
-    rows = np.array([p.row for p in pieces], np.int64)
-    f_from = np.array([p.f_from for p in pieces])
-    f_to = np.array([p.f_to for p in pieces])
+    rows, f_from, f_to = _arrays(pieces)
     distance = np.abs(f_to - f_from) * graph.segs.length_m[rows]
-    parts = [np.array([start])]
+    coords, starts = _coords(graph, rows, f_from, f_to, start, end)
+    return Trace(leg, graph, pieces, rows, f_from, f_to, graph.segs.ids[rows], f_to >= f_from,
+                 distance, distance / (graph.speed_kph[rows] / 3.6), coords, starts, start, end)
+
+
+def _coords(graph: RoadGraph, rows: np.ndarray, f_from: np.ndarray, f_to: np.ndarray,
+            start: list[float], end: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """A leg's coordinates (start point first, joints not repeated) and the index of each
+    piece's first coordinate (then of the last): whole pieces gathered from the graph's
+    coordinates in one indexing, cut pieces (the leg's ends) interpolated."""
+    if not len(rows):  # start and end coincide: OSRM still sends a two-point line
+        return np.array([start, end]), np.array([0, 1])
     offsets, all_coords = graph.segs.offsets, graph.segs.coords
-    for p in pieces:
-        lo, hi = int(offsets[p.row]), int(offsets[p.row + 1])
-        if p.f_from == 0.0 and p.f_to == 1.0:
-            parts.append(all_coords[lo + 1:hi])
-        elif p.f_from == 1.0 and p.f_to == 0.0:
-            parts.append(all_coords[lo:hi - 1][::-1])
-        else:
-            parts.append(cut_with_fractions(all_coords[lo:hi], graph.fracs[lo:hi], p.f_from,
-                                            p.f_to)[0][1:])
-    if not pieces:  # start and end coincide: OSRM still sends a two-point line
-        parts.append(np.array([end]))
-    starts = np.cumsum([0, *(len(part) for part in parts[1:])])
-    return Trace(leg, graph, pieces, graph.segs.ids[rows], f_to >= f_from, distance,
-                 distance / (graph.speed_kph[rows] / 3.6), np.concatenate(parts), starts,
-                 start, end)
+    lo, hi = offsets[rows], offsets[rows + 1]
+    forward = (f_from == 0.0) & (f_to == 1.0)
+    cut = np.flatnonzero(~(forward | ((f_from == 1.0) & (f_to == 0.0))))
+    whole = hi - lo - 1  # coordinates of a whole piece: every vertex but the joint
+    whole[cut] = 0
+    count = whole.copy()
+    parts = {}
+    for k in cut.tolist():
+        a, b = int(lo[k]), int(hi[k])
+        parts[k] = cut_with_fractions(all_coords[a:b], graph.fracs[a:b], float(f_from[k]),
+                                      float(f_to[k]))[0][1:]
+        count[k] = len(parts[k])
+    starts = np.concatenate([[0], np.cumsum(count)])
+    out = np.empty((int(starts[-1]) + 1, 2))
+    out[0] = start
+    within = np.arange(int(whole.sum())) - np.repeat(np.cumsum(whole) - whole, whole)
+    source = np.repeat(np.where(forward, lo + 1, hi - 2), whole) + \
+        within * np.repeat(np.where(forward, 1, -1), whole)
+    out[np.repeat(starts[:-1] + 1, whole) + within] = all_coords[source]
+    for k, part in parts.items():
+        out[starts[k] + 1:starts[k + 1] + 1] = part
+    return out, starts
 
 
 def node_ids(graph: RoadGraph, t: Trace) -> list[int]:

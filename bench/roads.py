@@ -6,7 +6,7 @@ A synthetic town (road grid every 100 m, 7 m wide roads, a roof of road colour i
 block) is rendered at 0.16 m/px and written as a GeoTIFF, so each run includes reading the
 file. Every configuration runs in its own subprocess so its peak RSS is its own:
 
-* ``model``: the default, the road model zero-shot (ONNX on its 1 m grid, topology clean-up);
+* ``model``: the default, the road model zero-shot (ONNX on its 0.5 m grid, topology clean-up);
 * ``adapted``: the road model adapted to a labelled corner of the scene;
 * ``learned`` and ``spectral``: the per-job classifiers (0.5 m working grid);
 * baseline ``spectral-native``: the spectral pipeline on the native 0.16 m grid, i.e. what

@@ -142,9 +142,9 @@ def shipped() -> object:
 
 def test_tiled_inference_equals_untiled_away_from_the_border(shipped: object) -> None:
     """Tile borders change a few probabilities by a few hundredths, never which pixels are
-    road: each tile is reflected at its border and blended over its 128 px overlap, but the
-    stride-16 EfficientNet encoder sees further than that (roads-v2, measured: mean change
-    0.0014, 99th percentile 0.034, 99.9 % of decisions equal; roads-v1's U-Net 0.0007)."""
+    road: the stride-16 encoder sees further than the 128 px overlap, so a tile's predictions
+    near its edge weigh almost nothing (cubic blend ramp; with a linear one the mean change
+    was 6x larger and 0.2 % of decisions differed)."""
     rgb, _ = town(900, 100, 8, seed=3)
     x = normalise(rgb[:880, :].astype(np.float32) / 255)
     whole, _ = predict(shipped, x, tile=1024, overlap=64)
@@ -152,7 +152,7 @@ def test_tiled_inference_equals_untiled_away_from_the_border(shipped: object) ->
     assert whole.shape == tiled.shape == x.shape[:2]
     inner = (slice(64, -64), slice(64, -64))
     diff = np.abs(whole[inner] - tiled[inner])
-    assert diff.mean() < 2e-3 and np.percentile(diff, 99) < 0.05, diff.mean()
+    assert diff.mean() < 1e-3 and np.percentile(diff, 99) < 0.02, diff.mean()
     same = (whole[inner] >= shipped.threshold) == (tiled[inner] >= shipped.threshold)
     assert same.mean() > 0.999, same.mean()
 
@@ -183,15 +183,18 @@ def test_zero_shot_finds_a_synthetic_town(shipped: object) -> None:
 
 
 def test_single_band_and_16_bit_images_work_like_rgb(shipped: object) -> None:
+    """12-bit data in a 16-bit container (dark before the stretch) gives what 8-bit RGB gives;
+    a single band is read as grey. How well grey imagery works is measured on a real tile
+    (``tests/test_roads_real.py``): this cartoon town in grey is one tone of grass against
+    roofs and roads of one lighter tone, which says little about panchromatic imagery."""
     rgb, road = town(400, 100, 8)
     grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     as_rgb = recall_of(extract_roads(synthetic_image(rgb)), road)
-    one_band = recall_of(extract_roads(synthetic_image(grey)), road)
-    # 12-bit data in a 16-bit container: dark before the stretch.
+    one_band = extract_roads(synthetic_image(grey))
+    assert one_band.frame.resolution_m == pytest.approx(shipped.resolution_m)
     deep = Image((rgb.astype(np.float32) * 16 / 65535), None, None, None, 1.0)
     sixteen = recall_of(extract_roads(deep), road)
-    # Grey loses the grass/asphalt hue, which this scene relies on: measured 0.46 vs 0.92.
-    assert one_band > 0.35 and abs(sixteen - as_rgb) < 0.05, (as_rgb, one_band, sixteen)
+    assert as_rgb > 0.8 and abs(sixteen - as_rgb) < 0.05, (as_rgb, sixteen)
 
 
 def test_no_road_gives_an_empty_result_and_all_road_does_not_crash(shipped: object) -> None:

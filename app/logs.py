@@ -1,7 +1,7 @@
-"""Structured logging: one JSON object per line, and one line per HTTP request.
+"""Structured logging: one JSON object per line, for the service and the batch jobs alike.
 
-The request logger is a plain ASGI middleware rather than Starlette's BaseHTTPMiddleware,
-which would copy every response body through an extra task and cost tile throughput.
+The HTTP request log (one line per request, logger ``ugvmap.request``) is written by
+:mod:`app.api.request_log`.
 """
 
 from __future__ import annotations
@@ -10,10 +10,6 @@ import json
 import logging
 import time
 from typing import Any
-
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
-
-request_log = logging.getLogger("ugvmap.request")
 
 
 class JsonFormatter(logging.Formatter):
@@ -54,47 +50,3 @@ def logging_config(level: str = "INFO") -> dict[str, Any]:
             "alembic": {"level": "WARNING"},
         },
     }
-
-
-class RequestLogMiddleware:
-    """Logs one line per HTTP request (method, path, query, status, bytes, duration, client),
-    measured in ASGI so streaming and error responses are counted too."""
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        """Pass the request on, noting the status and body size it answers with, then log it."""
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-        start = time.perf_counter()
-        status = 500
-        size = 0
-
-        async def send_wrapper(message: Message) -> None:
-            nonlocal status, size
-            if message["type"] == "http.response.start":
-                status = message["status"]
-            elif message["type"] == "http.response.body":
-                size += len(message.get("body", b""))
-            await send(message)
-
-        try:
-            await self.app(scope, receive, send_wrapper)
-        finally:
-            client = scope.get("client")
-            request_log.info(
-                "request",
-                extra={
-                    "fields": {
-                        "method": scope["method"],
-                        "path": scope["path"],
-                        "query": scope.get("query_string", b"").decode("latin-1")[:500],
-                        "status": status,
-                        "bytes": size,
-                        "duration_ms": round((time.perf_counter() - start) * 1000, 2),
-                        "client": client[0] if client else None,
-                    }
-                },
-            )

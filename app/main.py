@@ -1,7 +1,8 @@
 """The HTTP service: composes each capability's router, the error handlers and the middleware.
 
 Like titiler's application module, this file only wires things together; every endpoint
-lives in the folder of its capability, every error class in :mod:`app.errors`.
+lives in the folder of its capability, every fault class in :mod:`app.errors` and its HTTP
+answer in :mod:`app.api.errors`.
 """
 
 from __future__ import annotations
@@ -18,13 +19,14 @@ from starlette.types import ASGIApp
 
 from app import collector, errors
 from app.api import document, landing, middleware
+from app.api.body_limit import JsonPayloadTooLarge
+from app.api.errors import api_error, database_unavailable, http_error, validation_error
+from app.api.query import single_valued_query
+from app.api.request_log import RequestLogMiddleware
 from app.api.wire import CanonicalHeaderCase
-from app.body_limit import JsonPayloadTooLarge
 from app.health.router import router as health_router
 from app.jobs.router import router as jobs_router
-from app.logs import RequestLogMiddleware
 from app.network.router import include_network
-from app.params import single_valued_query
 from app.routing.router import include_routing
 from app.settings import get_settings
 from app.tiles.router import router as tiles_router
@@ -33,16 +35,16 @@ from app.web.router import include_web
 # The one table of error handlers: ours, the framework's, and a lost database all answer
 # {"code", "message"[, "errors"]}, so a client parses one shape whatever went wrong.
 EXCEPTION_HANDLERS: dict[Any, Callable[..., Any]] = {
-    errors.ApiError: errors.api_error,
-    HTTPException: errors.http_error,
-    RequestValidationError: errors.validation_error,
-    OperationalError: errors.database_unavailable,
-    InterfaceError: errors.database_unavailable,
+    errors.UgvmapError: api_error,
+    HTTPException: http_error,
+    RequestValidationError: validation_error,
+    OperationalError: database_unavailable,
+    InterfaceError: database_unavailable,
 }
 
 
 class UgvmapApp(FastAPI):
-    """FastAPI with :class:`~app.body_limit.JsonPayloadTooLarge` outside its whole stack (the
+    """FastAPI with :class:`~app.api.body_limit.JsonPayloadTooLarge` outside its whole stack (the
     body limiter sits outside user middleware, so only here can its 413 be reshaped), and
     header names spelled conventionally on every response (:mod:`app.api.wire`)."""
 

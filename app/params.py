@@ -5,8 +5,8 @@ reaches PostgreSQL, which refuses it with a 500; ``int()`` and ``float()`` accep
 digits like ``٣``; ``float()`` accepts ``nan`` and ``inf``). Each rule is written once here and
 every endpoint uses it, so the same fault gives the same 4xx everywhere.
 
-Two layers, both raising an :class:`~app.errors.ApiError` (default
-:class:`~app.errors.InvalidParameterValueError`, 400; a caller passes ``error=`` to keep its own
+Two layers, both raising a :class:`~app.errors.UgvmapError` (default
+:class:`~app.errors.InvalidParameterValueError`, a 400; a caller passes ``error=`` to keep its own
 code, e.g. routing's OSRM ``InvalidQuery``):
 
 - ``parse_*``: pure functions from the text a client sent (or a JSON value) to a checked
@@ -16,7 +16,7 @@ code, e.g. routing's OSRM ``InvalidQuery``):
 - :class:`Slug`, :class:`Int`, :class:`Finite`, :class:`LonLat`: the same rules as
   ``Annotated`` metadata for FastAPI path and query parameters (``name: NetworkName``,
   ``radius: Annotated[float, Finite("radius", low=0, high=...)] = 50``). The rule runs before
-  pydantic's own check, on the raw text; an ``ApiError`` is not a ``ValueError``, so pydantic
+  pydantic's own check, on the raw text; a ``UgvmapError`` is not a ``ValueError``, so pydantic
   lets it through and the app's one handler table answers it. The OpenAPI document still shows
   the parameter's type, pattern and bounds.
 
@@ -32,13 +32,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Any
 
-from fastapi import Request
 from pydantic import GetCoreSchemaHandler, GetJsonSchemaHandler
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema, core_schema
 
 from app.db.models import SLUG_RE
-from app.errors import ApiError, InvalidParameterValueError, InvalidValueError
+from app.errors import InvalidParameterValueError, InvalidValueError, UgvmapError
 
 SLUG_PATTERN = SLUG_RE
 """Layer slugs and network names: 1-64 of ``a-z 0-9 _ -``, starting with a letter or digit
@@ -51,7 +50,7 @@ MAX_INT = 2**63 - 1
 """No integer parameter exceeds PostgreSQL's bigint, so none reaches the database as an error."""
 FLOAT_RE = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,3})?")
 
-Error = type[ApiError]
+Error = type[UgvmapError]
 Bound = float | Callable[[], float] | None
 
 
@@ -65,7 +64,7 @@ def _bound(bound: Bound) -> float | None:
     return bound() if callable(bound) else bound
 
 
-def refuse(error: Error, what: str, reason: str) -> ApiError:
+def refuse(error: Error, what: str, reason: str) -> UgvmapError:
     """``error("<what> <reason>")``; a 422 also names the field in ``errors``, as every
     value-rule failure of the API does."""
     errors = {what: reason} if issubclass(error, InvalidValueError) else None
@@ -156,18 +155,6 @@ def parse_position(value: Any, what: str = "point", *,
         raise refuse(error, what, "must be [lon, lat]")
     lon, lat = (parse_number(v, what, error=error) for v in value)
     return check_lonlat(lon, lat, what, error=error)
-
-
-def single_valued_query(request: Request) -> None:
-    """Router dependency: a query parameter given twice is a 400, not silently the last value
-    (``revert?to=1&to=2`` would revert to one of them, ``bbox`` twice filter by one). The
-    OSRM-shaped routing URLs refuse it themselves, with OSRM's ``InvalidQuery``."""
-    seen: set[str] = set()
-    for key, _ in request.query_params.multi_items():
-        if key in seen:
-            raise InvalidParameterValueError(
-                f"query parameter {shown(key)} is given more than once; give it once")
-        seen.add(key)
 
 
 # -- FastAPI parameter types ------------------------------------------------------------------

@@ -10,7 +10,7 @@ from __future__ import annotations
 import click
 from sqlalchemy.exc import OperationalError
 
-from app.errors import ApiError, UserError
+from app.errors import UgvmapError, UserError
 
 
 class UgvmapGroup(click.Group):
@@ -23,11 +23,17 @@ class UgvmapGroup(click.Group):
             return super().invoke(ctx)
         except UserError as exc:
             raise click.ClickException(str(exc)) from exc
-        except ApiError as exc:  # the same planner/services the HTTP API uses
-            raise click.ClickException(f"{exc.code}: {exc.message}") from exc
+        except UgvmapError as exc:  # the same planner/services the HTTP API uses
+            raise click.ClickException(f"{fault_name(exc)}: {exc.message}") from exc
         except OperationalError as exc:
             raise click.ClickException(
                 f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
+
+
+def fault_name(exc: UgvmapError) -> str:
+    """``NoRouteError`` -> ``NoRoute``: the fault's name as the HTTP API's ``code`` spells it
+    (the HTTP layer's table is not imported: the command line stands on the core only)."""
+    return type(exc).__name__.removesuffix("Error")
 
 
 @click.group(cls=UgvmapGroup, context_settings={"help_option_names": ["-h", "--help"]})

@@ -116,7 +116,7 @@ def network_list() -> None:
     from sqlalchemy import text
 
     from app.db.session import get_engine
-    from app.network.discovery import NETWORKS_SQL
+    from app.network.summary import NETWORKS_SQL
 
     with get_engine().connect() as conn:
         rows = conn.execute(text(NETWORKS_SQL), {"name": None}).all()

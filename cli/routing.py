@@ -41,7 +41,7 @@ def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geom
         raw.update(geometries=geometries)
     if radius is not None:
         raw["radius"] = radius
-    pts = parse_points(points)  # option errors (ApiError): one line from cli.main
+    pts = parse_points(points)  # option errors (UgvmapError): one line from cli.main
     opts = parse(raw, "ugvmap", len(pts))
     try:
         with read_connection() as conn:

@@ -11,7 +11,7 @@ import httpx
 import pytest
 from sqlalchemy.exc import OperationalError
 
-from app.errors import database_unavailable
+from app.api.errors import database_unavailable
 from app.jobs.redact import strip_paths
 from tests.network_helpers import bearer, grid_network
 

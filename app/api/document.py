@@ -22,13 +22,13 @@ from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.openapi.utils import get_openapi
 from fastapi.responses import HTMLResponse, JSONResponse
 
+from app.api.dependencies import SessionDep, read_access
 from app.api.landing import OPENAPI_30
 from app.api.openapi30 import document_30
-from app.errors import ApiError
+from app.errors import UgvmapError
 from app.network import collections as colls
 from app.network import ogc_params, properties, schemas
-from app.network.features import GEOJSON
-from app.network.tokens import SessionDep, read_access
+from app.network.features_router import GEOJSON
 
 router = APIRouter(include_in_schema=False)
 ITEMS = "/collections/{collection_id}/items"
@@ -123,7 +123,7 @@ def openapi_document(request: Request, session: SessionDep) -> JSONResponse:
     try:
         read_access(request, session)
         found = colls.list_collections(session)
-    except ApiError:  # reads need a token this caller lacks: no collection names
+    except UgvmapError:  # reads need a token this caller lacks: no collection names
         found = []
     doc = with_collections(static_document(request.app), found)
     return JSONResponse(doc, media_type=OPENAPI_30)

@@ -15,9 +15,10 @@ from fastapi.responses import FileResponse, JSONResponse, RedirectResponse
 from pydantic import BaseModel
 
 from app import errors
+from app.api.errors import responses
 from app.errors import InvalidParameterValueError
 from app.network import crs
-from app.network.features import Link, base_url, link
+from app.network.features_router import Link, base_url, link
 from app.web.router import index_page
 
 OPENAPI_30 = "application/vnd.oai.openapi+json;version=3.0"
@@ -120,7 +121,7 @@ def wants_json(request: Request) -> bool:
     200: {"description": "The landing page (JSON) or the web map (HTML)",
           "content": {JSON: {"schema": {"$ref": "#/components/schemas/LandingPage"}},
                       HTML: {"schema": {"type": "string"}}}},
-    **errors.responses(errors.InvalidParameterValueError)},
+    **responses(errors.InvalidParameterValueError)},
     openapi_extra={"parameters": [{"name": "f", "in": "query", "required": False,
                                    "schema": {"type": "string", "enum": ["json", "html"]}}]})
 def root(request: Request) -> JSONResponse | FileResponse:

@@ -18,9 +18,9 @@ from starlette.responses import Response
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.api.compression import IsalGZipMiddleware
+from app.api.errors import CorsRefusedError, api_error
 from app.api.options import OptionsMiddleware
 from app.api.response_start import ResponseStartMiddleware
-from app.errors import CorsRefusedError, api_error
 from app.settings import Settings
 
 SAFE = ("GET", "HEAD")

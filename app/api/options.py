@@ -16,7 +16,8 @@ from starlette.responses import Response
 from starlette.routing import Match
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from app.errors import NotFoundError, allowed_methods, api_error
+from app.api.errors import allowed_methods, api_error
+from app.errors import NotFoundError
 
 
 class OptionsMiddleware:

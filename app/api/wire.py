@@ -23,6 +23,7 @@ import h11
 from starlette.types import Message
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
+from app.api.errors import STATUS_CODES
 from app.api.response_start import ResponseStartMiddleware
 from app.errors import InvalidParameterValueError
 
@@ -51,7 +52,7 @@ class JsonErrorH11Protocol(H11Protocol):
 
     def send_400_response(self, msg: str) -> None:
         """The 400 uvicorn sends for bytes it cannot parse as HTTP/1.1, in our error shape."""
-        body = json.dumps({"code": InvalidParameterValueError.code,
+        body = json.dumps({"code": STATUS_CODES[InvalidParameterValueError].code,
                            "message": f"the request is not valid HTTP/1.1 ({msg})"}).encode()
         headers = [(b"Content-Type", b"application/json"),
                    (b"Content-Length", str(len(body)).encode()), (b"Connection", b"close")]

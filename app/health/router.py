@@ -15,6 +15,7 @@ from fastapi import APIRouter
 from sqlalchemy import text
 
 from app import errors
+from app.api.errors import responses
 from app.db.migrate import current_revision, head_revision
 from app.db.session import get_engine
 from app.errors import SchemaOutOfDateError, StoreMismatchError
@@ -31,7 +32,7 @@ def healthz() -> dict[str, str]:
     return {"status": "ok"}
 
 
-@router.get("/readyz", responses=errors.responses(errors.DatabaseUnavailableError,
+@router.get("/readyz", responses=responses(errors.DatabaseUnavailableError,
                                                  SchemaOutOfDateError, StoreMismatchError))
 def readyz() -> dict[str, str]:
     """Readiness: 200 only when the database answers, its schema is at the code's head, and

@@ -18,6 +18,8 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.orm import Session
 
 from app import errors
+from app.api.dependencies import require_role
+from app.api.errors import PayloadTooLargeError, UnsupportedMediaTypeError, responses
 from app.db.models import JOB_STATUSES, TOKEN_ROLES
 from app.db.session import get_session, session_scope
 from app.errors import InvalidParameterValueError, InvalidValueError, NotFoundError
@@ -25,13 +27,13 @@ from app.jobs.queue import enqueue
 from app.jobs.redact import strip_paths
 from app.jobs.rows import read_jobs
 from app.network.editing_router import json_body
-from app.network.tokens import Principal, authenticate, require_role
+from app.network.tokens import Principal, authenticate
 from app.params import Shape
 from app.settings import get_settings
 
 # Any read may need a token (jobs read role) and may find the database gone; every request
 # may carry a malformed query or path value.
-router = APIRouter(tags=["jobs"], responses=errors.responses(
+router = APIRouter(tags=["jobs"], responses=responses(
     errors.InvalidParameterValueError, errors.UnauthorizedError, errors.ForbiddenError,
     errors.InvalidValueError, errors.DatabaseUnavailableError))
 SessionDep = Annotated[Session, Depends(get_session)]
@@ -72,7 +74,7 @@ def list_jobs(session: SessionDep, reader: ReaderDep,
     return {"jobs": [job_view(r, reader) for r in rows]}
 
 
-@router.get("/jobs/{job_id}", responses=errors.responses(errors.NotFoundError))
+@router.get("/jobs/{job_id}", responses=responses(errors.NotFoundError))
 def get_job(job_id: int, session: SessionDep, reader: ReaderDep) -> dict[str, Any]:
     """One job row; ids outside bigint are simply not found (never a database error)."""
     rows = read_jobs(session.connection(), job_id=job_id) if 0 < job_id < 2**63 else []
@@ -82,8 +84,8 @@ def get_job(job_id: int, session: SessionDep, reader: ReaderDep) -> dict[str, An
 
 
 @router.post("/jobs", status_code=202, openapi_extra={"security": [{"bearer": []}]},
-             responses=errors.responses(errors.PayloadTooLargeError,
-                                        errors.UnsupportedMediaTypeError))
+             responses=responses(PayloadTooLargeError,
+                                        UnsupportedMediaTypeError))
 async def post_job(request: Request,
                    admin: Annotated[Principal, Depends(require_role("admin"))]) -> JSONResponse:
     """Queue a job for ``ugvmap worker``: ``{"kind": "ingest-raster", "params": {...}}``.

@@ -20,17 +20,17 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from sqlalchemy import text
 from starlette.background import BackgroundTask
 
-from app import errors
+from app.api.dependencies import read_access
+from app.api.errors import responses
 from app.errors import InvalidParameterValueError, NotFoundError, ResponseTooLargeError, UserError
 from app.lanelet2.export import parse_area, parse_origin, write_lanelet2
 from app.lanelet2.roads import AREA_WHERE, read_selection, snapshot
-from app.network.features import READ_ERRORS
-from app.network.tokens import read_access
+from app.network.features_router import READ_ERRORS
 from app.params import NetworkName
 
 OSM_XML = "application/xml"
 router = APIRouter(tags=["Vehicle maps"], dependencies=[Depends(read_access)],
-                   responses=errors.responses(*READ_ERRORS))
+                   responses=responses(*READ_ERRORS))
 
 
 class Lanelet2Settings(BaseSettings):
@@ -56,7 +56,7 @@ SELECT n.id, (SELECT count(*) FROM road_segments s
             responses={200: {"content": {OSM_XML: {}},
                              "description": "Lanelet2 map (OSM XML); its origin in "
                                             "X-Lanelet2-Origin"},
-                       **errors.responses(InvalidParameterValueError, NotFoundError,
+                       **responses(InvalidParameterValueError, NotFoundError,
                                           ResponseTooLargeError)})
 def lanelet2_map(
     name: NetworkName,

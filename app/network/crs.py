@@ -20,7 +20,7 @@ import math
 import re
 from dataclasses import dataclass
 
-from app.errors import ApiError, InvalidParameterValueError
+from app.errors import InvalidParameterValueError, UgvmapError
 from app.grid import utm_epsg
 
 CRS84 = "http://www.opengis.net/def/crs/OGC/1.3/CRS84"
@@ -111,7 +111,7 @@ def _epsg(code: int) -> Crs | None:
     return None
 
 
-def parse(value: str, what: str, error: type[ApiError] = InvalidParameterValueError) -> Crs:
+def parse(value: str, what: str, error: type[UgvmapError] = InvalidParameterValueError) -> Crs:
     """A CRS URI as Part 2 writes it (``<uri>`` in headers; QGIS sends headers without the
     brackets, so both are read) -> the offered :class:`Crs`, else ``error`` naming ``what``."""
     uri = value.strip()

@@ -91,7 +91,7 @@ def lock_feature(session: Session, c: colls.Collection, fid: int,
     if expected is not None and current != expected:
         raise PreconditionFailedError(f"the {c.kind[:-1]} is at version {current}, not "
                                       f"{expected}; reload it and apply your change again",
-                                      headers={"ETag": f'"{current}"'})
+                                      current=current)
     return feature
 
 

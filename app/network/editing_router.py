@@ -25,14 +25,16 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from app import errors
-from app.db.session import session_scope
-from app.errors import (
-    ForbiddenError,
-    InvalidParameterValueError,
+from app.api.dependencies import SessionDep, read_access, require_role
+from app.api.errors import (
     MethodNotAllowedError,
+    PayloadTooLargeError,
     UnsupportedMediaTypeError,
     allowed_methods,
+    responses,
 )
+from app.db.session import session_scope
+from app.errors import ForbiddenError, InvalidParameterValueError
 from app.network import collections as colls
 from app.network import crs as crs_
 from app.network import (
@@ -43,7 +45,7 @@ from app.network import (
     segment_editing,
     topology_edits,
 )
-from app.network.features import (
+from app.network.features_router import (
     GEOJSON,
     READ_ERRORS,
     GeoJSONResponse,
@@ -51,7 +53,7 @@ from app.network.features import (
     etag,
     parse_fid,
 )
-from app.network.tokens import Principal, SessionDep, read_access, require_role
+from app.network.tokens import Principal
 from app.params import Int
 
 # Every write: token checks, unknown collection or feature, a rule broken (422), a lost
@@ -136,10 +138,10 @@ CONTENT_CRS = {"name": "Content-Crs", "in": "header", "required": False,
                "schema": {"type": "string"}}
 FEATURE_200: dict[int | str, dict[str, Any]] = {
     200: {"content": {GEOJSON: {"schema": {"$ref": "#/components/schemas/Feature"}}}}}
-BODY_ERRORS = (errors.InvalidParameterValueError, errors.PayloadTooLargeError,
-               errors.UnsupportedMediaTypeError)
+BODY_ERRORS = (errors.InvalidParameterValueError, PayloadTooLargeError,
+               UnsupportedMediaTypeError)
 PRECONDITIONS = (errors.PreconditionFailedError, errors.PreconditionRequiredError)
-SEGMENTS_ONLY = (errors.MethodNotAllowedError,)
+SEGMENTS_ONLY = (MethodNotAllowedError,)
 
 
 async def _in_session(work: Callable[[Session], Any]) -> Any:
@@ -172,7 +174,7 @@ def item_options(collection_id: str, request: Request, session: SessionDep) -> R
              responses={201: {"description": "Created; `Location` is the new item",
                               "content": {GEOJSON: {"schema": {
                                   "$ref": "#/components/schemas/Feature"}}}},
-                        **errors.responses(*WRITE_ERRORS, *BODY_ERRORS)})
+                        **responses(*WRITE_ERRORS, *BODY_ERRORS)})
 async def create_item(collection_id: str, request: Request, principal: EditorDep) -> Response:
     """Create a feature (Part 4): a segment is noded into the network at its ends (editor); a
     node splits the segment it lies on (admin)."""
@@ -195,7 +197,7 @@ async def create_item(collection_id: str, request: Request, principal: EditorDep
 @router.put(ITEM, response_class=GeoJSONResponse,
             openapi_extra=_body_doc({"$ref": "#/components/schemas/FeatureInput"}, FEATURE_TYPES,
                                     IF_MATCH, CONTENT_CRS),
-            responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS,
+            responses={**FEATURE_200, **responses(*WRITE_ERRORS, *BODY_ERRORS,
                                                          *PRECONDITIONS)})
 async def replace_item(collection_id: str, fid: str, request: Request,
                        principal: EditorDep) -> Response:
@@ -210,7 +212,7 @@ async def replace_item(collection_id: str, fid: str, request: Request,
 @router.patch(ITEM, response_class=GeoJSONResponse,
               openapi_extra=_body_doc(schemas.openapi_patch_body(), PATCH_TYPES, IF_MATCH,
                                       CONTENT_CRS),
-              responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *BODY_ERRORS,
+              responses={**FEATURE_200, **responses(*WRITE_ERRORS, *BODY_ERRORS,
                                                            *PRECONDITIONS)})
 async def patch_item(collection_id: str, fid: str, request: Request,
                      principal: EditorDep) -> Response:
@@ -242,7 +244,7 @@ async def _edit_item(request: Request, collection_id: str, fid: str, body: Any,
                responses={204: {"description": "Deleted; a segment's end nodes left without "
                                                "segments go too, a node's two segments are "
                                                "merged"},
-                          **errors.responses(*WRITE_ERRORS, *PRECONDITIONS)})
+                          **responses(*WRITE_ERRORS, *PRECONDITIONS)})
 async def delete_item(collection_id: str, fid: str, request: Request,
                       principal: EditorDep) -> Response:
     """Delete a segment (editor: orphaned end nodes go with it, the others are re-kinded by
@@ -261,7 +263,7 @@ async def delete_item(collection_id: str, fid: str, request: Request,
 
 
 @router.get(ITEM + "/history", dependencies=[Depends(read_access)],
-            responses=errors.responses(*READ_ERRORS, errors.NotFoundError))
+            responses=responses(*READ_ERRORS, errors.NotFoundError))
 def item_history(collection_id: str, fid: str, session: SessionDep) -> dict[str, Any]:
     """A feature's edit history, oldest first (``conditional: false``: written without
     ``If-Match``, over whatever version was current)."""
@@ -271,7 +273,7 @@ def item_history(collection_id: str, fid: str, session: SessionDep) -> dict[str,
 
 @router.post(ITEM + "/revert", response_class=GeoJSONResponse,
              openapi_extra={"security": [{"bearer": []}], "parameters": [IF_MATCH]},
-             responses={**FEATURE_200, **errors.responses(
+             responses={**FEATURE_200, **responses(
                  *WRITE_ERRORS, errors.InvalidParameterValueError, *PRECONDITIONS)})
 async def revert_item(collection_id: str, fid: str, to: Version, request: Request,
                       principal: EditorDep) -> Response:
@@ -291,7 +293,7 @@ async def revert_item(collection_id: str, fid: str, to: Version, request: Reques
              openapi_extra=_body_doc(schemas.SPLIT_BODY, ("application/json",), IF_MATCH),
              responses={200: {"content": {GEOJSON: {"schema": {
                  "$ref": "#/components/schemas/FeatureCollection"}}}},
-                 **errors.responses(*WRITE_ERRORS, *SEGMENTS_ONLY, *BODY_ERRORS,
+                 **responses(*WRITE_ERRORS, *SEGMENTS_ONLY, *BODY_ERRORS,
                                     *PRECONDITIONS)})
 async def split_item(collection_id: str, fid: str, request: Request,
                      principal: AdminDep) -> Response:
@@ -312,7 +314,7 @@ async def split_item(collection_id: str, fid: str, request: Request,
              openapi_extra=_body_doc(schemas.MERGE_BODY, ("application/json",), {
                  **IF_MATCH, "description": "Both segments' ETags, in the order of `segments`, "
                                             'e.g. `"3", "5"`'}),
-             responses={**FEATURE_200, **errors.responses(*WRITE_ERRORS, *SEGMENTS_ONLY,
+             responses={**FEATURE_200, **responses(*WRITE_ERRORS, *SEGMENTS_ONLY,
                                                           *BODY_ERRORS, *PRECONDITIONS)})
 async def merge_items(collection_id: str, request: Request,
                       principal: AdminDep) -> Response:

@@ -18,34 +18,19 @@ in whatever order the scan returns the rows: a restored database, an UPDATE or a
 stores them in another physical order, and the same network must give the same tile bytes
 (``tests/test_backup.py`` compares them). The sort is over one tile's rows only.
 
-HTTP caching follows :mod:`app.tiles.versioned`: ``?v=<network_token>`` (the network's current
-version) makes a tile immutable; without it, or with an older token, ``no-cache`` as before.
+The endpoint is :mod:`app.network.tiles_router`.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter, Depends, Request
-from fastapi.responses import Response
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
-from app import errors
-from app.errors import NotFoundError
-from app.grid import TILE_SIZE, parse_tile, pixel_size_m
-from app.network.collections import network_row
-from app.network.tile_cache import Bounds, shared_cache
-from app.network.tokens import SessionDep, read_access
-from app.params import NetworkName, TileXY, TileZ
-from app.settings import get_settings
-from app.tiles.versioned import cache_headers, not_modified, version_token
-
-router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)],
-                   responses=errors.responses(
-                       errors.InvalidParameterValueError, errors.NotFoundError,
-                       errors.TileOutOfRangeError, errors.UnauthorizedError,
-                       errors.ForbiddenError, errors.DatabaseUnavailableError))
+from app.grid import TILE_SIZE, pixel_size_m
+from app.network.tile_cache import Bounds
+from app.tiles.versioned import version_token
 
 MVT = "application/vnd.mapbox-vector-tile"
 EXTENT = 4096
@@ -143,29 +128,3 @@ def tile_bounds(session: Session, z: int, x: int, y: int) -> Bounds:
         f"ST_TileEnvelope(:z, :x, :y, margin => {BUFFER / EXTENT}), 4326) AS e) q"),
         {"z": z, "x": x, "y": y}).one()
     return (row[0], row[1], row[2], row[3])
-
-
-@router.get("/networks/{name}/tiles/{z}/{x}/{y}.mvt", response_class=Response,
-            responses={200: {"content": {MVT: {}}}})
-def network_tile(name: NetworkName, z: TileZ, x: TileXY, y: TileXY, session: SessionDep,
-                 request: Request) -> Response:
-    """One Mapbox vector tile of the network (cached per worker until the network changes;
-    immutable for HTTP caches with the network's current ``?v=`` token)."""
-    zi, xi, yi = parse_tile(z, x, y)
-    network = network_row(session, name)
-    if network is None:
-        raise NotFoundError(f"network {name[:100]!r} not found")
-    headers = cache_headers(request, network_token(network), "no-cache",
-                            public=get_settings().network_read_role is None)
-    unchanged = not_modified(request, headers)
-    if unchanged is not None:
-        return unchanged
-    cache = shared_cache(get_settings().database_url)
-    key = (network.id, zi, xi, yi)
-    tile = cache.get(key, network.version)
-    status = "hit"
-    if tile is None:
-        status = "miss"
-        tile = render_tile(session, network.id, zi, xi, yi)
-        cache.put(key, network.version, tile_bounds(session, zi, xi, yi), tile)
-    return Response(tile, media_type=MVT, headers={**headers, "X-Tile-Cache": status})

@@ -20,18 +20,14 @@ import re
 import secrets
 from dataclasses import dataclass
 from datetime import timedelta
-from typing import Annotated, Any
+from typing import Any
 
-from fastapi import Depends, Request
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.db.models import TOKEN_ROLES
-from app.db.session import get_session
-from app.errors import ForbiddenError, UnauthorizedError, UserError
-from app.settings import get_settings
+from app.errors import UnauthorizedError, UserError
 
-SessionDep = Annotated[Session, Depends(get_session)]
 PREFIX = "ugv_"
 MAX_NAME = 200
 TOUCH_EVERY_S = 60
@@ -165,25 +161,3 @@ def _touch(session: Session, token_id: int) -> None:
             "OR last_used_at < now() - make_interval(secs => :every))"),
             {"id": token_id, "every": TOUCH_EVERY_S})
         conn.commit()
-
-
-def read_access(request: Request, session: SessionDep) -> None:
-    """Router dependency for reads: public unless ``UGVMAP_NETWORK_READ_ROLE`` names the least
-    role a reader needs (roles rank viewer < editor < admin)."""
-    least = get_settings().network_read_role
-    if least is not None:
-        allowed = TOKEN_ROLES[TOKEN_ROLES.index(least):]
-        require_role(*allowed)(request, session)
-
-
-def require_role(*roles: str):
-    """FastAPI dependency: the caller's Principal, 401 without a valid token, 403 wrong role."""
-
-    def dependency(request: Request, session: SessionDep) -> Principal:
-        principal = authenticate(session, request.headers.get("authorization"))
-        if principal.role not in roles:
-            raise ForbiddenError(
-                f"role {principal.role!r} may not do this; needs {' or '.join(roles)}")
-        return principal
-
-    return dependency

@@ -6,7 +6,7 @@ lists), plus ``/networks/{name}/isochrone``.
 Responses follow OSRM's services. Errors are ``{"code", "message"}`` with OSRM's codes; on our
 URLs they take the service's statuses (400 malformed, 422 a value that breaks a rule or a
 point that cannot snap or connect), on the OSRM-shaped URLs every OSRM code is a 400 as OSRM
-answers it (:func:`_as_osrm`). Reads need ``UGVMAP_NETWORK_READ_ROLE`` when it is set, like
+answers it (:data:`OSRM_STATUS_CODES`). Reads need ``UGVMAP_NETWORK_READ_ROLE`` when it is set, like
 every other read of network data. Each request reads the network's version on the event
 loop, then plans on the loop when that is quick, else in one thread-pool hop (:func:`_answer`).
 """
@@ -24,8 +24,16 @@ from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from app import errors
+from app.api.dependencies import read_access
+from app.api.errors import (
+    STATUS_CODES,
+    Answer,
+    PayloadTooLargeError,
+    Table,
+    fault_response,
+    responses,
+)
 from app.db.session import session_scope
-from app.network.tokens import read_access
 from app.routing import params
 from app.routing.bodies import ServiceBody, body_model
 from app.routing.graph import RoadGraph
@@ -66,12 +74,12 @@ async def network_read_access(request: Request) -> None:
 # unknown network, the body limit, value rules, unreachable points and the output caps.
 router = APIRouter(prefix="/networks", tags=["routing"],
                    dependencies=[Depends(network_read_access)],
-                   responses=errors.responses(
+                   responses=responses(
                        errors.InvalidParameterValueError, errors.InvalidQueryError,
                        errors.InvalidOptionsError, errors.TooBigError, errors.InvalidUrlError,
                        errors.InvalidVersionError, errors.NotImplementedOptionError,
                        errors.UnauthorizedError, errors.ForbiddenError, errors.NotFoundError,
-                       errors.PayloadTooLargeError, errors.InvalidValueError,
+                       PayloadTooLargeError, errors.InvalidValueError,
                        errors.NoSegmentError, errors.NoRouteError, errors.NoTripsError,
                        errors.NoMatchError, errors.InvalidServiceError,
                        errors.ResponseTooLargeError, errors.DatabaseUnavailableError))
@@ -81,15 +89,18 @@ NOT_SERVED = ("tile",)  # OSRM's vector tiles of its graph: /networks/{name}/til
 ISOCHRONE_DOCS = {
     **{n: service_docs("route")[n] for n in ("avoid", "exclude", "radius")},
     "point": "lon,lat", "seconds": "time budget, s", "meters": "distance budget, m"}
-# Our status for a fault -> the class OSRM clients expect on OSRM's URLs (400, same code).
-_OSRM_FAULTS: dict[type[errors.ApiError], type[errors.ApiError]] = {
-    errors.InvalidValueError: errors.OsrmInvalidValueError,
-    errors.NoSegmentError: errors.OsrmNoSegmentError,
-    errors.NoRouteError: errors.OsrmNoRouteError,
-    errors.NoTripsError: errors.OsrmNoTripsError,
-    errors.NoMatchError: errors.OsrmNoMatchError,
-    errors.ResponseTooLargeError: errors.OsrmTooBigError,
-    errors.InvalidParameterValueError: errors.InvalidUrlError,
+# OSRM's URL family: OSRM's own server answers every error with 400, so on the OSRM-shaped URLs
+# the faults that are a 422 on ours take that status (and OSRM's names for two codes), so OSRM
+# clients branch as they do against OSRM. Every other fault answers as on our URLs.
+OSRM_STATUS_CODES: Table = {
+    **STATUS_CODES,
+    errors.InvalidValueError: Answer(400, "InvalidValue"),
+    errors.NoSegmentError: Answer(400, "NoSegment"),
+    errors.NoRouteError: Answer(400, "NoRoute"),
+    errors.NoTripsError: Answer(400, "NoTrips"),
+    errors.NoMatchError: Answer(400, "NoMatch"),
+    errors.ResponseTooLargeError: Answer(400, "TooBig"),  # OSRM calls every size limit TooBig
+    errors.InvalidParameterValueError: Answer(400, "InvalidUrl"),
 }
 
 
@@ -246,14 +257,6 @@ def _post_endpoint(service: Service) -> Callable[..., Any]:
     return endpoint
 
 
-def _as_osrm(exc: errors.ApiError) -> errors.ApiError:
-    """The same fault as OSRM answers it on its own URLs (400 with OSRM's code)."""
-    for ours, osrm in _OSRM_FAULTS.items():
-        if type(exc) is ours:
-            return osrm(exc.message, errors=exc.errors)
-    return exc
-
-
 async def _osrm(service: Service, name: str, request: Request, version: str, profile: str,
                 coordinates: str) -> Response:
     """OSRM's own URL shape: an OSRM client given ``/networks/{name}`` as its server works
@@ -269,8 +272,8 @@ async def _osrm(service: Service, name: str, request: Request, version: str, pro
             raise errors.NotImplementedOptionError("only the json format is served")
         points = parse_points(coordinates.removesuffix(".json"), _most_points(service))
         return await _answer(name, _request(service, _raw(request), "osrm", points))
-    except errors.ApiError as exc:
-        raise _as_osrm(exc) from exc
+    except errors.UgvmapError as exc:
+        return fault_response(exc, OSRM_STATUS_CODES)
 
 
 def _osrm_endpoint(service: Service) -> Callable[..., Any]:

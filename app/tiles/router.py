@@ -17,6 +17,8 @@ from fastapi import APIRouter, Request, Response
 from fastapi.responses import FileResponse, RedirectResponse
 
 from app import errors
+from app.api.conditional import cache_headers, not_modified
+from app.api.errors import responses
 from app.db.session import get_engine
 from app.errors import InvalidParameterValueError, LayerNotFoundError, NotFoundError
 from app.grid import parse_tile, tile_bounds
@@ -26,13 +28,13 @@ from app.tiles.cache import tile_cache
 from app.tiles.encode import MEDIA_TYPES
 from app.tiles.mosaic import compose_tile
 from app.tiles.store import open_store
-from app.tiles.versioned import cache_headers, not_modified, versioned
+from app.tiles.versioned import versioned
 
 # Raster layers are public; any request may still carry a malformed slug or find the
 # database gone, and every layer-addressed one may name an unknown layer.
-router = APIRouter(tags=["raster layers"], responses=errors.responses(
+router = APIRouter(tags=["raster layers"], responses=responses(
     errors.InvalidParameterValueError, errors.DatabaseUnavailableError))
-LAYER_ERRORS = errors.responses(errors.LayerNotFoundError)
+LAYER_ERRORS = responses(errors.LayerNotFoundError)
 TILE_RE = re.compile(r"^(?P<y>[^@.]*)(?P<scale>@2x)?\.(?P<fmt>[A-Za-z0-9]+)$")
 FORMATS = {"png": "png", "jpg": "jpg", "jpeg": "jpg", "webp": "webp"}
 Format = Annotated[str, Shape(enum=sorted(FORMATS))]
@@ -110,7 +112,7 @@ def layer(slug: LayerSlug, request: Request) -> dict[str, Any]:
 @router.get("/layers/{slug}/sources/{source_id}.tif", name="source_cog", response_model=None,
             responses={200: {"content": {"image/tiff": {}}},
                        307: {"description": "Redirect to a presigned object-storage URL"},
-                       **errors.responses(errors.NotFoundError)})
+                       **responses(errors.NotFoundError)})
 def source_cog(slug: LayerSlug, source_id: SourceId) -> Response:
     """The source's COG exactly as stored: with HTTP ranges from a directory store (GDAL and
     QGIS read it in place over /vsicurl/), or a redirect to a presigned URL on S3."""
@@ -162,7 +164,7 @@ def tilejson(slug: LayerSlug, request: Request, response: Response,
 @router.get("/tiles/{slug}/{z}/{x}/{tile}", response_model=None,
             responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}},
                        304: {"description": "Not modified: If-None-Match holds the ETag"},
-                       **errors.responses(errors.LayerNotFoundError, errors.TileOutOfRangeError,
+                       **responses(errors.LayerNotFoundError, errors.TileOutOfRangeError,
                                           errors.RasterSourceMissingError)})
 def tile(slug: LayerSlug, z: TileZ, x: TileXY, tile: TileName, request: Request) -> Response:
     """One XYZ tile (256 px, or 512 px with ``@2x``) composed from all sources meeting it."""

@@ -3,9 +3,9 @@
 A layer's or network's TileJSON hands out tile URLs ending in ``?v=<token>``, where the token
 names exactly one version of the data (:func:`version_token`). A tile asked for with the
 current token can never change, so it is answered ``Cache-Control: public, max-age=31536000,
-immutable`` with a strong ETag: browsers, nginx and CDNs keep it without revalidating. Every
-re-ingest or edit bumps the version, so the TileJSON hands out *new* URLs and nothing ever has
-to be purged; the old entries just age out of the caches.
+immutable`` with a strong ETag (:mod:`app.api.conditional`): browsers, nginx and CDNs keep it
+without revalidating. Every re-ingest or edit bumps the version, so the TileJSON hands out
+*new* URLs and nothing ever has to be purged; the old entries just age out of the caches.
 
 Why a query parameter and not a path segment: the tile path stays the public contract
 (``/tiles/{slug}/{z}/{x}/{y}.png`` keeps working unversioned, as today), every XYZ client
@@ -24,9 +24,6 @@ from __future__ import annotations
 import hashlib
 from datetime import datetime
 
-from fastapi import Request, Response
-
-IMMUTABLE = "max-age=31536000, immutable"
 VERSION_PARAM = "v"
 
 
@@ -45,31 +42,3 @@ def versioned(template: str, token: str) -> str:
     """``template`` (a tile URL template) with the version token appended as ``?v=``."""
     sep = "&" if "?" in template else "?"
     return f"{template}{sep}{VERSION_PARAM}={token}"
-
-
-def cache_headers(request: Request, token: str, unversioned: str, *,
-                  public: bool = True) -> dict[str, str]:
-    """``Cache-Control`` and strong ``ETag`` for a tile of the version named by ``token``.
-
-    ``immutable`` only when the request names the current version; otherwise the
-    ``unversioned`` policy (a short max-age, or no-cache). ``public=False`` (tiles that need a
-    token to read) makes it ``private``, so no shared cache keeps what one reader may see.
-    """
-    current = request.query_params.get(VERSION_PARAM) == token
-    policy = IMMUTABLE if current else unversioned
-    if not public:
-        policy = "private, " + policy.removeprefix("public, ")
-    elif current:
-        policy = "public, " + policy
-    return {"Cache-Control": policy, "ETag": f'"{token}"'}
-
-
-def not_modified(request: Request, headers: dict[str, str]) -> Response | None:
-    """A 304 when the client's ``If-None-Match`` holds the tile's ETag (weak or strong)."""
-    given = request.headers.get("if-none-match")
-    if not given:
-        return None
-    tags = {t.strip().removeprefix("W/") for t in given.split(",")}
-    if headers["ETag"] in tags or "*" in tags:
-        return Response(status_code=304, headers=headers)
-    return None

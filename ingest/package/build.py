@@ -38,7 +38,7 @@ from app.grid import MAX_ZOOM, tile_bounds
 from app.lanelet2.export import PROJECTOR_FILE, Lanelet2Export, write_lanelet2
 from app.lanelet2.roads import AREA_WHERE, read_selection
 from app.network import tilejson
-from app.network.discovery import integer_ranges
+from app.network.summary import integer_ranges
 from app.network.tiles import NODES_MINZOOM, render_tile
 from app.tiles import catalog
 from app.tiles.mosaic import compose_tile

@@ -17,11 +17,12 @@ from pydantic import BaseModel
 from sqlalchemy.orm import Session
 
 from app import errors
+from app.api.dependencies import SessionDep, read_access
+from app.api.errors import responses
 from app.errors import InvalidParameterValueError, NotFoundError
 from app.network import collections as colls
 from app.network import crs as crs_
 from app.network import ogc_params, schemas
-from app.network.tokens import SessionDep, read_access
 
 GEOJSON = "application/geo+json"
 CRS84 = crs_.CRS84
@@ -33,7 +34,7 @@ READ_ERRORS = (errors.UnauthorizedError, errors.ForbiddenError,
                errors.DatabaseUnavailableError)
 
 router = APIRouter(tags=["OGC API Features"], dependencies=[Depends(read_access)],
-                   responses=errors.responses(*READ_ERRORS))
+                   responses=responses(*READ_ERRORS))
 
 
 class GeoJSONResponse(JSONResponse):
@@ -159,7 +160,7 @@ def collections(request: Request, session: SessionDep) -> dict[str, Any]:
     }
 
 
-NOT_FOUND = errors.responses(errors.NotFoundError)
+NOT_FOUND = responses(errors.NotFoundError)
 
 
 @router.get("/collections/{collection_id}", response_model=None,
@@ -178,7 +179,7 @@ ITEMS_DOC: dict[str, Any] = {"parameters": [ogc_params.parameter_ref(name)
             openapi_extra=ITEMS_DOC,
             responses={200: {"content": {GEOJSON: {"schema": {
                 "$ref": "#/components/schemas/FeatureCollection"}}}},
-                **errors.responses(errors.InvalidParameterValueError, errors.NotFoundError)})
+                **responses(errors.InvalidParameterValueError, errors.NotFoundError)})
 def items(collection_id: str, request: Request,
           session: SessionDep) -> GeoJSONResponse:
     """A page of features, filtered by bbox, datetime and property values; unknown
@@ -218,7 +219,7 @@ def etag(version: int) -> str:
                                           ogc_params.parameter_ref("f")]},
             responses={200: {"content": {GEOJSON: {"schema": {
                 "$ref": "#/components/schemas/Feature"}}}},
-                **errors.responses(errors.InvalidParameterValueError, errors.NotFoundError)})
+                **responses(errors.InvalidParameterValueError, errors.NotFoundError)})
 def item(collection_id: str, fid: str, request: Request,
          session: SessionDep) -> GeoJSONResponse:
     """One feature, with its version as ETag for ``If-Match`` edits (``crs``: Part 2)."""

@@ -18,7 +18,7 @@ from starlette.datastructures import Headers
 from starlette.middleware.body_limit import MAX_BODY_SIZE_SCOPE_KEY
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.errors import PayloadTooLargeError, body_limit_message
+from app.api.errors import STATUS_CODES, PayloadTooLargeError, body_limit_message
 
 
 class JsonPayloadTooLarge:
@@ -42,7 +42,7 @@ class JsonPayloadTooLarge:
                 replacing = True
                 return
             if replacing and message["type"] == "http.response.body":
-                body = json.dumps({"code": PayloadTooLargeError.code, "message":
+                body = json.dumps({"code": STATUS_CODES[PayloadTooLargeError].code, "message":
                                    body_limit_message(scope.get(MAX_BODY_SIZE_SCOPE_KEY))})
                 await send({"type": "http.response.start", "status": 413, "headers": [
                     (b"content-type", b"application/json"),

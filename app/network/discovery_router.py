@@ -13,32 +13,21 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app import errors
+from app.api.dependencies import SessionDep, read_access
+from app.api.errors import responses
 from app.network import tilejson as tj
-from app.network.features import READ_ERRORS, base_url
-from app.network.properties import by_name
-from app.network.tiles import network_tile, network_token
-from app.network.tokens import SessionDep, read_access
+from app.network.features_router import READ_ERRORS, base_url
+from app.network.summary import NETWORKS_SQL, integer_ranges
+from app.network.tiles import network_token
+from app.network.tiles_router import network_tile
 from app.params import NetworkName
 from app.tiles.versioned import versioned
 
 router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)],
-                   responses=errors.responses(*READ_ERRORS))
+                   responses=responses(*READ_ERRORS))
 NO_CACHE = {"Cache-Control": "no-cache"}  # they name the network's version, which edits bump
 # A network name that is not a valid slug is 400, an unknown one 404.
-NOT_FOUND = errors.responses(errors.NotFoundError, errors.InvalidParameterValueError)
-NETWORKS_SQL = """
-SELECT n.id, n.name, n.title, n.description, n.version, n.updated_at,
-       (SELECT count(*) FROM road_segments s WHERE s.network_id = n.id) AS segments,
-       (SELECT count(*) FROM road_nodes r WHERE r.network_id = n.id) AS nodes,
-       ST_XMin(b.e), ST_YMin(b.e), ST_XMax(b.e), ST_YMax(b.e), n.created_at
-  FROM networks n,
-       LATERAL (SELECT ST_Extent(geom) AS e FROM road_segments s
-                 WHERE s.network_id = n.id) b
- WHERE CAST(:name AS text) IS NULL OR n.name = CAST(:name AS text)
- ORDER BY n.name
-"""
-
-
+NOT_FOUND = responses(errors.NotFoundError, errors.InvalidParameterValueError)
 class NetworkLinks(BaseModel):
     """Where a network's parts are."""
 
@@ -147,21 +136,6 @@ def network_style(name: NetworkName, request: Request, session: SessionDep) -> J
     row = _one(session, name)
     return JSONResponse(tj.style(_info(row), f"{network_url(request, row.name)}/tilejson.json"),
                         headers=NO_CACHE)
-
-
-def integer_ranges(session: Session, network_id: int) -> dict[str, tuple[int, int]]:
-    """Min and max of the integer fields of the network's vector tiles (for ``tilestats``)."""
-    props = by_name("segments")
-    fields = [f for layer in tj.TILE_LAYERS if layer.kind == "segments"
-              for f in layer.fields if props[f].type == "integer"]
-    if not fields:
-        return {}
-    row = session.execute(text(
-        "SELECT " + ", ".join(f"min({f}), max({f})" for f in fields)
-        + " FROM road_segments WHERE network_id = :n"), {"n": network_id}).one()
-    if row[0] is None:
-        return {}
-    return {f: (int(row[2 * i]), int(row[2 * i + 1])) for i, f in enumerate(fields)}
 
 
 @router.get("/networks/{name}/tiles/metadata.json", response_model=None,

@@ -1,0 +1,24 @@
+"""The query-string rule every endpoint shares: each parameter at most once.
+
+A router dependency, so it lives with the HTTP layer; the value rules themselves are the
+framework-free parsers of :mod:`app.params`.
+"""
+
+from __future__ import annotations
+
+from fastapi import Request
+
+from app.errors import InvalidParameterValueError
+from app.params import shown
+
+
+def single_valued_query(request: Request) -> None:
+    """Router dependency: a query parameter given twice is a 400, not silently the last value
+    (``revert?to=1&to=2`` would revert to one of them, ``bbox`` twice filter by one). The
+    OSRM-shaped routing URLs refuse it themselves, with OSRM's ``InvalidQuery``."""
+    seen: set[str] = set()
+    for key, _ in request.query_params.multi_items():
+        if key in seen:
+            raise InvalidParameterValueError(
+                f"query parameter {shown(key)} is given more than once; give it once")
+        seen.add(key)

@@ -10,8 +10,8 @@ FROM debian:bookworm-slim AS front-cache
 RUN apt-get update && apt-get install -y --no-install-recommends nginx \
     && rm -rf /var/lib/apt/lists/* /etc/nginx/sites-enabled/* \
     && mkdir -p /var/cache/ugvmap && chown www-data:www-data /var/cache/ugvmap
-COPY app/frontcache/nginx.conf /etc/nginx/nginx.conf
-COPY app/frontcache/cache-policy.conf /etc/nginx/ugvmap-cache.conf
+COPY cli/ops/frontcache/nginx.conf /etc/nginx/nginx.conf
+COPY cli/ops/frontcache/cache-policy.conf /etc/nginx/ugvmap-cache.conf
 EXPOSE 8080
 CMD ["nginx", "-g", "daemon off;"]
 

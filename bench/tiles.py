@@ -15,7 +15,7 @@ One command (from the repo root)::
    from its own venv, ``bench/.venv-titiler``, created on first use (never a project
    dependency).
 2. **Front cache.** The same native-zoom tiles through the shipped nginx front cache
-   (``app/frontcache``, versioned URLs from the TileJSON, every tile fetched once first so all
+   (``cli/ops/frontcache``, versioned URLs from the TileJSON, every tile fetched once first so all
    are HITs) against the *same* nginx serving those PNGs as static files from disk: same wrk
    connections (``-t1 -c8``, keep-alive), same nginx worker, one after the other.
 3. **Object storage.** The test image ingested into a local S3-compatible server (moto's
@@ -274,7 +274,7 @@ def bench_front_cache(args: argparse.Namespace, url: str, store: Path, cog: Path
                       native: int) -> None:
     """Tiles/s through the nginx front cache (all HITs) vs the same nginx serving the same
     PNGs as static files."""
-    from app.frontcache.nginx import FrontCache
+    from cli.ops.frontcache.nginx import FrontCache
 
     tiles = tile_paths(cog, native)
     app, _ = ugvmap_server(url, str(store), args.workers, UGVMAP_TILE_CACHE_MB="64")

@@ -1,5 +1,5 @@
 """``ugvmap backup DIR`` and ``ugvmap restore DIR``: the database and the raster store as one
-consistent copy (see :mod:`app.db.backup` for how they are kept consistent)."""
+consistent copy (see :mod:`cli.ops.backup` for how they are kept consistent)."""
 
 from __future__ import annotations
 
@@ -18,10 +18,10 @@ def _bar(desc: str) -> tqdm:
 @click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
 def backup(directory: Path) -> None:
     """Back up the database (pg_dump) and the raster store into a new DIRECTORY."""
-    from app.db.backup import backup as run_backup
     from app.jobs.recorder import JobRecorder
     from app.settings import get_settings
     from app.tiles.store import store_root
+    from cli.ops.backup import backup as run_backup
 
     settings = get_settings()
     with JobRecorder("backup", str(directory)) as job, _bar("backup") as bar:
@@ -45,9 +45,9 @@ def backup(directory: Path) -> None:
 @click.argument("directory", type=click.Path(exists=True, file_okay=False, path_type=Path))
 def restore(directory: Path) -> None:
     """Restore a backup DIRECTORY into an empty database and the configured raster store."""
-    from app.db.backup import restore as run_restore
     from app.settings import get_settings
     from app.tiles.store import store_root
+    from cli.ops.backup import restore as run_restore
 
     with _bar("restore") as bar:
 

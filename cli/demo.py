@@ -51,7 +51,7 @@ def serve(host: str, port: int, workers: int, front_cache: bool, app_port: int |
     if not front_cache:
         run(host, port)
         return
-    from app.frontcache.nginx import FrontCache
+    from cli.ops.frontcache.nginx import FrontCache
 
     behind = app_port or port + 1
     workdir = settings.data_dir / "front-cache"

@@ -133,7 +133,7 @@ def validate(name: str, as_json: bool) -> None:
     """Check NAME's topology invariants, list its connected pieces (size, bounding box) and
     dead ends (lon/lat); exit 1 if an invariant is broken."""
     from app.db.session import session_scope
-    from app.network.integrity import check_network
+    from cli.ops.network_integrity import check_network
 
     with session_scope() as session:
         report = check_network(session, name)
@@ -209,7 +209,7 @@ def rules_lines(rules: AttributeRules, stored: AttributeRules) -> list[str]:
 def delete(name: str, yes: bool) -> None:
     """Delete network NAME with its segments, nodes and edit history (asks first)."""
     from app.db.session import session_scope
-    from app.network.deletion import delete_network
+    from cli.ops.network_deletion import delete_network
 
     if not yes:
         click.confirm(f"Delete network {name!r} with all its segments, nodes and edit history?",

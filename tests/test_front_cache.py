@@ -1,4 +1,4 @@
-"""The shipped nginx front cache (app/frontcache/cache-policy.conf) in front of a real server:
+"""The shipped nginx front cache (cli/ops/frontcache/cache-policy.conf) in front of a real server:
 versioned tiles are HITs from the second request on, a re-ingest's new URL is a MISS, and
 nothing that may change or that needs a token is kept."""
 
@@ -12,7 +12,7 @@ import morecantile
 import numpy as np
 import pytest
 
-from app.frontcache.nginx import FrontCache, FrontCacheError, find_nginx
+from cli.ops.frontcache.nginx import FrontCache, FrontCacheError, find_nginx
 from ingest.raster.job import ingest_raster
 from tests.conftest import free_port
 from tests.network_helpers import bearer, grid_network

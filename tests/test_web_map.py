@@ -662,7 +662,7 @@ def test_bulk_delete_of_a_box_selection(browser, review, request, tmp_path) -> N
     from sqlalchemy import text
 
     from app.db.session import session_scope
-    from app.network.integrity import check_network
+    from cli.ops.network_integrity import check_network
 
     page = open_review(browser, review, request, tmp_path)
     page.fill("#token", review["token"])

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import ast
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
+from tests import layering
 from tests.conftest import REPO, free_port
+
+PACKAGES = ("app", "ingest", "cli")
 
 
 @pytest.mark.parametrize("args", [["layers", "list"], ["db", "upgrade"],
@@ -25,8 +30,6 @@ def test_unreachable_database_is_one_line_not_a_traceback(args: list[str]) -> No
 def test_layers_import_downwards_only() -> None:
     """``cli`` sits on top of ``ingest``, which sits on ``app``: the web app never imports the
     batch jobs or the command line, and the jobs never import the command line."""
-    import ast
-
     forbidden = {"app": ("ingest", "cli"), "ingest": ("cli",)}
     offenders = []
     for package, banned in forbidden.items():
@@ -37,3 +40,45 @@ def test_layers_import_downwards_only() -> None:
                 offenders += [f"{path.relative_to(REPO)}: {n}" for n in names
                               if n.split(".")[0] in banned]
     assert offenders == []
+
+
+def test_ingest_and_cli_never_import_the_http_layer() -> None:
+    """The batch jobs and the command line stand on the HTTP-free core: loading any of their
+    modules loads no web framework (fastapi, starlette, uvicorn), so no HTTP module either.
+    Checked by reading every module's load-time imports (which names the chain at fault) and
+    by importing every ``ingest``/``cli`` module in a fresh interpreter."""
+    assert layering.chains_to(REPO, PACKAGES, ("ingest", "cli")) == []
+    assert layering.web_modules_loaded(REPO, ("ingest", "cli")) == []
+
+
+def test_only_http_modules_import_the_web_framework() -> None:
+    """Inside ``app`` the core (db, store, grid, settings, errors, network model and edits,
+    routing engine, jobs...) imports no web framework; only the HTTP layer does: ``app.main``,
+    ``app.api`` and each capability's ``router``/``*_router`` module, beside its logic."""
+    graph = layering.import_graph(REPO, PACKAGES)
+    offenders = sorted(module for module, deps in graph.items()
+                       if deps & set(layering.WEB_FRAMEWORK)
+                       and not layering.is_http_module(module))
+    assert offenders == []
+
+
+def test_layering_check_catches_a_violation(tmp_path: Path) -> None:
+    """The two checks above fail on a deliberate violation: a job package whose module-level
+    import reaches, through a core module, one that imports fastapi. An import inside a
+    function (``ugvmap serve``'s uvicorn) is allowed and not reported."""
+    files = {
+        "job/__init__.py": "",
+        "job/run.py": "from core import model\n\n\ndef serve():\n    import uvicorn\n",
+        "core/__init__.py": "",
+        "core/model.py": "from .web import app\n",
+        "core/web.py": "from fastapi import FastAPI\n\napp = FastAPI()\n",
+    }
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text(text)
+    assert layering.chains_to(tmp_path, ("job", "core"), ("job",)) == [
+        "job.run -> core.model -> core.web -> fastapi"]
+    assert "fastapi" in layering.web_modules_loaded(tmp_path, ("job",))
+    (tmp_path / "core/model.py").write_text("def app():\n    from .web import app\n")
+    assert layering.chains_to(tmp_path, ("job", "core"), ("job",)) == []
+    assert layering.web_modules_loaded(tmp_path, ("job",)) == []

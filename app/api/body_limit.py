@@ -16,22 +16,17 @@ import json
 
 from starlette.datastructures import Headers
 from starlette.middleware.body_limit import MAX_BODY_SIZE_SCOPE_KEY
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import Message, Receive, Scope, Send
 
+from app.api.asgi import HttpMiddleware
 from app.api.errors import STATUS_CODES, PayloadTooLargeError, body_limit_message
 
 
-class JsonPayloadTooLarge:
+class JsonPayloadTooLarge(HttpMiddleware):
     """Outermost ASGI wrapper: a plain-text 413 from the body limiter becomes our JSON error."""
 
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+    async def http(self, scope: Scope, receive: Receive, send: Send) -> None:
         """Pass everything through except a plain-text 413, whose body is replaced."""
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
         replacing = False
 
         async def send_json(message: Message) -> None:

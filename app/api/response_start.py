@@ -4,25 +4,21 @@ never its body: the shape :mod:`app.api.wire` and the security headers of
 
 from __future__ import annotations
 
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import Message, Receive, Scope, Send
+
+from app.api.asgi import HttpMiddleware
 
 
-class ResponseStartMiddleware:
+class ResponseStartMiddleware(HttpMiddleware):
     """Pass every HTTP request on and hand each ``http.response.start`` message to
     :meth:`start` before it is sent."""
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
 
     def start(self, message: Message) -> Message:
         """The start message as it should be sent."""
         raise NotImplementedError
 
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+    async def http(self, scope: Scope, receive: Receive, send: Send) -> None:
         """Run the app; rewrite its start message on the way out."""
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
 
         async def started(message: Message) -> None:
             if message["type"] == "http.response.start":

@@ -120,6 +120,26 @@ def web_modules_loaded(root: Path, starts: tuple[str, ...],
     return proc.stdout.split()
 
 
+def deferred_web_imports(root: Path, packages: tuple[str, ...]) -> list[str]:
+    """Every import of the web framework or of the HTTP layer made inside a function of the
+    ``packages``, as ``module.function: imported``: the exceptions the load-time rule allows,
+    listed so that a new one is a decision, not an accident."""
+    found = set()
+    for package in packages:
+        for path in (root / package).rglob("*.py"):
+            module = module_name(root, path)
+            for func in ast.walk(ast.parse(path.read_text())):
+                if not isinstance(func, ast.FunctionDef | ast.AsyncFunctionDef):
+                    continue
+                for node in ast.walk(func):
+                    names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                             else [node.module or ""] if isinstance(node, ast.ImportFrom)
+                             else [])
+                    found.update(f"{module}.{func.name}: {name}" for name in names
+                                 if name.split(".")[0] in WEB_FRAMEWORK or is_http_module(name))
+    return sorted(found)
+
+
 def is_http_module(module: str) -> bool:
     """The HTTP layer, by name: the app, ``app.api``, and each capability's ``*router``."""
     return (module == "app.main" or module.startswith("app.api.") or module == "app.api"

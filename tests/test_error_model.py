@@ -120,3 +120,17 @@ def test_unauthorized_carries_the_challenge(client, names) -> None:
     resp = client.patch(f"/collections/{names['network']}-segments/items/1", json={})
     _problem(resp, 401, "Unauthorized")
     assert resp.headers["www-authenticate"].startswith("Bearer")
+
+
+def test_every_fault_has_its_own_row_in_the_status_table() -> None:
+    """The core's faults carry no status; the edge's table gives each one its answer. A fault
+    class added without a row would answer 500 ``InternalError`` through its base: refused
+    here, so the table stays the one place a fault's status and code are decided."""
+    from app import errors
+    from app.api import errors as http
+
+    def subclasses(cls: type[errors.UgvmapError]) -> set[type[errors.UgvmapError]]:
+        return {cls} | {s for sub in cls.__subclasses__() for s in subclasses(sub)}
+
+    assert sorted(c.__name__ for c in subclasses(errors.UgvmapError)
+                  if c not in http.STATUS_CODES) == []

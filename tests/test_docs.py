@@ -133,6 +133,9 @@ def _check_options(command: click.Command, path: list[str], words: list[str], li
             problems += [f"{words[i - 1]} has no choice {v!r} ({where})"
                          for v in word.split("|") if v not in option.type.choices]
         concrete.append(word.split("|")[0] if "|" in word and not is_placeholder(word) else word)
+        takes_value = word in options and not options[word].is_flag and options[word].nargs == 1
+        if takes_value and i + 1 < len(words) and words[i + 1] in options:
+            concrete.append("VALUE")  # `[--host --port]` names options, their values elided
     ctx = click.Context(command, info_name=path[-1], resilient_parsing=True)
     try:
         values, args, _ = command.make_parser(ctx).parse_args(args=concrete)
@@ -276,6 +279,7 @@ def test_readme_starts_with_the_two_commands() -> None:
     "ugvmap route city --points",                        # option without its value
     "ugvmap extract-roads a.tif",                        # required --out missing
     "ugvmap network validate a b",                       # one argument too many
+    "ugvmap serve [--host --prt]",                       # an option named in usage notation
 ])
 def test_a_broken_command_is_caught(line: str) -> None:
     assert check_command(line) != []
@@ -287,6 +291,7 @@ def test_a_broken_command_is_caught(line: str) -> None:
     "ugvmap db stop|status",
     "ugvmap ingest raster ortho/*.tif --layer drone --title \"Drone survey\"",
     "ugvmap layers --help",
+    "ugvmap serve [--host --port --workers] [--front-cache]",
 ])
 def test_the_usage_notation_parses(line: str) -> None:
     assert check_command(line) == []

@@ -134,7 +134,7 @@ def _check_options(command: click.Command, path: list[str], words: list[str], li
                          for v in word.split("|") if v not in option.type.choices]
         concrete.append(word.split("|")[0] if "|" in word and not is_placeholder(word) else word)
         takes_value = word in options and not options[word].is_flag and options[word].nargs == 1
-        if takes_value and i + 1 < len(words) and words[i + 1] in options:
+        if takes_value and i + 1 < len(words) and words[i + 1].startswith("--"):
             concrete.append("VALUE")  # `[--host --port]` names options, their values elided
     ctx = click.Context(command, info_name=path[-1], resilient_parsing=True)
     try:

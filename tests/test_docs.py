@@ -136,7 +136,7 @@ def _check_options(command: click.Command, path: list[str], words: list[str], li
         takes_value = word in options and not options[word].is_flag and options[word].nargs == 1
         if takes_value and i + 1 < len(words) and words[i + 1].startswith("--"):
             concrete.append("VALUE")  # `[--host --port]` names options, their values elided
-    ctx = click.Context(command, info_name=path[-1], resilient_parsing=True)
+    ctx = click.Context(command, info_name=path[-1])
     try:
         values, args, _ = command.make_parser(ctx).parse_args(args=concrete)
     except click.UsageError as exc:

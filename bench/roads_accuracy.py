@@ -137,7 +137,10 @@ def main() -> None:
         args.data = TRAINING
     pool = holdout_samples(TRAINING) if args.holdout else SAMPLES
     samples = [s for s in pool if not args.only or s.name in args.only]
-    settings = {k: float(v) for k, v in (item.split("=", 1) for item in args.settings)}
+    defaults = ExtractParams()
+    # Each value takes its field's type (tta is a count, the thresholds are fractions).
+    settings = {k: type(getattr(defaults, k))(v)
+                for k, v in (item.split("=", 1) for item in args.settings)}
     if args.pictures:
         for sample in samples:
             for model in args.models:

@@ -31,15 +31,19 @@ def progress_bar(description: str) -> Iterator[Callable[[str, float], None]]:
         yield progress
 
 
-def lanelet2_report(result: Lanelet2Export) -> list[str]:
-    """What a Lanelet2 export says on the terminal: counts, origin, how to load, defects."""
+def lanelet2_report(result: Lanelet2Export, folder: str | None = None) -> list[str]:
+    """What a Lanelet2 export says on the terminal: counts, origin, how to load, defects.
+
+    ``folder`` names where the map and its projector file are for the user, when that is not
+    where they were written (a package is built in a hidden folder, then moved or zipped)."""
+    where = folder or str(result.path.parent)
     s = result.summary
     lat, lon = result.origin
     lines = [f"wrote {result.path}: {s.lanelets} lanelets ({s.junction_lanelets} in junctions) "
              f"for {s.segments} segments of {result.network} (version {result.version}), "
              f"{s.traffic_lights} traffic-light elements",
              f"origin lat {lat} lon {lon} (UTM zone {result.utm_zone}); "
-             f"{result.path.parent / PROJECTOR_FILE} written for Autoware (LocalCartesianUTM)"]
+             f"{where}/{PROJECTOR_FILE} written for Autoware (LocalCartesianUTM)"]
     if s.movements_dropped:
         lines.append(f"{len(s.movements_dropped)} junction movements not drawn (the roads "
                      "overlap where they meet): " + ", ".join(
@@ -85,9 +89,10 @@ def export_package(bbox: str, layers: str, network: str, out: Path, minzoom: int
         with progress_bar(f"package {out.name}") as progress:
             result = build_package(Session(bind=conn), plan, out, progress)
     files = result.manifest["files"]
-    click.echo(f"wrote {result.path}: {len(files)} files, "
+    # The manifest lists (and checksums) every file but itself.
+    click.echo(f"wrote {result.path}: manifest.json and {len(files)} files, "
                f"{sum(f['bytes'] for f in files) / 1e6:.1f} MB; "
                + "; ".join(f"{layer['slug']}: {layer['tiles']} tiles"
                            for layer in result.manifest["layers"]))
-    for line in lanelet2_report(result.lanelet2)[1:]:
+    for line in lanelet2_report(result.lanelet2, f"{out.name}/lanelet2")[1:]:
         click.echo(line)

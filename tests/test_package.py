@@ -154,6 +154,10 @@ def test_zip_package(mission, tmp_path) -> None:
         assert f"rasters/{layer}.mbtiles" in names
         assert "lanelet2/map_projector_info.yaml" in names
     assert not list(tmp_path.glob(".*"))  # no temporary left
+    # The terminal names what the user has, not the hidden folder it was built in.
+    assert f"manifest.json and {len(names) - 1} files" in r.output, r.output
+    assert "mission.zip/lanelet2/map_projector_info.yaml written" in r.output, r.output
+    assert ".part" not in r.output, r.output
 
 
 @pytest.mark.parametrize(("args", "message"), [

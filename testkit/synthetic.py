@@ -1,4 +1,4 @@
-"""Synthetic road networks with known answers, for tests, the benchmark and demos.
+"""Synthetic road networks with known answers, for tests and benchmarks.
 
 Written straight into the schema with SQL (``generate_series``), so a 100k-segment grid takes
 seconds; nodes are shared by exact coordinates as an importer would share them.

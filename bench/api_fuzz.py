@@ -27,11 +27,11 @@ sys.path.insert(0, str(REPO))
 
 from sqlalchemy import text  # noqa: E402
 
-from app.db.scratch import scratch_database  # noqa: E402
 from app.db.session import session_scope  # noqa: E402
 from app.network.tokens import create_token  # noqa: E402
 from app.settings import get_settings  # noqa: E402
-from tests.conftest import running_server  # noqa: E402
+from testkit.scratch import scratch_database  # noqa: E402
+from testkit.server import running_server  # noqa: E402
 
 OSM = REPO.parent / "shared" / "data" / "osm" / "andorra.osm.pbf"
 ST = Path(sys.executable).with_name("st")
@@ -122,7 +122,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from ingest.network import import_network
-    from tests.network_helpers import grid_network
+    from testkit.network_helpers import grid_network
 
     with scratch_database("ugvmap_fuzz") as url:
         os.environ["DATABASE_URL"] = url

@@ -28,11 +28,11 @@ import httpx
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from app.db.scratch import scratch_database  # noqa: E402
 from app.db.session import get_engine  # noqa: E402
 from app.settings import get_settings  # noqa: E402
-from tests.conftest import free_port  # noqa: E402
-from tests.network_helpers import grid_network  # noqa: E402
+from testkit.network_helpers import grid_network  # noqa: E402
+from testkit.scratch import scratch_database  # noqa: E402
+from testkit.server import free_port  # noqa: E402
 
 SERVE = """
 import sys, uvicorn

@@ -86,8 +86,8 @@ def make_drive(folder: Path, count: int) -> dict[str, Path]:
 def run_job(folder: Path, frames: int, workers: int = 2, share: float = 1.0,
             zone_px: int = 2048) -> dict:
     """Child: the real job into a scratch database; frame phase and total frames/s."""
-    from app.db.scratch import scratch_database
     from ingest.ipm.job import IpmOptions, ingest_ipm
+    from testkit.scratch import scratch_database
 
     options = IpmOptions(workers=workers, frames=slice(0, round(frames * share)),
                          zone_size_px=(zone_px, zone_px))
@@ -235,8 +235,8 @@ def truth_scores(zone_dir: Path, drive: Drive) -> tuple[float, float, float]:
 def blend_quality() -> None:
     """Print how close each blend mode's mosaic is to the known ground, with exact and with
     noisy poses: the measurement behind the default ``nearest``."""
-    from app.db.scratch import scratch_database
     from ingest.ipm.job import IpmOptions, ingest_ipm
+    from testkit.scratch import scratch_database
 
     drive, camera = Drive(), Camera()
     with tempfile.TemporaryDirectory() as tmp, scratch_database("ugvmap_bench_ipm") as url:

@@ -32,8 +32,8 @@ from sqlalchemy import create_engine, text
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from app.db.scratch import scratch_database  # noqa: E402
 from ingest.ipm.synthetic import Camera, Drive, frame_times, write_drive  # noqa: E402
+from testkit.scratch import scratch_database  # noqa: E402
 
 DRIVE = Drive(markers=())
 CAMERA = Camera(image_size=(2048, 1024))

@@ -25,8 +25,8 @@ from sqlalchemy import create_engine, text
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from app.db.scratch import scratch_database  # noqa: E402
-from tests.raster_synth import synthetic_utm, utm_origin  # noqa: E402
+from testkit.raster_synth import synthetic_utm, utm_origin  # noqa: E402
+from testkit.scratch import scratch_database  # noqa: E402
 
 
 def ugvmap(env: dict[str, str], *args: str) -> str:

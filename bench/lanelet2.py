@@ -26,9 +26,9 @@ import psycopg
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from app.db.scratch import scratch_database  # noqa: E402
 from app.db.session import libpq_dsn, session_scope  # noqa: E402
 from app.settings import get_settings  # noqa: E402
+from testkit.scratch import scratch_database  # noqa: E402
 
 OSM = REPO.parent / "shared" / "data" / "osm" / "andorra.osm.pbf"
 UGVMAP = str(REPO / ".venv" / "bin" / "ugvmap")

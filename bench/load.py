@@ -46,10 +46,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from app.db import embedded  # noqa: E402
-from app.db.scratch import scratch_database  # noqa: E402
 from app.db.session import get_engine, libpq_dsn, session_scope  # noqa: E402
 from app.settings import get_settings  # noqa: E402
-from tests.conftest import running_server  # noqa: E402
+from testkit.scratch import scratch_database  # noqa: E402
+from testkit.server import running_server  # noqa: E402
 
 OSM = REPO.parent / "shared" / "data" / "osm" / "andorra.osm.pbf"
 TMS = morecantile.tms.get("WebMercatorQuad")
@@ -103,14 +103,14 @@ def prepare(url: str, work: Path, seed: int) -> Scene:
     from app.network.tokens import create_token
     from ingest.network import import_network
     from ingest.raster.job import ingest_raster
-    from tests.raster_synth import synthetic_utm
+    from testkit.raster_synth import synthetic_utm
 
     rng = random.Random(seed)
     with session_scope() as session:
         if OSM.exists():
             import_network(session, OSM, "load")
         else:
-            from app.routing import synthetic
+            from testkit import synthetic
 
             conn = session.connection().connection.driver_connection
             synthetic.grid(conn, "load", 40, 40)

@@ -24,9 +24,9 @@ from sqlalchemy.engine import make_url
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.db.scratch import scratch_database
 from app.db.session import libpq_dsn
 from app.settings import get_settings
+from testkit.scratch import scratch_database
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm"
 EXTRACTS = ("andorra.osm.pbf", "Helsinki.osm.pbf")

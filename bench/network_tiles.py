@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/network_tiles.py --network country [--lon 10.55 --lat 50.39]
 
-On a stored network (e.g. the 1M-segment ``country`` from :mod:`app.routing.synthetic_osm`,
+On a stored network (e.g. the 1M-segment ``country`` from :mod:`testkit.synthetic_osm`,
 imported with ``ugvmap ingest network``), renders the tile at (lon, lat) for z6-z12 with the
 app's SQL (``app.network.tiles``; the second of two renders, so PostgreSQL's buffers are warm)
 and with the per-segment query over every class (what every zoom drew before), and prints

@@ -22,10 +22,10 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from app.db.scratch import scratch_database  # noqa: E402
 from app.db.session import session_scope  # noqa: E402
 from app.settings import get_settings  # noqa: E402
-from tests.conftest import running_server  # noqa: E402
+from testkit.scratch import scratch_database  # noqa: E402
+from testkit.server import running_server  # noqa: E402
 
 OSM = REPO.parent / "shared" / "data" / "osm" / "andorra.osm.pbf"
 LAYER = "andorra-segments"

@@ -33,10 +33,10 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from ingest.roads.accuracy import SAMPLES, evaluate_sample  # noqa: E402
 from ingest.roads.model.data import Augment, image_hashes  # noqa: E402
 from ingest.roads.model.train import TrainConfig, train  # noqa: E402
 from ingest.roads.pipeline import ExtractParams  # noqa: E402
+from testkit.roads_accuracy import SAMPLES, evaluate_sample  # noqa: E402
 
 DATA = REPO.parent / "shared" / "data" / "road_training"
 VALIDATION = REPO.parent / "shared" / "data" / "road_imagery"

@@ -8,7 +8,7 @@ Every road model given (default: the shipped roads-v1 and roads-v2) runs in the 
 the same images, zero-shot and adapted, so their rows compare directly; the ablation models of
 ``models/roads-v2/card_notes.md`` were scored this way (``--classifiers model --models ...``).
 
-Protocol (:mod:`ingest.roads.accuracy`): the quadrant with the most labelled road is the
+Protocol (:mod:`testkit.roads_accuracy`): the quadrant with the most labelled road is the
 job's sample (adapted, learned and spectral train on it; the zero-shot model gets nothing);
 every classifier is scored on the other three quadrants with buffer precision/recall at 1 m
 and 2 m and APLS connectivity. None of these images is in the model's training data
@@ -34,15 +34,15 @@ from dataclasses import replace  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ingest.roads.accuracy import (  # noqa: E402
+from ingest.roads.model.data import normalise  # noqa: E402
+from ingest.roads.pipeline import ExtractParams, extract_roads  # noqa: E402
+from ingest.roads.topology import TopologyParams  # noqa: E402
+from testkit.roads_accuracy import (  # noqa: E402
     SAMPLES,
     evaluate_sample,
     holdout_samples,
     load_sample,
 )
-from ingest.roads.model.data import normalise  # noqa: E402
-from ingest.roads.pipeline import ExtractParams, extract_roads  # noqa: E402
-from ingest.roads.topology import TopologyParams  # noqa: E402
 
 DATA = REPO.parent / "shared" / "data" / "road_imagery"
 TRAINING = REPO.parent / "shared" / "data" / "road_training"

@@ -8,7 +8,7 @@ skeleton and mask as *after* (the default ``ridge`` geometry), so the two differ
 the geometry and graph steps.
 
 1. The shared validation images (``shared/data/road_imagery``, the protocol of
-   :mod:`ingest.roads.accuracy`, zero-shot model): share of 1 m steps turning by more than
+   :mod:`testkit.roads_accuracy`, zero-shot model): share of 1 m steps turning by more than
    10° / 20° (every line resampled every 1 m), buffer precision/recall at 1 m and 2 m and
    APLS on the three scored quadrants, connected pieces (8-connected components of the
    rasterised centrelines) against the truth's, and junction precision/recall (nodes of
@@ -46,12 +46,12 @@ from scipy.spatial import cKDTree
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from ingest.roads.accuracy import SAMPLES, load_sample, score_lines  # noqa: E402
 from ingest.roads.curve import arc_length  # noqa: E402
 from ingest.roads.evaluate import rasterize_lines, turn_share  # noqa: E402
 from ingest.roads.graph import GraphParams, RoadGraph, build_graph  # noqa: E402
 from ingest.roads.pipeline import Extraction, ExtractParams, extract_roads  # noqa: E402
 from ingest.roads.synthetic import IpmScene, ipm_scene  # noqa: E402
+from testkit.roads_accuracy import SAMPLES, load_sample, score_lines  # noqa: E402
 
 DATA = REPO.parent / "shared" / "data" / "road_imagery"
 BEFORE = GraphParams(geometry="pixel", simplify_m=0.5)

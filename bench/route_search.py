@@ -3,7 +3,7 @@
     .venv/bin/python bench/route_search.py --network country [--pairs 20] [--landmarks 8]
 
 Reads a stored network (e.g. the 1M-segment ``country`` that ``bench/routing.py --country``
-or ``ugvmap ingest network`` made from :mod:`app.routing.synthetic_osm`) and times, on the
+or ``ugvmap ingest network`` made from :mod:`testkit.synthetic_osm`) and times, on the
 same random node pairs under the time cost model, in-process (no HTTP, no snapping):
 
 - ``dijkstra``: scipy's compiled Dijkstra with the growing bound the engine used before;

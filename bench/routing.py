@@ -4,7 +4,7 @@
     .venv/bin/python bench/routing.py --country [--side 810] [--country-pairs 20]
 
 ``--country`` adds the 1M-segment run (~10 min, ~3 GiB peak across processes): a synthetic
-country network (:mod:`app.routing.synthetic_osm`, 810 x 810 intersections) imported with
+country network (:mod:`testkit.synthetic_osm`, 810 x 810 intersections) imported with
 ``ugvmap ingest network`` in a child process (wall time and the child's peak RSS), graph and
 hierarchy build time and memory (topology by nested dissection, then again from the order it
 saved, as a restart does), route p50/p95 vs ``pgr_dijkstra`` on the same pairs, the time from
@@ -44,15 +44,15 @@ import psycopg
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from app.db.scratch import scratch_database  # noqa: E402
 from app.db.session import libpq_dsn, session_scope  # noqa: E402
-from app.routing import synthetic  # noqa: E402
 from app.routing.costs import Cost, pgrouting_edges_sql  # noqa: E402
 from app.routing.graph import RoadGraph  # noqa: E402
 from app.routing.hierarchy import Hierarchy  # noqa: E402
 from app.routing.live import read_segments, registry  # noqa: E402
 from app.settings import get_settings  # noqa: E402
-from tests.conftest import running_server  # noqa: E402
+from testkit import synthetic  # noqa: E402
+from testkit.scratch import scratch_database  # noqa: E402
+from testkit.server import running_server  # noqa: E402
 
 OSM = REPO.parent / "shared" / "data" / "osm" / "andorra.osm.pbf"
 
@@ -563,7 +563,7 @@ def topology_edits(http: httpx.Client, url: str, name: str, pair: tuple) -> None
 
 def country(args: argparse.Namespace, url: str, conn: psycopg.Connection) -> int:
     """Generate (once, cached in .data/bench) and import the 1M-segment network."""
-    from app.routing.synthetic_osm import write_country
+    from testkit.synthetic_osm import write_country
 
     pbf = REPO / ".data" / "bench" / f"country-{args.side}.osm.pbf"
     if not pbf.is_file():

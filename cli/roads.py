@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -17,12 +17,16 @@ from typing import TYPE_CHECKING, Any, cast
 import click
 
 from app.errors import UserError
+from app.road_tuning import RoadTuning, SampleWidth
+from cli.fields import field_option, model_options
 from cli.jobs import absolute, enqueue_job, queue_option
 from cli.rules import RULE_OPTIONS, given_rules, rule_options
 
 if TYPE_CHECKING:
-    from app.jobs.kinds import Classifier
     from ingest.roads.pipeline import ExtractParams
+
+#: The pipeline's tuning options, shared by ``extract-roads`` and ``ingest roads``.
+extraction_options = model_options(RoadTuning)
 
 
 @contextmanager
@@ -46,37 +50,11 @@ def _box(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
     return boxes
 
 
-def extraction_options(command: Callable[..., Any]) -> Callable[..., Any]:
-    """The pipeline's tuning options, shared by ``extract-roads`` and ``ingest roads``."""
-    options = [
-        click.option("--classifier",
-                     type=click.Choice(["auto", "model", "adapted", "learned", "spectral"]),
-                     default="auto", show_default=True,
-                     help="auto = the road model, adapted to the training sample when one is "
-                          "given; learned/spectral = per-job classifiers (need a sample)."),
-        click.option("--k", "k", type=float, default=3.0, show_default=True,
-                     help="Spectral: keep pixels within k x mean training distance to the "
-                          "colour line."),
-        click.option("--work-resolution", type=float, default=0.5, show_default=True,
-                     help="learned/spectral (and ipm-mosaic layers): average finer images down "
-                          "to this many metres per pixel (0 = keep source); the road model "
-                          "uses its own."),
-        click.option("--spur-max", type=float, default=15.0, show_default=True,
-                     help="Longest hair (m) pruned from the skeleton."),
-        click.option("--simplify", type=float, default=0.5, show_default=True,
-                     help="RDP tolerance (m) for edge geometry."),
-    ]
-    for option in reversed(options):
-        command = option(command)
-    return command
-
-
-def extract_params(classifier: str, k: float, work_resolution: float, spur_max: float,
-                   simplify: float) -> ExtractParams:
-    """The pipeline parameters from the shared tuning options."""
+def extract_params(**tuning: Any) -> ExtractParams:
+    """The pipeline parameters from the shared tuning options (:data:`extraction_options`)."""
     from ingest.roads.pipeline import tuned_params
 
-    return tuned_params(cast("Classifier", classifier), k, work_resolution, spur_max, simplify)
+    return tuned_params(RoadTuning(**tuning))
 
 
 @click.command("extract-roads")
@@ -183,8 +161,7 @@ def _lonlat_box(ctx: click.Context, param: click.Parameter, values: tuple[str, .
               help="Box of not-road minlon,minlat,maxlon,maxlat (repeatable).")
 @click.option("--train-lines", type=click.Path(path_type=Path, dir_okay=False, exists=True),
               help="GeoJSON of known road centerlines (lon/lat): near = road, far = not road.")
-@click.option("--line-width", type=float, default=6.0, show_default=True,
-              help="Road width (m) around --train-lines centerlines.")
+@field_option("line_width", SampleWidth.model_fields["line_width"])
 @extraction_options
 @rule_options
 @click.option("--replace", is_flag=True, help="Replace the network if it exists.")
@@ -209,12 +186,10 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
         return
     from app.db.session import session_scope
     from app.jobs.recorder import JobRecorder
-    from ingest.roads.layer import GeoSample, ingest_layer_roads, read_sample_lines
+    from ingest.roads.layer import given_sample, ingest_layer_roads
 
     with _memory_hint():
-        lines = read_sample_lines(train_lines) if train_lines else []
-        sample = (GeoSample(train_boxes, not_road_boxes, lines, line_width)
-                  if train_boxes or not_road_boxes or lines else None)
+        sample = given_sample(train_boxes, not_road_boxes, train_lines, line_width)
         with JobRecorder("ingest-roads", network,
                          {"layer": slug, **tuning, "rules": rules.overrides()}), \
                 session_scope() as session:

@@ -7,24 +7,17 @@ embedded cluster (or the server DATABASE_URL points at), migrated to head, and d
 from __future__ import annotations
 
 import os
-import socket
-import subprocess
-import sys
-import tempfile
-import time
 from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
-import httpx
 import pytest
 
-from app.db.scratch import scratch_database
 from app.db.session import get_engine
 from app.routing.settings import routing_settings
 from app.settings import get_settings
+from testkit.scratch import scratch_database
+from testkit.server import REPO, free_port, running_server
 
-REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu",
@@ -78,51 +71,6 @@ def client(app) -> Iterator:
 
     with TestClient(app) as c:
         yield c
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@contextmanager
-def running_server(env: dict[str, str], workers: int = 1,
-                   timeout_s: float = 30.0, drop: tuple[str, ...] = ()) -> Iterator[str]:
-    """Run ``ugvmap serve`` as a real subprocess and yield its base URL (``drop``: variables
-    of this process's environment it does not get).
-
-    Its output (one JSON log line per request) goes to a temporary file, not a pipe: nobody
-    reads a pipe while the tests run, and once its buffer is full the server blocks on logging.
-    """
-    port = free_port()
-    with tempfile.TemporaryFile() as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "cli", "serve", "--port", str(port),
-             "--workers", str(workers)],
-            cwd=REPO, env={k: v for k, v in {**os.environ, **env}.items() if k not in drop},
-            stdout=log, stderr=subprocess.STDOUT,
-        )
-        base = f"http://127.0.0.1:{port}"
-        try:
-            deadline = time.monotonic() + timeout_s
-            while True:
-                try:
-                    httpx.get(f"{base}/healthz", timeout=1.0)
-                    break
-                except httpx.TransportError:
-                    if proc.poll() is not None or time.monotonic() > deadline:
-                        log.seek(0)
-                        out = log.read().decode(errors="replace")
-                        raise RuntimeError(f"server did not start:\n{out}") from None
-                    time.sleep(0.1)
-            yield base
-        finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
 
 
 @pytest.fixture()

@@ -55,7 +55,7 @@ def town(conn, name: str) -> dict:
     """
     from psycopg.types.json import Jsonb
 
-    from app.routing import synthetic
+    from testkit import synthetic
 
     net = synthetic.create_network(conn, name)
     add = synthetic.add_line

@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 
 from bench.api_fuzz import segment_ids, st_run, write_config
-from tests.network_helpers import grid_network, token
+from testkit.network_helpers import grid_network, token
 
 pytestmark = pytest.mark.slow
 

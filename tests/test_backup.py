@@ -18,16 +18,17 @@ from click.testing import CliRunner
 from sqlalchemy import create_engine, text
 
 from app.db import migrate
-from app.db.scratch import scratch_database
 from app.db.session import session_scope
 from app.network.tokens import create_token
 from app.tiles.store import store_root
 from cli.main import main
 from cli.ops.backup import COUNTED, MANIFEST
 from ingest.raster.job import ingest_raster
-from tests.conftest import REPO, running_server
-from tests.network_helpers import bearer, grid_network
-from tests.raster_synth import synthetic_utm
+from testkit.network_helpers import bearer, grid_network
+from testkit.raster_synth import synthetic_utm
+from testkit.scratch import scratch_database
+from testkit.server import running_server
+from tests.conftest import REPO
 
 
 def _fingerprints(url: str) -> dict[str, str]:

@@ -13,7 +13,7 @@ from urllib.parse import urlsplit
 
 import pytest
 
-from tests.network_helpers import bearer, grid_network
+from testkit.network_helpers import bearer, grid_network
 
 BIG = 50 * 1024 * 1024
 LIMIT = 1_000_000

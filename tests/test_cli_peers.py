@@ -17,9 +17,9 @@ from sqlalchemy import text
 
 from app.db.session import get_engine
 from cli.main import main
+from testkit.network_helpers import grid_network
+from testkit.raster_synth import synthetic_utm
 from tests.conftest import REPO
-from tests.network_helpers import grid_network
-from tests.raster_synth import synthetic_utm
 
 
 def run(*args: str, stdin: str | None = None) -> tuple[int, str]:
@@ -90,9 +90,9 @@ def test_a_file_already_in_the_layer_is_refused_unless_replace(database_url: str
 
 
 def _main_modules() -> list[str]:
-    """Every module under app/ and ingest/ with a ``__main__`` block."""
+    """Every module under app/, ingest/ and testkit/ with a ``__main__`` block."""
     found = []
-    for folder in ("app", "ingest"):
+    for folder in ("app", "ingest", "testkit"):
         for path in sorted((REPO / folder).rglob("*.py")):
             if 'if __name__ == "__main__":' in path.read_text():
                 found.append(".".join(path.relative_to(REPO).with_suffix("").parts))

@@ -22,9 +22,10 @@ from app.db.session import session_scope
 from app.settings import get_settings
 from ingest.network import RoadAttributes, RoadLine, write_network
 from ingest.raster.job import ingest_raster
-from tests.conftest import REPO, running_server
-from tests.network_helpers import token
-from tests.raster_synth import synthetic_utm
+from testkit.network_helpers import token
+from testkit.raster_synth import synthetic_utm
+from testkit.server import running_server
+from tests.conftest import REPO
 
 ELSEWHERE = "http://pages.example"
 MAPLIBRE = REPO / "app" / "web" / "node_modules" / "maplibre-gl" / "dist"

@@ -16,11 +16,12 @@ import httpx
 import pytest
 from sqlalchemy import create_engine, text
 
-from app.db.scratch import scratch_database
 from app.settings import CHECKOUT
 from app.tiles.store import RECORD_ROOT
-from tests.conftest import REPO, running_server
-from tests.raster_synth import TMS, decode_rgba, synthetic_utm, utm_origin
+from testkit.raster_synth import TMS, decode_rgba, synthetic_utm, utm_origin
+from testkit.scratch import scratch_database
+from testkit.server import running_server
+from tests.conftest import REPO
 
 STORE_VARIABLES = ("UGVMAP_RASTER_STORE", "UGVMAP_DATA_DIR")
 DEFAULT_STORE = CHECKOUT / ".data" / "rasters"

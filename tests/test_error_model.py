@@ -11,8 +11,8 @@ import pytest
 
 from app.grid import MAX_ZOOM
 from ingest.raster.job import ingest_raster
-from tests.network_helpers import bearer, grid_network
-from tests.raster_synth import synthetic_utm
+from testkit.network_helpers import bearer, grid_network
+from testkit.raster_synth import synthetic_utm
 
 
 @pytest.fixture(scope="module")

@@ -14,9 +14,9 @@ import pytest
 
 from cli.ops.frontcache.nginx import FrontCache, FrontCacheError, find_nginx
 from ingest.raster.job import ingest_raster
-from tests.conftest import free_port
-from tests.network_helpers import bearer, grid_network
-from tests.raster_synth import UTM33, synthetic_utm, tiles_around, write_tif
+from testkit.network_helpers import bearer, grid_network
+from testkit.raster_synth import UTM33, synthetic_utm, tiles_around, write_tif
+from testkit.server import free_port
 
 TMS = morecantile.tms.get("WebMercatorQuad")
 

@@ -13,8 +13,8 @@ import httpx
 import pytest
 
 from app.db import embedded
-from app.db.scratch import scratch_database
-from tests.conftest import free_port, running_server
+from testkit.scratch import scratch_database
+from testkit.server import free_port, running_server
 
 
 def test_healthz_and_readyz(client) -> None:

@@ -28,8 +28,8 @@ from app.params import (
 )
 from ingest.network import RoadAttributes, RoadLine, write_network
 from ingest.raster.job import ingest_raster
-from tests.network_helpers import bearer, grid_network
-from tests.raster_synth import synthetic_utm
+from testkit.network_helpers import bearer, grid_network
+from testkit.raster_synth import synthetic_utm
 
 RADIUS_LIMIT = {"radius": 100.0}  # stands for a bound read from settings per request
 

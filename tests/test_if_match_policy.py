@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.network_helpers import bearer, grid_network
+from testkit.network_helpers import bearer, grid_network
 
 
 @pytest.fixture()

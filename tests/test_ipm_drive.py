@@ -27,7 +27,7 @@ from cli.main import main
 from ingest.ipm.job import IpmOptions, ingest_ipm
 from ingest.ipm.poses import Pose, PoseTrack
 from ingest.ipm.synthetic import MARKER_RGB, Camera, Drive, frame_times, write_drive
-from tests.raster_synth import TMS, grid_transform, stitch
+from testkit.raster_synth import TMS, grid_transform, stitch
 
 DRIVE, CAMERA = Drive(), Camera()
 N_FRAMES = 36

@@ -23,7 +23,7 @@ from sqlalchemy import text
 from app.db.session import session_scope
 from cli.main import main
 from ingest.ipm.synthetic import frame_times, write_drive
-from tests.raster_synth import UTM33, utm_origin, write_tif
+from testkit.raster_synth import UTM33, utm_origin, write_tif
 from tests.test_ipm_drive import CAMERA, DRIVE, GRID_ARGS, N_FRAMES
 
 

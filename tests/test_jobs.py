@@ -22,9 +22,9 @@ from app.db.session import session_scope
 from app.jobs.recorder import JobRecorder
 from app.settings import get_settings
 from cli.main import main
+from testkit.network_helpers import bearer
+from testkit.raster_synth import synthetic_utm, utm_origin
 from tests.conftest import REPO
-from tests.network_helpers import bearer
-from tests.raster_synth import synthetic_utm, utm_origin
 
 
 def test_progress_is_visible_while_the_job_transaction_is_open(client) -> None:

@@ -21,10 +21,10 @@ from click.testing import CliRunner
 from lanelet2.core import TrafficLight
 from pyproj import Transformer
 
-from app.routing import synthetic
 from cli.main import main
+from testkit import synthetic
+from testkit.network_helpers import bearer
 from tests.lanelet2_support import LoadedMap, export, lanelet_route, load, ugvmap_route
-from tests.network_helpers import bearer
 from tests.routing_support import dsn, unique, xy
 
 pytestmark = pytest.mark.usefixtures("database_url")

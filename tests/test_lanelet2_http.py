@@ -8,8 +8,8 @@ import pytest
 from app.lanelet2.export import PROJECTOR_FILE, projector_info
 from app.lanelet2.router import lanelet2_settings
 from app.settings import get_settings
+from testkit.network_helpers import bearer, grid_network
 from tests.lanelet2_support import load
-from tests.network_helpers import bearer, grid_network
 
 
 def fetch_map(client, tmp_path, url: str, **kw):

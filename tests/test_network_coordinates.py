@@ -14,7 +14,7 @@ from sqlalchemy import text
 
 from app.db.session import session_scope
 from cli.main import main
-from tests.network_helpers import grid_network
+from testkit.network_helpers import grid_network
 
 
 def _geojson(path: Path, lines: list[list[list[float]]], crs: str | None = None) -> Path:

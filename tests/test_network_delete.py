@@ -13,7 +13,7 @@ from app.network.tile_cache import shared_cache
 from app.routing.live import registry
 from app.settings import get_settings
 from cli.main import main
-from tests.network_helpers import bearer, grid_network
+from testkit.network_helpers import bearer, grid_network
 
 
 def _cli(*args: str, stdin: str | None = None):

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.network_helpers import grid_network
+from testkit.network_helpers import grid_network
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +96,7 @@ def test_gdal_oapif_driver_reads_the_network(live_server: str, grid, tmp_path: P
 
 def test_reads_can_require_a_token(client, grid, monkeypatch: pytest.MonkeyPatch) -> None:
     from app.settings import get_settings
-    from tests.network_helpers import bearer
+    from testkit.network_helpers import bearer
 
     items = f"/collections/{grid.network}-segments/items"
     tile = f"/networks/{grid.network}/tiles/14/8647/5556.mvt"

@@ -10,7 +10,7 @@ import pytest
 from sqlalchemy import text
 
 from app.db.session import session_scope
-from tests.network_helpers import bearer, grid_network
+from testkit.network_helpers import bearer, grid_network
 
 NASTY = [
     "'; DROP TABLE road_segments; --",

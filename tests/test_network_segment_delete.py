@@ -22,7 +22,7 @@ from app.network import collections as colls
 from app.network.segment_deletion import delete_segment
 from app.network.tokens import Principal
 from cli.main import main
-from tests.network_helpers import bearer, grid_network
+from testkit.network_helpers import bearer, grid_network
 
 CORNER = (10.0, 50.0)
 

@@ -10,8 +10,8 @@ import mapbox_vector_tile
 import morecantile
 import pytest
 
-from tests.conftest import running_server
-from tests.network_helpers import bearer, grid_network
+from testkit.network_helpers import bearer, grid_network
+from testkit.server import running_server
 
 TMS = morecantile.tms.get("WebMercatorQuad")
 
@@ -177,8 +177,8 @@ def _classes(body: bytes) -> list[str]:
 def country(database_url: str, tmp_path_factory) -> str:
     """The synthetic country network (every class from motorway to service), imported."""
     from app.db.session import session_scope
-    from app.routing.synthetic_osm import write_country
     from ingest.network import import_network
+    from testkit.synthetic_osm import write_country
 
     pbf = tmp_path_factory.mktemp("tiles") / "country.osm.pbf"
     write_country(pbf, 130, seed=1)  # 15 km square, ~26k segments

@@ -12,7 +12,7 @@ from sqlalchemy import text
 from app.db.session import session_scope
 from cli.main import main
 from ingest.network import RoadAttributes, RoadLine, write_network
-from tests.network_helpers import bearer, grid_network
+from testkit.network_helpers import bearer, grid_network
 
 
 def _validate(network: str) -> tuple[int, str]:

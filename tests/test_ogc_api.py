@@ -16,7 +16,7 @@ from openapi_spec_validator import validate
 
 from app.db.session import session_scope
 from ingest.network import RoadAttributes, RoadLine, write_network
-from tests.network_helpers import grid_network
+from testkit.network_helpers import grid_network
 
 OPENAPI_30 = "application/vnd.oai.openapi+json;version=3.0"
 BROWSER_ACCEPT = "text/html,application/xhtml+xml,application/xml;q=0.9,*/*;q=0.8"

@@ -22,8 +22,8 @@ from app.grid import tile_bounds
 from cli.main import main
 from ingest.network import RoadAttributes, RoadLine, write_network
 from ingest.raster.job import ingest_raster
+from testkit.raster_synth import decode_rgba, synthetic_utm
 from tests.lanelet2_support import load
-from tests.raster_synth import decode_rgba, synthetic_utm
 from tests.routing_support import unique, xy
 
 pytestmark = pytest.mark.usefixtures("database_url")

@@ -9,7 +9,7 @@ import httpx
 import pytest
 from pyproj import Transformer
 
-from tests.network_helpers import bearer, grid_network, token
+from testkit.network_helpers import bearer, grid_network, token
 from tests.qgis_oapif import QgisLayer
 
 EPSG = "http://www.opengis.net/def/crs/EPSG/0/"

@@ -13,7 +13,7 @@ from sqlalchemy.exc import OperationalError
 
 from app.api.errors import database_unavailable
 from app.jobs.redact import strip_paths
-from tests.network_helpers import bearer, grid_network
+from testkit.network_helpers import bearer, grid_network
 
 
 @pytest.fixture()

@@ -16,7 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import main
-from tests.network_helpers import grid_network, token
+from testkit.network_helpers import grid_network, token
 from tests.qgis_oapif import QgisLayer, ogr_fields
 
 EVERYTHING = {"AddFeatures", "ChangeAttributeValues", "ChangeGeometries", "DeleteFeatures",

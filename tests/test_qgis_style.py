@@ -7,7 +7,7 @@ from __future__ import annotations
 import mapbox_vector_tile
 import morecantile
 
-from tests.network_helpers import bearer, grid_network
+from testkit.network_helpers import bearer, grid_network
 from tests.qgis_style import circle_styles
 
 # The node layer the style had before: one layer, colour and size by ``case`` (and ``step``

@@ -19,7 +19,6 @@ from click.testing import CliRunner
 from sqlalchemy import create_engine, inspect, text
 
 from app.db import migrate
-from app.db.scratch import scratch_database
 from app.db.session import get_engine, session_scope
 from app.jobs.queue import enqueue
 from app.jobs.rows import start_queued
@@ -27,9 +26,10 @@ from app.tiles.store import open_store
 from cli.main import main
 from ingest.queue import raster, tasks
 from ingest.queue.worker import make_worker_app
+from testkit.network_helpers import bearer
+from testkit.raster_synth import synthetic_utm, utm_origin
+from testkit.scratch import scratch_database
 from tests.conftest import REPO
-from tests.network_helpers import bearer
-from tests.raster_synth import synthetic_utm, utm_origin
 
 
 def sources(folder: Path, n: int, size: int = 600) -> list[str]:

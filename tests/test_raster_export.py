@@ -14,7 +14,7 @@ from pyproj import Transformer
 
 from cli.main import main
 from ingest.raster.job import ingest_raster
-from tests.raster_synth import UTM33, synthetic_utm, write_tif
+from testkit.raster_synth import UTM33, synthetic_utm, write_tif
 
 
 def _colour_layer(tmp_path: Path) -> tuple[str, rasterio.Affine]:

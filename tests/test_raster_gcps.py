@@ -14,7 +14,7 @@ from cli.main import main
 from ingest.raster.gcps import read_gcps, residual_report
 from ingest.raster.job import ingest_raster
 from ingest.raster.sources import SourceError
-from tests.raster_synth import UTM33, mae, stitch, synthetic_utm, tiles_around, write_tif
+from testkit.raster_synth import UTM33, mae, stitch, synthetic_utm, tiles_around, write_tif
 
 W, H = 600, 400
 

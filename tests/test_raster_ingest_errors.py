@@ -21,8 +21,8 @@ from sqlalchemy import text
 from app.db.session import get_engine
 from app.settings import get_settings
 from cli.main import main
+from testkit.raster_synth import UTM33, pattern_image, synthetic_utm, write_tif
 from tests.conftest import REPO
-from tests.raster_synth import UTM33, pattern_image, synthetic_utm, write_tif
 
 
 def snapshot() -> tuple:

@@ -19,7 +19,7 @@ from cli.main import main
 from ingest.raster.cog import write_cog
 from ingest.raster.job import ingest_raster
 from ingest.raster.sources import Source
-from tests.raster_synth import decode_rgba, synthetic_utm, tiles_around
+from testkit.raster_synth import decode_rgba, synthetic_utm, tiles_around
 
 
 def _objects(store_uri: str, layer: str) -> list[str]:

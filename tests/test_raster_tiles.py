@@ -18,7 +18,7 @@ from sqlalchemy import text
 from app.db.session import get_engine
 from app.tiles.store import resolve
 from ingest.raster.job import ingest_raster
-from tests.raster_synth import (
+from testkit.raster_synth import (
     TMS,
     UTM33,
     centroid,

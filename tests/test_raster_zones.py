@@ -12,7 +12,7 @@ from pyproj import Transformer
 
 from ingest.raster.georef import GeorefError, ZoneSidecar
 from ingest.raster.job import ingest_raster
-from tests.raster_synth import (
+from testkit.raster_synth import (
     TMS,
     centroid,
     grid_transform,

@@ -19,7 +19,7 @@ from ingest.queue import tasks
 from ingest.raster.job import ingest_raster
 from ingest.roads.attributes import lanes
 from ingest.roads.synthetic import Scene, grid_scene, render
-from tests.raster_synth import UTM33, utm_origin, write_tif
+from testkit.raster_synth import UTM33, utm_origin, write_tif
 
 RES = 0.5
 # A cross with a T arm, in pixels of a 400x300 image at 0.5 m/px.

@@ -1,6 +1,6 @@
 """Road extraction accuracy on real labelled imagery, against floors measured on these images.
 
-Protocol in :mod:`ingest.roads.accuracy` (the job's sample is one quadrant; every classifier is
+Protocol in :mod:`testkit.roads_accuracy` (the job's sample is one quadrant; every classifier is
 scored on the other three). The floors sit a little under the figures measured with
 ``bench/roads_accuracy.py`` (see the README and ``models/roads-v2/README.md``), so a regression
 in any stage fails here. None of these images is in the road model's training data.
@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from ingest.roads.accuracy import SAMPLES, Evaluation, evaluate_sample, load_sample, score_lines
 from ingest.roads.pipeline import ExtractParams, extract_roads
+from testkit.roads_accuracy import SAMPLES, Evaluation, evaluate_sample, load_sample, score_lines
 
 pytestmark = pytest.mark.slow
 

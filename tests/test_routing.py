@@ -6,7 +6,7 @@ import polyline
 import psycopg
 import pytest
 
-from app.routing import synthetic
+from testkit import synthetic
 from tests.routing_support import dsn, route, segment_walk, unique, xy
 
 LAT0 = 42.5

@@ -10,9 +10,9 @@ import psycopg
 import pytest
 from click.testing import CliRunner
 
-from app.routing import synthetic
 from app.routing.optimize import held_karp, nearest_neighbour_2opt, path_cost
 from cli.main import main
+from testkit import synthetic
 from tests.routing_support import dsn, route, unique, xy
 
 

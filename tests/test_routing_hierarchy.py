@@ -16,15 +16,15 @@ import psycopg
 import pytest
 
 from app.db.session import session_scope
-from app.routing import synthetic
 from app.routing.costs import Cost
 from app.routing.graph import CostGraph, RoadGraph, Shape
 from app.routing.hierarchy import Hierarchy, quantise
 from app.routing.live import GraphRegistry, read_segments, registry
 from app.routing.settings import routing_settings
-from app.routing.synthetic_osm import write_country
 from app.settings import get_settings
-from tests.network_helpers import bearer
+from testkit import synthetic
+from testkit.network_helpers import bearer
+from testkit.synthetic_osm import write_country
 from tests.routing_support import dsn, route, segment_walk, unique
 from tests.test_routing_live import assert_same_graph
 from tests.test_routing_oracle import check_against_pgrouting

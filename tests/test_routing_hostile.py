@@ -9,10 +9,10 @@ from collections.abc import Iterator
 import psycopg
 import pytest
 
-from app.routing import synthetic
 from app.routing.options import SERVICES
 from app.settings import get_settings
-from tests.network_helpers import bearer
+from testkit import synthetic
+from testkit.network_helpers import bearer
 from tests.routing_support import dsn, unique, xy
 
 BIG = 50 * 1024 * 1024

@@ -14,13 +14,14 @@ import numpy as np
 import psycopg
 import pytest
 
-from app.routing import live, synthetic
+from app.routing import live
 from app.routing.costs import Cost
 from app.routing.graph import RoadGraph
 from app.routing.live import read_segments, registry
 from app.settings import get_settings
-from tests.conftest import running_server
-from tests.network_helpers import bearer
+from testkit import synthetic
+from testkit.network_helpers import bearer
+from testkit.server import running_server
 from tests.routing_support import dsn, route, segment_walk, unique
 from tests.routing_support import xy as xy0
 

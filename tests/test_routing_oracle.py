@@ -14,8 +14,8 @@ import psycopg
 import pytest
 
 from app.db.session import session_scope
-from app.routing import synthetic
 from app.routing.costs import Cost, pgrouting_edges_sql
+from testkit import synthetic
 from tests.routing_support import dsn, segment_walk, unique
 
 REL_TOL = 1e-9

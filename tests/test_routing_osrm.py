@@ -10,8 +10,8 @@ import polyline
 import psycopg
 import pytest
 
-from app.routing import synthetic
 from app.routing.trace import VERTEX_BASE
+from testkit import synthetic
 from tests.osrm_schema import check
 from tests.routing_support import dsn, route, town, unique, xy
 

@@ -13,8 +13,8 @@ import pytest
 from app.db.session import libpq_dsn
 from app.errors import DatabaseUnavailableError, NotFoundError
 from app.routing.reads import VersionReader, read_connection
-from app.routing.synthetic import create_network
-from tests.conftest import free_port
+from testkit.server import free_port
+from testkit.synthetic import create_network
 
 
 @pytest.fixture()
@@ -75,7 +75,8 @@ def test_cli_reads_on_its_own_connection(database_url, network) -> None:
 def test_quick_routes_are_planned_on_the_event_loop(client, database_url, monkeypatch) -> None:
     """A route of two points on a small network with everything built is planned without a
     worker thread; one with alternatives (several searches) is not."""
-    from app.routing import router, synthetic
+    from app.routing import router
+    from testkit import synthetic
 
     name = f"quick-{uuid.uuid4().hex[:8]}"
     with psycopg.connect(libpq_dsn(database_url), autocommit=True) as conn:

@@ -14,8 +14,8 @@ import numpy as np
 import psycopg
 import pytest
 
-from app.routing import synthetic
 from app.routing.geometry import haversine_m
+from testkit import synthetic
 from tests.osrm_schema import check
 from tests.routing_support import dsn, unique
 

@@ -12,7 +12,7 @@ from sqlalchemy.exc import IntegrityError
 
 from app.db import migrate
 from app.db.models import Base
-from app.db.scratch import scratch_database
+from testkit.scratch import scratch_database
 
 TABLES = {"layers", "raster_sources", "networks", "road_nodes", "road_segments",
           "segment_edits", "ingest_jobs", "api_tokens"}

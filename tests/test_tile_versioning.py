@@ -14,8 +14,8 @@ from app.db.session import session_scope
 from app.network.collections import network_row
 from app.network.tiles import network_token
 from ingest.raster.job import ingest_raster
-from tests.network_helpers import bearer, grid_network
-from tests.raster_synth import UTM33, decode_rgba, synthetic_utm, tiles_around, write_tif
+from testkit.network_helpers import bearer, grid_network
+from testkit.raster_synth import UTM33, decode_rgba, synthetic_utm, tiles_around, write_tif
 
 TMS = morecantile.tms.get("WebMercatorQuad")
 IMMUTABLE = "public, max-age=31536000, immutable"

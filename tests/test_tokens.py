@@ -21,8 +21,9 @@ from app.network.tokens import TOUCH_EVERY_S, parse_duration
 from app.routing.options import SERVICES
 from app.settings import get_settings
 from cli.main import main
-from tests.conftest import REPO, running_server
-from tests.network_helpers import grid_network
+from testkit.network_helpers import grid_network
+from testkit.server import running_server
+from tests.conftest import REPO
 
 
 def _cli(*args: str):

@@ -21,7 +21,7 @@ from click.testing import CliRunner
 from rasterio.transform import from_bounds
 
 from cli.main import main
-from tests.conftest import running_server
+from testkit.server import running_server
 
 pytestmark = pytest.mark.slow
 

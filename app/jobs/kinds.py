@@ -33,9 +33,7 @@ from pyproj.exceptions import CRSError
 from app.db.models import LAYER_KINDS, SLUG_RE
 from app.errors import InvalidValueError
 from app.network.settings import AttributeRules
-
-#: The road extraction classifiers (``ingest.roads.pipeline`` runs them).
-Classifier = Literal["auto", "model", "adapted", "learned", "spectral"]
+from app.road_tuning import RoadTuning, SampleWidth
 
 
 def _absolute(path: str) -> str:
@@ -123,9 +121,9 @@ class NetworkParams(JobParams):
         return self.network
 
 
-class RoadsParams(JobParams):
-    """``ingest-roads``: a raster layer's roads extracted into a network. Tuning left out
-    (None) keeps the pipeline's default."""
+class RoadsParams(JobParams, RoadTuning, SampleWidth):
+    """``ingest-roads``: a raster layer's roads extracted into a network; the tuning and the
+    sample's line width are :mod:`app.road_tuning`'s fields (the CLI options' too)."""
 
     layer: Slug
     network: Slug
@@ -133,12 +131,6 @@ class RoadsParams(JobParams):
     train_boxes: list[LonLatBox] = Field(default_factory=list, max_length=1000)
     not_road_boxes: list[LonLatBox] = Field(default_factory=list, max_length=1000)
     train_lines: ServerPath | None = None
-    line_width: float | None = Field(default=None, gt=0, le=100)
-    classifier: Classifier | None = None
-    k: float | None = Field(default=None, gt=0, le=100)
-    work_resolution: float | None = Field(default=None, ge=0, le=100)
-    spur_max: float | None = Field(default=None, ge=0, le=1000)
-    simplify: float | None = Field(default=None, ge=0, le=100)
     rules: AttributeRules | None = None
     """Attribute rules for this job on top of the network's (speed_kph, classes, ...)."""
 

@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session
 
 from app.errors import InvalidValueError, PreconditionFailedError, PreconditionRequiredError
 from app.network import collections as colls
+from app.network.segment_rows import geodesic_length
 from app.network.tokens import Principal
 from app.settings import get_settings
 
@@ -112,10 +113,10 @@ def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
         assignments.append("attrs = CAST(:attrs AS jsonb)")
         params["attrs"] = json.dumps(changed["attrs"])
     if "geometry" in changed:
-        assignments.append("geom = ST_SetSRID(ST_GeomFromGeoJSON(:geometry), 4326)")
+        geom = "ST_SetSRID(ST_GeomFromGeoJSON(:geometry), 4326)"
+        assignments.append(f"geom = {geom}")
         if c.kind == "segments":
-            assignments.append("length_m = ST_Length(ST_SetSRID(ST_GeomFromGeoJSON("
-                               ":geometry), 4326)::geography)")
+            assignments.append(f"length_m = {geodesic_length(geom)}")
         params["geometry"] = json.dumps(changed["geometry"])
     version: int | None = session.execute(text(
         f"UPDATE {c.table} SET {', '.join(assignments)}, version = version + 1, "

@@ -35,6 +35,7 @@ from app.network.editing import (
 )
 from app.network.feature_bodies import patch_parts, whole_parts
 from app.network.geometry_input import parse_geometry
+from app.network.segment_rows import insert_segments
 from app.network.tokens import Principal
 from app.network.topology_edits import split_at
 from app.network.validation import lanes_consistent, merge_patch
@@ -192,12 +193,11 @@ def create_segment(session: Session, c: colls.Collection, body: Any, crs: crs_.C
     if duplicate is not None:
         raise unprocessable({"geometry": f"duplicates segment {duplicate}"})
     attributes = {k: v for k, v in values.items() if k != "attrs"}
-    fid: int = session.execute(text(
-        f"INSERT INTO road_segments (network_id, source_node, target_node, geom, length_m, "
-        f"updated_by, attrs, {', '.join(attributes)}) VALUES (:n, :source, :target, "
-        "ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326), "
-        "ST_Length(ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326)::geography), :who, "
-        f"CAST(:attrs AS jsonb), {', '.join(f':{k}' for k in attributes)}) RETURNING id"),
+    fid: int = session.execute(text(insert_segments({
+        "network_id": ":n", "source_node": ":source", "target_node": ":target",
+        "geom": "ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326)", "updated_by": ":who",
+        "attrs": "CAST(:attrs AS jsonb)", **{k: f":{k}" for k in attributes}},
+        returning=True)),
         {**attributes, "n": c.network_id, "source": source, "target": target,
          "g": json.dumps(line), "who": principal.name,
          "attrs": json.dumps(values["attrs"])}).scalar_one()

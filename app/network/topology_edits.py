@@ -19,6 +19,7 @@ from app.network.editing import (
     unprocessable,
     write_change,
 )
+from app.network.segment_rows import insert_segments
 from app.network.tokens import Principal
 from app.params import parse_number, parse_position
 
@@ -89,13 +90,11 @@ def split_at(session: Session, c: colls.Collection, feature: dict[str, Any], fra
     old_target = feature["properties"]["target_node"]
     kept = write_change(session, c, feature, {"geometry": first, "target_node": node},
                         principal, "split", conditional=conditional)
-    columns = ", ".join((*colls.SEGMENT_ATTRIBUTES, "confidence"))  # both parts as sure
-    new_id: int = session.execute(text(
-        f"INSERT INTO road_segments (network_id, source_node, target_node, geom, length_m, "
-        f"updated_by, {columns}) SELECT network_id, :node, :target, "
-        "ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326), "
-        "ST_Length(ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326)::geography), :who, "
-        f"{columns} FROM road_segments WHERE id = :id RETURNING id"),
+    same = {c: c for c in (*colls.SEGMENT_ATTRIBUTES, "confidence")}  # both parts as sure
+    new_id: int = session.execute(text(insert_segments({
+        "network_id": "network_id", "source_node": ":node", "target_node": ":target",
+        "geom": "ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326)", "updated_by": ":who", **same},
+        "road_segments WHERE id = :id", returning=True)),
         {"node": node, "target": old_target, "g": json.dumps(second), "who": principal.name,
          "id": fid}).scalar_one()
     log_edit(session, c, new_id, "split", None, 1, principal, None,

@@ -31,6 +31,7 @@ from sqlalchemy.orm import Session
 
 from app.db.models import SLUG_RE
 from app.errors import UserError
+from app.network.segment_rows import insert_segments
 from ingest.network import noding
 from ingest.network.model import FeatureLike, ImportSummary, NodePoint, RoadLine
 from ingest.network.noding import Noder, node_kind
@@ -166,9 +167,8 @@ class _Stager:
 
     def publish(self) -> None:
         with self.conn.cursor() as cur:
-            cur.execute(f"INSERT INTO road_segments ({SEGMENT_COLUMNS}, length_m) "
-                        f"SELECT {SEGMENT_COLUMNS}, ST_Length(geom::geography) "
-                        "FROM staging_segments")
+            cur.execute(insert_segments({c: c for c in SEGMENT_COLUMNS.split(", ")},
+                                        "staging_segments"))
             cur.execute("DROP TABLE staging_segments")
 
 

@@ -7,7 +7,6 @@ retried task redoes it; a retry after the commit finds the job succeeded and doe
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 from app.db.session import get_engine, session_scope
@@ -30,16 +29,13 @@ def ingest_network(job_id: int, params: NetworkParams) -> None:
 
 def ingest_roads(job_id: int, params: RoadsParams) -> None:
     """Extract a raster layer's roads into a network (``ugvmap ingest roads``)."""
-    from ingest.roads.layer import GeoSample, ingest_layer_roads, read_sample_lines
+    from ingest.roads.layer import given_sample, ingest_layer_roads
     from ingest.roads.pipeline import tuned_params
 
-    lines = read_sample_lines(Path(params.train_lines)) if params.train_lines else []
-    sample = (GeoSample(params.train_boxes, params.not_road_boxes, lines)
-              if params.train_boxes or params.not_road_boxes or lines else None)
-    if sample is not None and params.line_width is not None:
-        sample = dataclasses.replace(sample, line_width_m=params.line_width)
-    tuning = tuned_params(params.classifier, params.k, params.work_resolution,
-                          params.spur_max, params.simplify)
+    sample = given_sample(params.train_boxes, params.not_road_boxes,
+                          Path(params.train_lines) if params.train_lines else None,
+                          params.line_width)
+    tuning = tuned_params(params)
     with Lease(get_engine(), job_id), session_scope() as session:
         done = ingest_layer_roads(session, params.layer, params.network, sample, tuning,
                                   rules=params.rules, replace=params.replace)

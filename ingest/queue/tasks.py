@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 from collections.abc import Callable, Iterator
+from typing import Any, cast
 
 import procrastinate
 
@@ -37,6 +38,16 @@ def failing_job(job_id: int, cleanup: Callable[[int], None] | None = None) -> It
         raise
 
 
+def resolve_runner(name: str) -> Callable[[int, Any], None]:
+    """The function a ``module:function`` runner name (:data:`~app.jobs.kinds.JOB_KINDS`)
+    names; a typo raises here (and in the test that resolves every name), not in a worker."""
+    module, _, function = name.partition(":")
+    runner = getattr(importlib.import_module(module), function)
+    if not callable(runner):
+        raise TypeError(f"runner {name} is not a function")
+    return cast("Callable[[int, Any], None]", runner)
+
+
 @blueprint.task(name="run_job")
 def run_job(job_id: int) -> None:
     """A job's first task: the runner its kind names in :data:`~app.jobs.kinds.JOB_KINDS`."""
@@ -44,10 +55,8 @@ def run_job(job_id: int) -> None:
     if row is None:
         return
     kind = JOB_KINDS[row.kind]
-    module, _, function = kind.runner.partition(":")
     with failing_job(job_id):
-        runner = getattr(importlib.import_module(module), function)
-        runner(job_id, kind.params.model_validate(row.params))
+        resolve_runner(kind.runner)(job_id, kind.params.model_validate(row.params))
 
 
 @blueprint.task(name="raster_part")

@@ -25,6 +25,7 @@ import networkx as nx
 import numpy as np
 from shapely import LineString
 
+from app.road_tuning import DEFAULT_TUNING
 from ingest.roads.clean import disk, metres_to_px
 from ingest.roads.geometry import confidence, edge_key, refine_geometry
 from ingest.roads.georef import Frame
@@ -42,7 +43,7 @@ class GraphParams:
     """``ridge``: sub-pixel centres from cross-sections of the soft road field, smoothed
     (:mod:`ingest.roads.geometry`); ``pixel``: the skeleton's pixel chain simplified (the
     geometry before issue 20, kept for ablations)."""
-    simplify_m: float = 0.1
+    simplify_m: float = DEFAULT_TUNING.simplify
     """Simplification tolerance for edge geometry (Ramer–Douglas–Peucker; ``ridge`` also
     splits vertices that would turn by more than ``max_turn_deg``)."""
     station_m: float = 1.0

@@ -40,8 +40,8 @@ from shapely.geometry import box, shape
 from shapely.geometry.base import BaseGeometry
 from sqlalchemy.orm import Session
 
-from app.jobs.kinds import Classifier
 from app.network.settings import AttributeRules
+from app.road_tuning import DEFAULT_SAMPLE_WIDTH, Classifier
 from app.tiles.catalog import get_layer
 from app.tiles.store import open_store
 from ingest.ipm.trajectory import layer_trajectories
@@ -83,7 +83,7 @@ class GeoSample:
     not_road_boxes: Sequence[LonLatBox] = ()
     road_lines: Sequence[object] = ()
     """Shapely geometries (lon/lat) of known road centerlines."""
-    line_width_m: float = 6.0
+    line_width_m: float = DEFAULT_SAMPLE_WIDTH.line_width
     not_road_beyond_m: float | None = None
     """Farther than this from every line is "not road" (default: 3 x ``line_width_m``)."""
     open_ends: bool = False
@@ -280,7 +280,18 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
                            [line.attributes for line in lines])
 
 
-def read_sample_lines(path: Path) -> list[object]:
+def given_sample(road_boxes: Sequence[LonLatBox], not_road_boxes: Sequence[LonLatBox],
+                 lines_file: Path | None, line_width_m: float) -> GeoSample | None:
+    """The sample a user gave ``ingest roads`` (on the command line or in a queued job), or
+    None when they gave none (the road model then runs zero-shot). One place, so the command
+    and the job cannot read the same options differently."""
+    lines = _read_sample_lines(lines_file) if lines_file else []
+    if not (road_boxes or not_road_boxes or lines):
+        return None
+    return GeoSample(road_boxes, not_road_boxes, lines, line_width_m)
+
+
+def _read_sample_lines(path: Path) -> list[object]:
     """Road centerlines (lon/lat) from a GeoJSON file, as shapely geometries."""
     try:
         features = json.loads(path.read_text())["features"]

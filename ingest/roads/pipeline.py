@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 from skimage.filters import apply_hysteresis_threshold
 
-from app.jobs.kinds import Classifier
+from app.road_tuning import DEFAULT_TUNING, Classifier, RoadTuning
 from ingest.roads import RoadsInputError
 from ingest.roads.classify import ROAD, learned_classify, spectral_classify
 from ingest.roads.clean import clean_mask
@@ -40,18 +40,19 @@ model's grid; roads-v2 (0.5 m) trained on 1 m imagery enlarged 2x and on crops d
 
 @dataclass(frozen=True)
 class ExtractParams:
-    """Every knob of the pipeline; sizes in metres."""
+    """Every knob of the pipeline; sizes in metres. The ones a user may set default to
+    :data:`~app.road_tuning.DEFAULT_TUNING` (:func:`tuned_params` maps them here)."""
 
-    classifier: Classifier = "auto"
+    classifier: Classifier = DEFAULT_TUNING.classifier
     """``auto``: the road model, adapted to the sample when there is one."""
-    k: float = 3.0
+    k: float = DEFAULT_TUNING.k
     """Spectral: keep pixels within k x the mean training distance to the colour line."""
     threshold: float = 0.5
     """Learned/adapted: road probability above which a pixel is road (the zero-shot model uses
     its own, chosen on its hold-out scenes)..."""
     seed_threshold: float = 0.85
     """...when connected to a pixel at least this probable (hysteresis; learned/adapted)."""
-    work_resolution_m: float | None = 0.5
+    work_resolution_m: float | None = DEFAULT_TUNING.work_resolution or None
     """Average finer images down to this grid; None keeps the source grid."""
     open_m: float = 1.0
     close_m: float = 2.0
@@ -67,7 +68,7 @@ class ExtractParams:
     """Road model paths: smaller pieces are dropped (short ones go later, by length: an area
     rule would drop narrow roads first)."""
     houses: HouseRule = field(default_factory=HouseRule)
-    spur_max_m: float = 15.0
+    spur_max_m: float = DEFAULT_TUNING.spur_max
     spur_steps: int = 4
     graph: GraphParams = field(default_factory=GraphParams)
     topology: TopologyParams = field(default_factory=TopologyParams)
@@ -80,23 +81,13 @@ class ExtractParams:
     """Road model: average it over this many rotations/mirrors of the image (1, 2, 4, 8)."""
 
 
-def tuned_params(classifier: Classifier | None = None, k: float | None = None,
-                 work_resolution: float | None = None, spur_max: float | None = None,
-                 simplify: float | None = None) -> ExtractParams:
-    """The parameters from the tuning options of ``extract-roads`` / ``ingest roads`` (or a
-    queued job's): None keeps the default, a ``work_resolution`` of 0 keeps the source grid."""
+def tuned_params(tuning: RoadTuning) -> ExtractParams:
+    """The parameters from the user's tuning (``extract-roads`` / ``ingest roads`` options or a
+    queued job's): a ``work_resolution`` of 0 keeps the source grid."""
     params = ExtractParams()
-    if classifier is not None:
-        params = replace(params, classifier=classifier)
-    if k is not None:
-        params = replace(params, k=k)
-    if spur_max is not None:
-        params = replace(params, spur_max_m=spur_max)
-    if work_resolution is not None:
-        params = replace(params, work_resolution_m=work_resolution or None)
-    if simplify is not None:
-        params = replace(params, graph=replace(params.graph, simplify_m=simplify))
-    return params
+    return replace(params, classifier=tuning.classifier, k=tuning.k,
+                   spur_max_m=tuning.spur_max, work_resolution_m=tuning.work_resolution or None,
+                   graph=replace(params.graph, simplify_m=tuning.simplify))
 
 
 @dataclass(frozen=True)

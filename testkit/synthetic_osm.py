@@ -15,7 +15,7 @@ what a real network has and a plain lattice lacks:
   junctions;
 - ways that span several blocks, so the importer must split them at shared nodes.
 
-``python -m app.routing.synthetic_osm --side 810 --out country.osm.pbf`` (810 x 810
+``python -m testkit.synthetic_osm --side 810 --out country.osm.pbf`` (810 x 810
 intersections: 1.01M segments once imported, a 97 km square; ~1.54 segments per
 intersection at any side).
 """

@@ -1,4 +1,4 @@
-"""Synthetic road networks with known answers, for tests, the benchmark and demos.
+"""Synthetic road networks with known answers, for tests and benchmarks.
 
 Written straight into the schema with SQL (``generate_series``), so a 100k-segment grid takes
 seconds; nodes are shared by exact coordinates as an importer would share them.
@@ -10,6 +10,8 @@ import math
 from collections.abc import Sequence
 
 import psycopg
+
+from app.network.segment_rows import insert_segments
 
 METRES_PER_DEG_LAT = 111_320.0
 
@@ -49,11 +51,9 @@ def add_line(conn: psycopg.Connection, network_id: int, coords: Sequence[Sequenc
     src = node_at(conn, network_id, *coords[0])
     dst = node_at(conn, network_id, *coords[-1])
     wkt = "LINESTRING(" + ", ".join(f"{float(x)!r} {float(y)!r}" for x, y in coords) + ")"
-    cols = ", ".join(["network_id", "source_node", "target_node", "geom", "length_m", *attrs])
-    marks = ", ".join(["%s"] * len(attrs))
-    return _one(conn.execute(
-        f"INSERT INTO road_segments ({cols}) SELECT %s, %s, %s, g, ST_Length(g::geography)"
-        f"{', ' if attrs else ''}{marks} FROM ST_GeomFromText(%s, 4326) AS g RETURNING id",
+    return _one(conn.execute(insert_segments(
+        {"network_id": "%s", "source_node": "%s", "target_node": "%s", "geom": "g",
+         **dict.fromkeys(attrs, "%s")}, "ST_GeomFromText(%s, 4326) AS g", returning=True),
         (network_id, src, dst, *attrs.values(), wkt)))
 
 
@@ -71,6 +71,9 @@ def grid(conn: psycopg.Connection, name: str, rows: int, cols: int, *,
     if seed is not None:
         conn.execute("SELECT setseed(%s)", (seed,))
     speed = "20 + 10 * floor(random() * 6)" if seed is not None else "NULL"
+    segments = insert_segments({"network_id": "%(net)s", "source_node": "s", "target_node": "t",
+                                "geom": "geom", "speed_limit_kph": speed,
+                                "road_class": "'residential'"}, "e ORDER BY s, t")
     conn.execute(f"""
         WITH n AS (
             INSERT INTO road_nodes (network_id, geom, external_id)
@@ -85,10 +88,7 @@ def grid(conn: psycopg.Connection, name: str, rows: int, cols: int, *,
               UNION ALL
               SELECT a.id, b.id, ST_MakeLine(a.geom, b.geom)
                 FROM g a JOIN g b ON b.r = a.r + 1 AND b.c = a.c)
-        INSERT INTO road_segments (network_id, source_node, target_node, geom, length_m,
-                                   speed_limit_kph, road_class)
-        SELECT %(net)s, s, t, geom, ST_Length(geom::geography), {speed}, 'residential'
-          FROM e ORDER BY s, t
+        {segments}
     """, {"net": net, "lon": origin[0], "lat": origin[1], "dlon": dlon, "dlat": dlat,
           "rows": rows, "cols": cols})
     return net

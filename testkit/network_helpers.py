@@ -1,5 +1,5 @@
-"""Shared helpers for the network tests: a small synthetic network with known answers, and
-API tokens for each role."""
+"""Shared helpers for the network tests and benchmarks: a small synthetic network with known
+answers, and API tokens for each role."""
 
 from __future__ import annotations
 
@@ -28,9 +28,11 @@ def grid_network(name: str | None = None) -> ImportSummary:
 
 
 def token(role: str, name: str | None = None) -> str:
+    """A new API token of ``role``."""
     with session_scope() as session:
         return create_token(session, name or f"{role}-{uuid.uuid4().hex[:6]}", role)
 
 
 def bearer(role: str) -> dict[str, str]:
+    """The Authorization header of a new token of ``role``."""
     return {"Authorization": f"Bearer {token(role)}"}

@@ -32,6 +32,7 @@ def pattern(east: np.ndarray, north: np.ndarray) -> np.ndarray:
 
 
 def pattern_image(transform: Affine, width: int, height: int) -> np.ndarray:
+    """The pattern sampled at the pixel centres of a north-up grid."""
     cols, rows = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
     east = transform.c + cols * transform.a
     north = transform.f + rows * transform.e
@@ -40,6 +41,7 @@ def pattern_image(transform: Affine, width: int, height: int) -> np.ndarray:
 
 def write_tif(path: Path, data: np.ndarray, crs: CRS | None, transform: Affine | None,
               alpha: np.ndarray | None = None, **extra) -> Path:
+    """A GeoTIFF of ``data`` (bands first), with an alpha band when given."""
     bands = data if alpha is None else np.concatenate([data, alpha[None]])
     profile = {"driver": "GTiff", "width": data.shape[2], "height": data.shape[1],
                "count": bands.shape[0], "dtype": str(bands.dtype), **extra}
@@ -53,11 +55,13 @@ def write_tif(path: Path, data: np.ndarray, crs: CRS | None, transform: Affine |
 
 
 def utm_origin(lon: float = 15.2, lat: float = 48.3) -> tuple[float, float]:
+    """UTM 33N easting/northing of a lon/lat (default: a point in Austria)."""
     return Transformer.from_crs("EPSG:4326", UTM33, always_xy=True).transform(lon, lat)
 
 
 def synthetic_utm(path: Path, width: int = 900, height: int = 700, res: float = 0.3,
                   origin: tuple[float, float] | None = None) -> tuple[Path, Affine]:
+    """A UTM 33N GeoTIFF of the pattern at ``res`` m per pixel, and its transform."""
     east, north = origin or utm_origin()
     transform = from_origin(round(east), round(north), res, res)
     return write_tif(path, pattern_image(transform, width, height), UTM33, transform), transform
@@ -70,12 +74,14 @@ def tiles_around(lon: float, lat: float, zoom: int, n: int = 3) -> tuple[int, in
 
 
 def grid_transform(zoom: int, x0: int, y0: int, size: int = 256) -> Affine:
-    b = TMS.xy_bounds(x0, y0, zoom)
+    """The transform of a stitched tile block whose top-left tile is x0, y0 (EPSG:3857)."""
+    b = TMS.xy_bounds(morecantile.Tile(x0, y0, zoom))
     res = (b.right - b.left) / size
     return from_origin(b.left, b.top, res, res)
 
 
 def decode_rgba(body: bytes) -> np.ndarray:
+    """An encoded tile (PNG, JPEG, WebP, grey or colour) as an RGBA array."""
     img = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_UNCHANGED)
     assert img is not None, "not an image"
     if img.ndim == 2:
@@ -122,16 +128,19 @@ def lonlat_to_pixel(lon: float, lat: float, zoom: int, x0: int, y0: int) -> tupl
 
 
 def centroid(mask: np.ndarray) -> tuple[float, float]:
+    """Pixel (col, row) centre of the true pixels of ``mask``."""
     rows, cols = np.nonzero(mask)
     assert rows.size, "marker not found"
     return float(cols.mean()) + 0.5, float(rows.mean()) + 0.5
 
 
 def mae(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean absolute difference of two uint8 images."""
     return float(np.abs(a.astype(np.int16) - b.astype(np.int16)).mean())
 
 
 def haversine_m(lon1: float, lat1: float, lon2: float, lat2: float) -> float:
+    """Great-circle distance in metres (mean Earth radius)."""
     p1, p2 = math.radians(lat1), math.radians(lat2)
     dp, dl = p2 - p1, math.radians(lon2 - lon1)
     h = math.sin(dp / 2) ** 2 + math.cos(p1) * math.cos(p2) * math.sin(dl / 2) ** 2

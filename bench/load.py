@@ -45,9 +45,9 @@ import psycopg
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from app.db import embedded  # noqa: E402
 from app.db.session import get_engine, libpq_dsn, session_scope  # noqa: E402
 from app.settings import get_settings  # noqa: E402
+from cli.ops import embedded  # noqa: E402
 from testkit.scratch import scratch_database  # noqa: E402
 from testkit.server import running_server  # noqa: E402
 

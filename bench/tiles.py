@@ -104,8 +104,9 @@ def write_test_image(path: Path, width: int, height: int) -> Path:
 
 def database() -> str:
     """A throwaway migrated database on DATABASE_URL's server (or the embedded cluster)."""
-    from app.db import embedded, migrate
+    from app.db import migrate
     from app.settings import get_settings
+    from cli.ops import embedded
 
     settings = get_settings()
     if settings.embedded:

@@ -6,8 +6,8 @@ import sys
 
 import click
 
-from app.db import embedded
 from app.settings import get_settings
+from cli.ops import embedded
 
 
 @click.group("db")

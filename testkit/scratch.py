@@ -13,9 +13,10 @@ from contextlib import contextmanager
 import psycopg
 from sqlalchemy.engine import make_url
 
-from app.db import embedded, migrate
+from app.db import migrate
 from app.db.session import get_engine, libpq_dsn
 from app.settings import get_settings
+from cli.ops import embedded
 
 
 @contextmanager

@@ -181,8 +181,8 @@ def test_damaged_backup_and_conflicting_store_are_refused(source, tmp_path: Path
 def test_migration_makes_store_paths_relative(database_url: str) -> None:
     root = store_root()
     with scratch_database("ugvmap_mig", migrated=False) as url:
-        from app.db import embedded
         from app.db.session import libpq_dsn
+        from cli.ops import embedded
 
         embedded.ensure_database(libpq_dsn(url).rsplit("/", 1)[0] + "/postgres",
                                  url.rsplit("/", 1)[1])

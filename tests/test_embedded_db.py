@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from sqlalchemy.engine import make_url
 
-from app.db import embedded
+from cli.ops import embedded
 
 
 def test_port_taken_by_another_server_is_a_clear_error(database_url: str) -> None:

@@ -12,7 +12,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from app.db import embedded
+from cli.ops import embedded
 from testkit.scratch import scratch_database
 from testkit.server import free_port, running_server
 

@@ -1,1 +1,1 @@
-"""Database: models, sessions, the embedded local PostGIS cluster and migrations."""
+"""Database: models, sessions and migrations (the local cluster the CLI runs: ``cli.ops``)."""

@@ -8,7 +8,8 @@ fix into one line, in one place (:class:`UgvmapGroup`).
 from __future__ import annotations
 
 import click
-from sqlalchemy.exc import OperationalError
+from psycopg.errors import UndefinedTable
+from sqlalchemy.exc import OperationalError, ProgrammingError
 
 from app.errors import UgvmapError, UserError
 
@@ -28,6 +29,12 @@ class UgvmapGroup(click.Group):
         except OperationalError as exc:
             raise click.ClickException(
                 f"cannot reach the database ({exc.orig}); `ugvmap db start`?") from exc
+        except ProgrammingError as exc:
+            if not isinstance(exc.orig, UndefinedTable):
+                raise
+            # A reachable database without the schema (a new cluster, another DATABASE_URL).
+            raise click.ClickException(
+                "the database has no ugvmap schema; run `ugvmap db upgrade`") from exc
 
 
 def fault_name(exc: UgvmapError) -> str:

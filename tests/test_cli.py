@@ -86,3 +86,16 @@ def test_layering_check_catches_a_violation(tmp_path: Path) -> None:
     (tmp_path / "core/model.py").write_text("def app():\n    from .web import app\n")
     assert layering.chains_to(tmp_path, ("job", "core"), ("job",)) == []
     assert layering.web_modules_loaded(tmp_path, ("job",)) == []
+
+
+@pytest.mark.parametrize("args", [["layers", "list"], ["network", "list"]])
+def test_a_database_without_the_schema_is_one_clear_line(args: list[str]) -> None:
+    """A reachable database nobody has upgraded (a new cluster, another DATABASE_URL) says
+    what to run instead of printing SQLAlchemy's traceback (it did, from any folder)."""
+    from testkit.scratch import scratch_database
+
+    with scratch_database("ugvmap_cli_empty", migrated=False) as url:
+        proc = subprocess.run([sys.executable, "-m", "cli", *args], cwd=REPO, text=True,
+                              capture_output=True, env={**os.environ, "DATABASE_URL": url})
+    assert proc.returncode == 1, proc.stderr
+    assert "run `ugvmap db upgrade`" in proc.stderr and "Traceback" not in proc.stderr

@@ -23,10 +23,10 @@ from app.api.body_limit import JsonPayloadTooLarge
 from app.api.errors import api_error, database_unavailable, http_error, validation_error
 from app.api.query import single_valued_query
 from app.api.request_log import RequestLogMiddleware
-from app.api.wire import CanonicalHeaderCase
 from app.health.router import router as health_router
 from app.jobs.router import router as jobs_router
 from app.network.router import include_network
+from app.routing.lane_router import install_lane
 from app.routing.router import include_routing
 from app.settings import get_settings
 from app.tiles.router import router as tiles_router
@@ -45,12 +45,11 @@ EXCEPTION_HANDLERS: dict[Any, Callable[..., Any]] = {
 
 class UgvmapApp(FastAPI):
     """FastAPI with :class:`~app.api.body_limit.JsonPayloadTooLarge` outside its whole stack (the
-    body limiter sits outside user middleware, so only here can its 413 be reshaped), and
-    header names spelled conventionally on every response (:mod:`app.api.wire`)."""
+    body limiter sits outside user middleware, so only here can its 413 be reshaped)."""
 
     def build_middleware_stack(self) -> ASGIApp:
         """The framework's stack, wrapped."""
-        return CanonicalHeaderCase(JsonPayloadTooLarge(super().build_middleware_stack()))
+        return JsonPayloadTooLarge(super().build_middleware_stack())
 
 
 @asynccontextmanager
@@ -81,6 +80,7 @@ def create_app() -> FastAPI:
         app.include_router(router, dependencies=single)
     include_network(app, single)
     include_routing(app)
+    install_lane(app)
     include_web(app)
     middleware.install(app, get_settings())
     app.add_middleware(RequestLogMiddleware)

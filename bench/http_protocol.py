@@ -1,16 +1,18 @@
-"""What serving through uvicorn's h11 protocol costs against its default, httptools.
+"""What respelling header names costs: ours against uvicorn's httptools and h11 protocols.
 
-``ugvmap serve`` runs uvicorn's pure-Python h11 implementation, because httptools writes every
-response header name lower-cased and QGIS 3.34 finds ``Allow`` and ``Location`` only in that
-exact case (``app/api/wire.py``). This measures the price, one server at a time, the same app
-and database, ``wrk -t1 -c8`` for ``--duration`` seconds per URL::
+httptools writes every response header name lower-cased and QGIS 3.34 finds ``Allow`` and
+``Location`` only in their usual case, so ``ugvmap serve`` runs httptools through
+``app.api.wire.ServiceHttpProtocol``, which respells each response's head; until 2026-11
+it ran uvicorn's pure-Python h11 implementation, which writes names as given. This measures
+the three, one server at a time, the same app and database, ``wrk -t1 -c8`` for
+``--duration`` seconds per URL::
 
     .venv/bin/python bench/http_protocol.py [--duration 10] [--workers 1]
 
 URLs: ``/healthz`` (the HTTP layer alone), one vector tile (cached after the first request:
 mostly HTTP work, 2 KB) and a page of 100 features (database and JSON work). Prints requests
-per second per protocol and their ratio; the machine is shared, so ratios from one run are
-what to compare.
+per second per protocol and the ratio of each to plain httptools; the machine is shared, so
+ratios from one run are what to compare.
 """
 
 from __future__ import annotations
@@ -36,11 +38,14 @@ from testkit.server import free_port  # noqa: E402
 
 SERVE = """
 import sys, uvicorn
-from app.api.wire import JsonErrorH11Protocol
-http = JsonErrorH11Protocol if sys.argv[2] == "h11" else "httptools"
+from app.api.wire import ServiceHttpProtocol
+http = ServiceHttpProtocol if sys.argv[2] == "ours" else sys.argv[2]
 uvicorn.run("app.main:create_app", factory=True, host="127.0.0.1", port=int(sys.argv[1]),
             workers=int(sys.argv[3]), http=http, log_level="warning", access_log=False)
 """
+
+
+PROTOCOLS = ("ours", "httptools", "h11")
 
 
 def requests_per_s(url: str, duration: int) -> float:
@@ -53,7 +58,8 @@ def requests_per_s(url: str, duration: int) -> float:
 
 
 def serve(protocol: str, workers: int, env: dict[str, str]) -> tuple[subprocess.Popen, str]:
-    """The app under uvicorn with ``protocol`` (``h11``: ours), once it answers."""
+    """The app under uvicorn with ``protocol`` (``ours``, ``httptools`` or ``h11``), once it
+    answers."""
     port = free_port()
     proc = subprocess.Popen([sys.executable, "-c", SERVE, str(port), protocol, str(workers)],
                             cwd=REPO, env=env, stdout=subprocess.DEVNULL,
@@ -70,7 +76,7 @@ def serve(protocol: str, workers: int, env: dict[str, str]) -> tuple[subprocess.
 
 
 def main() -> None:
-    """Measure both protocols on the three URLs and print the table."""
+    """Measure the three protocols on the three URLs and print the table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=int, default=10)
     parser.add_argument("--workers", type=int, default=1)
@@ -85,7 +91,7 @@ def main() -> None:
                  "MVT tile z16": f"/networks/{net}/tiles/16/34588/22337.mvt",
                  "100 features": f"/collections/{net}-segments/items?limit=100"}
         results: dict[str, dict[str, float]] = {}
-        for protocol in ("httptools", "h11"):
+        for protocol in PROTOCOLS:
             proc, base = serve(protocol, args.workers, env)
             try:
                 for name, path in paths.items():
@@ -95,10 +101,11 @@ def main() -> None:
             finally:
                 proc.terminate()
                 proc.wait(timeout=10)
-    print(f"{'URL':<14} {'httptools req/s':>16} {'h11 req/s':>10} {'h11/httptools':>14}")
+    print(f"{'URL':<14}" + "".join(f"{p + ' req/s':>17}" for p in PROTOCOLS)
+          + f"{'ours/httptools':>16}{'h11/httptools':>15}")
     for name, by in results.items():
-        print(f"{name:<14} {by['httptools']:>16.0f} {by['h11']:>10.0f} "
-              f"{by['h11'] / by['httptools']:>14.2f}")
+        print(f"{name:<14}" + "".join(f"{by[p]:>17.0f}" for p in PROTOCOLS)
+              + f"{by['ours'] / by['httptools']:>16.2f}{by['h11'] / by['httptools']:>15.2f}")
 
 
 if __name__ == "__main__":

@@ -36,17 +36,16 @@ def serve(host: str, port: int, workers: int, front_cache: bool, app_port: int |
     """Serve the web map, tiles, features and routes over HTTP."""
     import uvicorn
 
-    from app.api.wire import JsonErrorH11Protocol
+    from app.api.wire import ServiceHttpProtocol
     from app.logs import logging_config
 
     settings = get_settings()
 
     def run(app_host: str, app_port: int) -> None:
-        # h11 (not httptools) writes header names in the case the app gives them, which
-        # QGIS 3.34 needs (app.api.wire).
+        # httptools, header names respelled as QGIS 3.34 needs them (app.api.wire).
         uvicorn.run("app.main:create_app", factory=True, host=app_host, port=app_port,
                     workers=workers, log_config=logging_config(settings.log_level),
-                    access_log=False, http=JsonErrorH11Protocol)
+                    access_log=False, http=ServiceHttpProtocol)
 
     if not front_cache:
         run(host, port)

@@ -27,7 +27,7 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz")
-def healthz() -> dict[str, str]:
+async def healthz() -> dict[str, str]:
     """Liveness: answers as long as the process serves requests, whatever the database does."""
     return {"status": "ok"}
 

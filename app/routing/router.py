@@ -184,6 +184,13 @@ def _request(service: Service, raw: dict[str, str], profile: Profile,
     return Call(plan_route, (points, opts), lambda graph: quick_route(graph, n, opts))
 
 
+async def answer_get(service: Service, name: str, request: Request) -> Response:
+    """A GET of our URL family (``/networks/{name}/{service}?points=...``)."""
+    params.network_name(name)
+    raw = _raw(request)
+    return await _own(service, name, raw, _query_points(service, raw))
+
+
 async def _own(service: Service, name: str, raw: dict[str, str],
                points: list[tuple[float, float]]) -> Response:
     return await _answer(name, _request(service, raw, "ugvmap", points))
@@ -200,41 +207,31 @@ def _query_points(service: Service, raw: dict[str, str]) -> list[tuple[float, fl
 @router.get("/{name}/route", openapi_extra=_service_doc("route", "ugvmap"))
 async def route_get(name: str, request: Request) -> Response:
     """Route through the points (OSRM route-service response; options in the README)."""
-    params.network_name(name)
-    raw = _raw(request)
-    return await _own("route", name, raw, _query_points("route", raw))
+    return await answer_get("route", name, request)
 
 
 @router.get("/{name}/nearest", openapi_extra=_service_doc("nearest", "ugvmap"))
 async def nearest_get(name: str, request: Request) -> Response:
     """The nearest road segments to a point (OSRM nearest-service response)."""
-    params.network_name(name)
-    raw = _raw(request)
-    return await _own("nearest", name, raw, _query_points("nearest", raw))
+    return await answer_get("nearest", name, request)
 
 
 @router.get("/{name}/table", openapi_extra=_service_doc("table", "ugvmap"))
 async def table_get(name: str, request: Request) -> Response:
     """Durations and distances between the points (OSRM table-service response)."""
-    params.network_name(name)
-    raw = _raw(request)
-    return await _own("table", name, raw, _query_points("table", raw))
+    return await answer_get("table", name, request)
 
 
 @router.get("/{name}/match", openapi_extra=_service_doc("match", "ugvmap"))
 async def match_get(name: str, request: Request) -> Response:
     """The roads a GNSS trace drove (OSRM match-service response)."""
-    params.network_name(name)
-    raw = _raw(request)
-    return await _own("match", name, raw, _query_points("match", raw))
+    return await answer_get("match", name, request)
 
 
 @router.get("/{name}/trip", openapi_extra=_service_doc("trip", "ugvmap"))
 async def trip_get(name: str, request: Request) -> Response:
     """The best order to visit the points, and the route (OSRM trip-service response)."""
-    params.network_name(name)
-    raw = _raw(request)
-    return await _own("trip", name, raw, _query_points("trip", raw))
+    return await answer_get("trip", name, request)
 
 
 async def _posted(service: Service, name: str, body: ServiceBody) -> Response:
@@ -257,7 +254,7 @@ def _post_endpoint(service: Service) -> Callable[..., Any]:
     return endpoint
 
 
-async def _osrm(service: Service, name: str, request: Request, version: str, profile: str,
+async def answer_osrm(service: Service, name: str, request: Request, version: str, profile: str,
                 coordinates: str) -> Response:
     """OSRM's own URL shape: an OSRM client given ``/networks/{name}`` as its server works
     unchanged. OSRM's defaults (polyline, simplified overview, no steps, no annotations) and
@@ -284,7 +281,7 @@ def _osrm_endpoint(service: Service) -> Callable[..., Any]:
         coordinates: Annotated[str, Path(description="lon,lat;lon,lat[;...][.json] or "
                                                       "polyline(...) / polyline6(...)")],
     ) -> Response:
-        return await _osrm(service, name, request, version, profile, coordinates)
+        return await answer_osrm(service, name, request, version, profile, coordinates)
 
     endpoint.__name__ = f"{service}_osrm_url"
     endpoint.__doc__ = (f"OSRM's {service} service on OSRM's own URL shape, with OSRM's "

@@ -1,0 +1,73 @@
+"""``app.api.wire``: response heads respelled on their way to the socket, bodies untouched."""
+
+from __future__ import annotations
+
+import socket
+from urllib.parse import urlsplit
+
+from app.api.wire import RespelledHead, canonical, respelled
+
+
+class Sink:
+    """A transport that keeps what is written."""
+
+    def __init__(self) -> None:
+        self.written: list[bytes] = []
+        self.closed = False
+
+    def write(self, data: bytes) -> None:
+        self.written.append(bytes(data))
+
+    def is_closing(self) -> bool:
+        return self.closed
+
+
+def test_names_take_their_conventional_spelling() -> None:
+    assert canonical(b"content-type") == b"Content-Type"
+    assert canonical(b"etag") == b"ETag"
+    assert canonical(b"www-authenticate") == b"WWW-Authenticate"
+    assert canonical(b"x-lanelet2-origin") == b"X-Lanelet2-Origin"
+    head = (b"HTTP/1.1 201 Created\r\nlocation: /a?b=c:d\r\nallow: GET, POST\r\n"
+            b"content-crs: <http://www.opengis.net/def/crs/OGC/1.3/CRS84>\r\n\r\nallow: body")
+    assert respelled(head) == (
+        b"HTTP/1.1 201 Created\r\nLocation: /a?b=c:d\r\nAllow: GET, POST\r\n"
+        b"Content-Crs: <http://www.opengis.net/def/crs/OGC/1.3/CRS84>\r\n\r\nallow: body")
+
+
+def test_only_the_head_of_a_response_is_respelled() -> None:
+    """An interim ``100 Continue`` passes as it is, the head after it is respelled, and every
+    later write (the body, whatever it holds) is left alone."""
+    sink = Sink()
+    transport = RespelledHead(sink)  # type: ignore[arg-type]
+    transport.write(b"HTTP/1.1 100 Continue\r\n\r\n")
+    transport.write(b"HTTP/1.1 200 OK\r\ncontent-length: 36\r\n\r\n")
+    transport.write(b"HTTP/1.1 200 OK\r\ncontent-type: x\r\n\r\n")
+    assert sink.written == [b"HTTP/1.1 100 Continue\r\n\r\n",
+                            b"HTTP/1.1 200 OK\r\nContent-Length: 36\r\n\r\n",
+                            b"HTTP/1.1 200 OK\r\ncontent-type: x\r\n\r\n"]
+    assert transport.is_closing() is False  # the rest of the transport is the socket's
+
+
+def _exchange(base: str, payload: bytes) -> bytes:
+    parts = urlsplit(base)
+    with socket.create_connection((parts.hostname, parts.port), timeout=10) as raw:
+        raw.sendall(payload)
+        answer = b""
+        while chunk := raw.recv(65536):
+            answer += chunk
+    return answer
+
+
+def test_pipelined_requests_each_get_a_respelled_head(live_server: str) -> None:
+    """Two requests sent at once on one connection (the second waits for the first, in
+    uvicorn's pipeline): both heads spelled conventionally, both bodies intact."""
+    answer = _exchange(live_server,
+                       b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n"
+                       b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+    first, second = answer.split(b"HTTP/1.1 200 OK\r\n")[1:]
+    for response in (first, second):
+        head, _, body = response.partition(b"\r\n\r\n")
+        names = [line.split(b":")[0] for line in head.split(b"\r\n")]
+        assert b"Content-Type" in names and b"Content-Length" in names
+        assert all(name == canonical(name) for name in names), names
+        assert body == b'{"status":"ok"}'

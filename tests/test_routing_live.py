@@ -188,3 +188,37 @@ def test_request_waits_for_a_slow_patch_instead_of_reloading(client, writer, rin
     assert segment_walk(route(client, ring["name"], ring["points"])) == [seg["w"], seg["n"],
                                                                          seg["e"]]
     assert reg.stats["loads"] == loads and reg.stats["waited"] == waited
+
+
+def test_a_plan_made_while_the_version_is_read_is_redone_when_the_graph_is_behind(
+        client, writer, ring, monkeypatch) -> None:
+    """Quick routes are planned while the database answers the version read, on the graph the
+    process holds (app.routing.router._answer). When that graph turns out older than the
+    version read (here: the edit's notification as if it had not arrived), that plan is not
+    answered: the request plans again on the graph at the version read."""
+    from app.routing import router
+
+    seg = ring["seg"]
+    assert seg["s"] in segment_walk(route(client, ring["name"], ring["points"]))
+    reg = registry(get_settings().database_url)
+    before = reg.current(ring["net"], 0)
+    assert before is not None
+    writer.execute("UPDATE road_segments SET speed_limit_kph = 60 WHERE id = %s", (seg["n"],))
+    assert seg["n"] in segment_walk(route(client, ring["name"], ring["points"]))
+    with reg._changed:
+        reg._graphs[ring["net"]] = before  # the process's graph is behind the database again
+    monkeypatch.setattr(live, "CATCH_UP_TIMEOUT_S", 0.1)  # the listener has nothing to send
+    early = []
+    plan_early = router._plan_early
+
+    def spied(*args):
+        early.append(plan_early(*args))
+        return early[-1]
+
+    monkeypatch.setattr(router, "_plan_early", spied)
+    assert segment_walk(route(client, ring["name"], ring["points"])) == [seg["w"], seg["n"],
+                                                                         seg["e"]]
+    assert early[-1] is not None and early[-1].version == before.version
+    assert reg.current(ring["net"], 0).version > before.version  # reloaded
+    assert segment_walk(route(client, ring["name"], ring["points"])) == [seg["w"], seg["n"],
+                                                                         seg["e"]]

@@ -98,3 +98,15 @@ def test_quick_routes_are_planned_on_the_event_loop(client, database_url, monkey
     assert len(hops) == 2  # both on the loop
     assert client.get(url, params={"alternatives": "2"}).status_code == 200
     assert len(hops) == 3
+
+
+def test_an_abandoned_read_closes_its_connection(database_url, network) -> None:
+    """A read sent and never waited for (the planner beside it failed) leaves no connection
+    with an unread answer in the pool."""
+    name, _ = network
+    reader = VersionReader(database_url)
+    asyncio.run(reader.read(name))  # one idle connection now
+    pending = reader.begin(name)
+    pending.abandon()
+    assert pending._conn is not None and pending._conn.closed
+    assert asyncio.run(reader.read(name)).name == name  # on a new connection

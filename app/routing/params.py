@@ -9,10 +9,13 @@ for a well-formed value out of range) and adds the few readers OSRM's options ne
 
 from __future__ import annotations
 
+import re
+
 from app.errors import InvalidQueryError, InvalidValueError
 from app.params import parse_float, parse_int, parse_slug
 
 MAX_NUMBER_CHARS = 40  # longer than any float repr; stops multi-megabyte "numbers" early
+CONTROL = re.compile("[\x00-\x1f\x7f]")
 
 
 def point(i: int) -> str:
@@ -31,7 +34,7 @@ def bounded(field: str, raw: str, max_chars: int) -> str:
     """``raw`` when it is at most ``max_chars`` long and holds no control character."""
     if len(raw) > max_chars:
         raise InvalidQueryError(f"{field} is {len(raw)} characters long; at most {max_chars}")
-    if any(ord(c) < 32 or ord(c) == 127 for c in raw):
+    if CONTROL.search(raw):
         raise InvalidQueryError(f"{field} contains a control character")
     return raw
 

@@ -76,32 +76,21 @@ class VersionReader:
     async def read(self, name: str) -> ReadAhead:
         """The network's id and version (404 when there is none, 503 when the database cannot
         be reached)."""
+        return await self.begin(name).result()
+
+    def begin(self, name: str) -> PendingRead:
+        """Send the read now when an idle connection is at hand (its answer is awaited with
+        :meth:`PendingRead.result`): whatever the caller does meanwhile overlaps the database's
+        round trip."""
         with self._lock:
             conn = self._idle.pop() if self._idle else None
-        reused = conn is not None
-        try:
-            if conn is None:
-                conn = await self._connect()
+        failure = None
+        if conn is not None:
             try:
-                row = await _query(conn.pgconn, name)
-            except psycopg.OperationalError:
-                conn.close()
-                if not reused:
-                    raise
-                conn = await self._connect()  # broke while idle: one retry on a fresh one
-                row = await _query(conn.pgconn, name)
-        except psycopg.OperationalError as exc:
-            if conn is not None:
-                conn.close()
-            raise unavailable(exc) from exc
-        except BaseException:  # cancelled mid-read: the connection's state is unknown
-            if conn is not None:
-                conn.close()
-            raise
-        self._give_back(conn)
-        if row is None:
-            raise NotFoundError(f"network {name!r} does not exist")
-        return ReadAhead(name, *row)
+                _send(conn.pgconn, name)
+            except psycopg.OperationalError as exc:
+                failure = exc  # broke while idle: result() retries on a fresh connection
+        return PendingRead(self, name, conn, failure)
 
     async def _connect(self) -> psycopg.Connection:
         return await anyio.to_thread.run_sync(self._open)
@@ -124,9 +113,61 @@ class VersionReader:
         conn.close()
 
 
-async def _query(pg: pq.abc.PGconn, name: str) -> tuple[int, int] | None:
-    """Run the prepared read on a non-blocking connection, waiting on the event loop."""
+class PendingRead:
+    """A version read on its way: the connection it was sent on (``None`` when none was idle:
+    :meth:`result` opens one) or why sending failed."""
+
+    def __init__(self, reader: VersionReader, name: str, conn: psycopg.Connection | None,
+                 failure: psycopg.OperationalError | None) -> None:
+        self._reader, self._name, self._conn, self._failure = reader, name, conn, failure
+
+    async def result(self) -> ReadAhead:
+        """The network's id and version (404 when there is none, 503 when the database cannot
+        be reached)."""
+        reader, name, conn = self._reader, self._name, self._conn
+        reused = conn is not None
+        try:
+            if conn is None:
+                conn = await reader._connect()
+                _send(conn.pgconn, name)
+            try:
+                if self._failure is not None:
+                    raise self._failure
+                row = await _receive(conn.pgconn)
+            except psycopg.OperationalError:
+                conn.close()
+                if not reused:
+                    raise
+                conn = await reader._connect()  # broke while idle: one retry on a fresh one
+                _send(conn.pgconn, name)
+                row = await _receive(conn.pgconn)
+        except psycopg.OperationalError as exc:
+            if conn is not None:
+                conn.close()
+            raise unavailable(exc) from exc
+        except BaseException:  # cancelled mid-read: the connection's state is unknown
+            if conn is not None:
+                conn.close()
+            raise
+        reader._give_back(conn)
+        if row is None:
+            raise NotFoundError(f"network {name!r} does not exist")
+        return ReadAhead(name, *row)
+
+    def abandon(self) -> None:
+        """Drop a read whose answer nobody will wait for (its connection's state is unknown)."""
+        if self._conn is not None:
+            self._conn.close()
+
+
+def _send(pg: pq.abc.PGconn, name: str) -> None:
+    """Send the prepared read on a non-blocking connection (what does not fit in the socket
+    yet leaves in :func:`_receive`)."""
     pg.send_query_prepared(STATEMENT, [name.encode()])
+
+
+async def _receive(pg: pq.abc.PGconn) -> tuple[int, int] | None:
+    """The answer of the read :func:`_send` sent, waiting on the event loop."""
     while pg.flush():  # 1: the rest of the query waits for room in the socket
         await _socket_ready(pg.socket, write=True)
     while True:

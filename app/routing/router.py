@@ -49,7 +49,7 @@ from app.routing.options import (
     service_docs,
 )
 from app.routing.planner import current_graph, plan_isochrone, plan_route, quick_route
-from app.routing.reads import version_reader
+from app.routing.reads import ReadAhead, version_reader
 from app.routing.service_options import parse_match, parse_nearest, parse_table, parse_trip
 from app.routing.services import plan_match, plan_nearest, plan_table, plan_trip
 from app.routing.settings import routing_settings
@@ -137,14 +137,65 @@ class Call:
     quick: Callable[[RoadGraph], bool] = lambda graph: False
 
 
+@dataclass(frozen=True)
+class Early:
+    """A plan made before the version read came back, on the graph of ``version``: its
+    response, or the domain error it raised."""
+
+    network_id: int
+    version: int
+    response: Response | None
+    error: errors.UgvmapError | None
+
+    def stands(self, ahead: ReadAhead) -> bool:
+        """Whether the plan holds every edit the version read says is committed."""
+        return self.network_id == ahead.network_id and self.version >= ahead.version
+
+
+# Network id of each name this process has read: which graph an early plan may use. A name
+# deleted and created again gets a new id; the version read tells, and the plan is redone.
+_network_ids: dict[str, int] = {}
+
+
+def _plan_early(name: str, call: Call) -> Early | None:
+    """Plan on the graph this process holds, when the call is quick on it."""
+    network_id = _network_ids.get(name)
+    graph = current_graph(network_id, 0) if network_id is not None else None
+    if graph is None or not call.quick(graph):
+        return None
+    ahead = ReadAhead(name, graph.network_id, graph.version)
+    try:
+        return Early(graph.network_id, graph.version,
+                     _json(call.plan(ahead, name, *call.args)), None)
+    except errors.UgvmapError as exc:
+        return Early(graph.network_id, graph.version, None, exc)
+
+
 async def _answer(name: str, call: Call) -> Response:
-    """Read the network's version on the event loop, then run the planner: on the loop when
+    """Read the network's version on the event loop and run the planner: on the loop when
     it is quick there (a route of a few points, everything it needs built: see
     :func:`app.routing.planner.quick_route`), since a worker-thread hop cost more than such a
     planner (two thread wake-ups per request: ~0.2 ms of wall time and of CPU, measured on
     Andorra); else in one worker-thread hop (a search, a load or a catch-up that may take
-    long must not hold the loop)."""
-    ahead = await version_reader().read(name)
+    long must not hold the loop).
+
+    A quick plan runs while the database answers the read (its round trip was ~0.15 ms of a
+    1.3 ms Andorra route), on the graph this process holds; it stands when that graph holds
+    the version read, nearly always since the listener applies an edit within milliseconds.
+    Else the request plans again, on a graph at that version, as it would have anyway."""
+    read = version_reader().begin(name)
+    try:
+        early = _plan_early(name, call)
+    except BaseException:
+        read.abandon()
+        raise
+    ahead = await read.result()
+    _network_ids[name] = ahead.network_id
+    if early is not None and early.stands(ahead):
+        if early.error is not None:
+            raise early.error
+        assert early.response is not None
+        return early.response
     graph = current_graph(ahead.network_id, ahead.version)
     if graph is not None and call.quick(graph):
         return _json(call.plan(ahead, name, *call.args))

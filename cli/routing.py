@@ -6,9 +6,8 @@ JSON, the dense waypoints, or a one-line-per-leg summary.
 
 from __future__ import annotations
 
-import json
-
 import click
+import orjson
 
 from app.errors import DatabaseUnavailableError
 from app.routing.costs import Cost
@@ -50,7 +49,7 @@ def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geom
         raise click.ClickException(f"cannot reach the database ({exc.message}); "
                                    "`ugvmap db start`?") from exc
     if fmt != "summary":
-        click.echo(json.dumps(body))
+        click.echo(orjson.dumps(body, option=orjson.OPT_SERIALIZE_NUMPY).decode())
         return
     r = body["routes"][0]
     for k, leg in enumerate(r["legs"]):

@@ -21,6 +21,9 @@ class Sink:
     def is_closing(self) -> bool:
         return self.closed
 
+    def close(self) -> None:
+        self.closed = True
+
 
 def test_names_take_their_conventional_spelling() -> None:
     assert canonical(b"content-type") == b"Content-Type"
@@ -34,18 +37,26 @@ def test_names_take_their_conventional_spelling() -> None:
         b"Content-Crs: <http://www.opengis.net/def/crs/OGC/1.3/CRS84>\r\n\r\nallow: body")
 
 
-def test_only_the_head_of_a_response_is_respelled() -> None:
-    """An interim ``100 Continue`` passes as it is, the head after it is respelled, and every
-    later write (the body, whatever it holds) is left alone."""
+def test_the_head_is_respelled_and_leaves_with_the_body() -> None:
+    """An interim ``100 Continue`` passes at once; the head after it is respelled and held
+    until the body's first bytes (one write); later writes, whatever they hold, are left
+    alone; a head with no body after it leaves when flushed or closed."""
     sink = Sink()
     transport = RespelledHead(sink)  # type: ignore[arg-type]
     transport.write(b"HTTP/1.1 100 Continue\r\n\r\n")
     transport.write(b"HTTP/1.1 200 OK\r\ncontent-length: 36\r\n\r\n")
+    assert sink.written == [b"HTTP/1.1 100 Continue\r\n\r\n"]
     transport.write(b"HTTP/1.1 200 OK\r\ncontent-type: x\r\n\r\n")
-    assert sink.written == [b"HTTP/1.1 100 Continue\r\n\r\n",
-                            b"HTTP/1.1 200 OK\r\nContent-Length: 36\r\n\r\n",
-                            b"HTTP/1.1 200 OK\r\ncontent-type: x\r\n\r\n"]
+    transport.write(b"more")
+    assert sink.written[1:] == [b"HTTP/1.1 200 OK\r\nContent-Length: 36\r\n\r\n"
+                                b"HTTP/1.1 200 OK\r\ncontent-type: x\r\n\r\n", b"more"]
     assert transport.is_closing() is False  # the rest of the transport is the socket's
+    bodiless = Sink()
+    held = RespelledHead(bodiless)  # type: ignore[arg-type]
+    held.write(b"HTTP/1.1 204 No Content\r\netag: \"1\"\r\n\r\n")
+    held.close()
+    assert bodiless.written == [b"HTTP/1.1 204 No Content\r\nETag: \"1\"\r\n\r\n"]
+    assert bodiless.closed
 
 
 def _exchange(base: str, payload: bytes) -> bytes:
@@ -71,3 +82,17 @@ def test_pipelined_requests_each_get_a_respelled_head(live_server: str) -> None:
         assert b"Content-Type" in names and b"Content-Length" in names
         assert all(name == canonical(name) for name in names), names
         assert body == b'{"status":"ok"}'
+
+
+def test_head_and_empty_answers_leave_whole(live_server: str) -> None:
+    """A HEAD (no body bytes are written) and an OPTIONS answer (an empty body) still send
+    their head, then the next request on the connection is answered."""
+    answer = _exchange(live_server,
+                       b"HEAD /healthz HTTP/1.1\r\nHost: x\r\n\r\n"
+                       b"OPTIONS /healthz HTTP/1.1\r\nHost: x\r\n\r\n"
+                       b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+    heads = answer.split(b"HTTP/1.1 ")[1:]
+    assert [h[:3] for h in heads] == [b"200", b"200", b"200"]
+    assert b"Content-Length: 15" in heads[0] and heads[0].endswith(b"\r\n\r\n")
+    assert b"Allow: GET, HEAD, OPTIONS" in heads[1] and heads[1].endswith(b"\r\n\r\n")
+    assert heads[2].endswith(b'{"status":"ok"}')

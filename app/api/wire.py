@@ -54,19 +54,40 @@ def respelled(head: bytes) -> bytes:
 
 
 class RespelledHead:
-    """The transport one response is written to: its first write (the head, which uvicorn
-    writes whole, in one call) respelled, the rest passed through untouched."""
+    """The transport one response is written to: its head (which uvicorn writes whole, in one
+    call) respelled and held until the body's first bytes, so that both leave in one write:
+    one system call and one wake-up of the client instead of two (the write was a quarter of
+    the server's time on a city route); the rest passed through untouched."""
 
     def __init__(self, transport: asyncio.Transport) -> None:
         self._transport = transport
-        self._head_sent = False
+        self._head_seen = False
+        self._head: bytes | None = None  # respelled, waiting for the body
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
-        """Write ``data``; respell it when it is the response's head."""
-        if not self._head_sent and bytes(data[:len(INTERIM)]) != INTERIM:
-            self._head_sent = True
-            data = respelled(bytes(data))
+        """Write ``data``: hold it when it is the response's head, else send it after the
+        head held."""
+        if not self._head_seen:
+            if bytes(data[:len(INTERIM)]) == INTERIM:  # "100 Continue" goes at once
+                self._transport.write(data)
+                return
+            self._head_seen = True
+            self._head = respelled(bytes(data))
+            return
+        if self._head is not None:
+            data, self._head = self._head + bytes(data), None
         self._transport.write(data)
+
+    def flush(self) -> None:
+        """Send a head still held (a response without body bytes: HEAD, an empty answer)."""
+        if self._head is not None:
+            self._transport.write(self._head)
+            self._head = None
+
+    def close(self) -> None:
+        """Close the connection after whatever is held."""
+        self.flush()
+        self._transport.close()
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._transport, name)
@@ -78,7 +99,16 @@ class ServiceHttpProtocol(HttpToolsProtocol):
 
     def _start_asgi_task(self, cycle: RequestResponseCycle, app: Any) -> None:
         # Every request's cycle starts here, pipelined ones included, before it writes.
-        cycle.transport = RespelledHead(cycle.transport)  # type: ignore[assignment]
+        head = RespelledHead(cycle.transport)
+        cycle.transport = head  # type: ignore[assignment]
+        send = cycle.send
+
+        async def sent(message: Any) -> None:
+            await send(message)
+            if message["type"] == "http.response.body" and not message.get("more_body"):
+                head.flush()
+
+        cycle.send = sent  # type: ignore[method-assign]
         super()._start_asgi_task(cycle, app)
 
     def send_400_response(self, msg: str) -> None:

@@ -4,13 +4,15 @@ Every request reads ``networks.version``, so that it routes on a graph holding e
 committed before it (:mod:`app.routing.live`), and nothing else: snapping happens in memory
 (:mod:`app.routing.nearby`), and the graph holds the OSM tags steps need.
 
-An HTTP request reads it on the event loop, before its planner runs (:class:`VersionReader`):
-libpq's non-blocking calls (``psycopg.pq``) on an idle autocommit connection with a prepared
-statement, the loop waiting for the socket like for any other. Why not in the worker thread
-with the rest of the request: a read there kept the planner in a thread even when the planner
-itself is a millisecond (:mod:`app.routing.planner` answers those on the loop), and psycopg's
-statement layer cost more CPU than the round trip (21 us against 5 us in the client per read).
-Why not psycopg's async connection: its waiting machinery cost ~0.15 ms of the loop per read.
+An HTTP request reads it on the event loop (:class:`VersionReader`): libpq's non-blocking
+calls (``psycopg.pq``) on an idle autocommit connection with a prepared statement, the loop
+waiting for the socket like for any other. The query is sent first
+(:meth:`VersionReader.begin`) and its answer awaited after a quick plan made meanwhile
+(``app.routing.router._answer``). Why not in the worker thread with the rest of the request:
+a read there kept the planner in a thread even when the planner itself is a millisecond
+(:mod:`app.routing.planner` answers those on the loop), and psycopg's statement layer cost
+more CPU than the round trip (21 us against 5 us in the client per read). Why not psycopg's
+async connection: its waiting machinery cost ~0.15 ms of the loop per read.
 
 A connection that broke while idle (the database restarted) is dropped and the read retried
 once on a fresh one; a database that cannot be reached is a 503 the client may retry. New

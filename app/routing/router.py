@@ -305,8 +305,8 @@ def _post_endpoint(service: Service) -> Callable[..., Any]:
     return endpoint
 
 
-async def answer_osrm(service: Service, name: str, request: Request, version: str, profile: str,
-                coordinates: str) -> Response:
+async def answer_osrm(service: Service, name: str, request: Request, version: str,
+                      profile: str, coordinates: str) -> Response:
     """OSRM's own URL shape: an OSRM client given ``/networks/{name}`` as its server works
     unchanged. OSRM's defaults (polyline, simplified overview, no steps, no annotations) and
     OSRM's 400 for every OSRM error code."""

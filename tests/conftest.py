@@ -224,3 +224,15 @@ def s3_store(s3_endpoint: str, database_url: str) -> Iterator[str]:
         os.environ["UGVMAP_RASTER_STORE"] = previous
         get_settings.cache_clear()
         record(previous_root)
+
+
+@pytest.fixture(scope="session")
+def drive(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The synthetic drive of ``tests/test_ipm_drive.py`` (frames, poses, calibration, roof
+    mask), rendered once per session: that module and ``tests/test_ipm_roads.py`` ingest the
+    same drive, and rendering it takes seconds. Tests only read it (a variant is a new file or
+    a copy in the test's own folder)."""
+    from ingest.ipm.synthetic import frame_times, write_drive
+    from tests.test_ipm_drive import CAMERA, DRIVE, N_FRAMES
+
+    return write_drive(tmp_path_factory.mktemp("drive"), DRIVE, CAMERA, frame_times(N_FRAMES))

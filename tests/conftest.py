@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 
+from app.db.session import _factory as session_factory
 from app.db.session import get_engine
 from app.routing.settings import routing_settings
 from app.settings import get_settings
@@ -24,28 +26,54 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu",
                   "--disable-background-networking"]
 
 
-@pytest.fixture(scope="session")
-def database_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """URL of a fresh, migrated database that lives exactly as long as the test session."""
+@contextmanager
+def pointed_at_new_database(prefix: str, tmp_path_factory: pytest.TempPathFactory
+                            ) -> Iterator[str]:
+    """A fresh, migrated database with a raster store and data folder of its own, which
+    ``DATABASE_URL``, ``UGVMAP_RASTER_STORE`` and ``UGVMAP_DATA_DIR`` name until the block ends
+    (then they are what they were, and the database is dropped)."""
     keys = ("DATABASE_URL", "UGVMAP_RASTER_STORE", "UGVMAP_DATA_DIR")
     previous = {k: os.environ.get(k) for k in keys}
-    with scratch_database("ugvmap_test") as url:
+    with scratch_database(prefix) as url:
         os.environ["DATABASE_URL"] = url
         os.environ["UGVMAP_RASTER_STORE"] = str(tmp_path_factory.mktemp("rasters"))
         os.environ["UGVMAP_DATA_DIR"] = str(tmp_path_factory.mktemp("data"))
-        get_settings.cache_clear()
-        get_engine.cache_clear()
+        forget_database()
         try:
             yield url
         finally:
             get_engine(url).dispose()
-            get_engine.cache_clear()
             for key, value in previous.items():
                 if value is None:
                     os.environ.pop(key, None)
                 else:
                     os.environ[key] = value
-            get_settings.cache_clear()
+            forget_database()
+
+
+def forget_database() -> None:
+    """Drop what this process cached about the configured database (settings, the default
+    engine and its session factory), so the next use reads the environment again."""
+    get_settings.cache_clear()
+    get_engine.cache_clear()
+    session_factory.cache_clear()
+
+
+@pytest.fixture(scope="session")
+def database_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """URL of a fresh, migrated database that lives exactly as long as the test session."""
+    with pointed_at_new_database("ugvmap_test", tmp_path_factory) as url:
+        yield url
+
+
+@pytest.fixture(scope="module")
+def module_database(database_url: str, tmp_path_factory: pytest.TempPathFactory
+                    ) -> Iterator[str]:
+    """A database of the module's own, in place of the session's while the module runs: for
+    tests whose cost grows with everything the other modules left in the shared database (the
+    web map draws every layer and network there is)."""
+    with pointed_at_new_database("ugvmap_module", tmp_path_factory) as url:
+        yield url
 
 
 @pytest.fixture()
@@ -196,3 +224,15 @@ def s3_store(s3_endpoint: str, database_url: str) -> Iterator[str]:
         os.environ["UGVMAP_RASTER_STORE"] = previous
         get_settings.cache_clear()
         record(previous_root)
+
+
+@pytest.fixture(scope="session")
+def drive(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The synthetic drive of ``tests/test_ipm_drive.py`` (frames, poses, calibration, roof
+    mask), rendered once per session: that module and ``tests/test_ipm_roads.py`` ingest the
+    same drive, and rendering it takes seconds. Tests only read it (a variant is a new file or
+    a copy in the test's own folder)."""
+    from ingest.ipm.synthetic import frame_times, write_drive
+    from tests.test_ipm_drive import CAMERA, DRIVE, N_FRAMES
+
+    return write_drive(tmp_path_factory.mktemp("drive"), DRIVE, CAMERA, frame_times(N_FRAMES))

@@ -18,7 +18,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pytest
 from click.testing import CliRunner
 from pyproj import Transformer
 from scipy.ndimage import label
@@ -26,7 +25,7 @@ from scipy.ndimage import label
 from cli.main import main
 from ingest.ipm.job import IpmOptions, ingest_ipm
 from ingest.ipm.poses import Pose, PoseTrack
-from ingest.ipm.synthetic import MARKER_RGB, Camera, Drive, frame_times, write_drive
+from ingest.ipm.synthetic import MARKER_RGB, Camera, Drive
 from testkit.raster_synth import TMS, grid_transform, stitch
 
 DRIVE, CAMERA = Drive(), Camera()
@@ -34,11 +33,6 @@ N_FRAMES = 36
 RESOLUTION = 0.06
 GRID_ARGS = ["--window", "20", "--zone-size", "512x512", "--zone-overlap", "32x32"]
 OPTIONS = IpmOptions(window_m=20, zone_size_px=(512, 512), overlap_px=(32, 32))
-
-
-@pytest.fixture(scope="module")
-def drive(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    return write_drive(tmp_path_factory.mktemp("drive"), DRIVE, CAMERA, frame_times(N_FRAMES))
 
 
 @dataclass

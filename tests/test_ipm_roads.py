@@ -22,14 +22,8 @@ from sqlalchemy import text
 
 from app.db.session import session_scope
 from cli.main import main
-from ingest.ipm.synthetic import frame_times, write_drive
 from testkit.raster_synth import UTM33, utm_origin, write_tif
-from tests.test_ipm_drive import CAMERA, DRIVE, GRID_ARGS, N_FRAMES
-
-
-@pytest.fixture(scope="module")
-def drive(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    return write_drive(tmp_path_factory.mktemp("drive"), DRIVE, CAMERA, frame_times(N_FRAMES))
+from tests.test_ipm_drive import DRIVE, GRID_ARGS, N_FRAMES
 
 
 def ingest_ipm(drive: dict[str, Path], slug: str, *extra: str, frames: Path | None = None

@@ -175,21 +175,29 @@ def recall_of(result, road: np.ndarray, radius_px: int = 3) -> float:
     return float((near & centre).sum() / centre.sum())
 
 
-def test_zero_shot_finds_a_synthetic_town(shipped: object) -> None:
+@pytest.fixture(scope="module")
+def town_roads(shipped: object) -> tuple[np.ndarray, np.ndarray, object]:
+    """A 400 m synthetic town (rgb, road) and its zero-shot extraction, run once: the first
+    test checks it, the second compares single-band and 16-bit extractions against it."""
     rgb, road = town(400, 100, 8)
-    result = extract_roads(synthetic_image(rgb))
+    return rgb, road, extract_roads(synthetic_image(rgb))
+
+
+def test_zero_shot_finds_a_synthetic_town(town_roads: tuple) -> None:
+    _, road, result = town_roads
     assert result.classifier == "model"
     assert recall_of(result, road) > 0.8
 
 
-def test_single_band_and_16_bit_images_work_like_rgb(shipped: object) -> None:
+def test_single_band_and_16_bit_images_work_like_rgb(shipped: object, town_roads: tuple
+                                                    ) -> None:
     """12-bit data in a 16-bit container (dark before the stretch) gives what 8-bit RGB gives;
     a single band is read as grey. How well grey imagery works is measured on a real tile
     (``tests/test_roads_real.py``): this cartoon town in grey is one tone of grass against
     roofs and roads of one lighter tone, which says little about panchromatic imagery."""
-    rgb, road = town(400, 100, 8)
+    rgb, road, rgb_result = town_roads
     grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    as_rgb = recall_of(extract_roads(synthetic_image(rgb)), road)
+    as_rgb = recall_of(rgb_result, road)
     one_band = extract_roads(synthetic_image(grey))
     assert one_band.frame.resolution_m == pytest.approx(shipped.resolution_m)
     deep = Image((rgb.astype(np.float32) * 16 / 65535), None, None, None, 1.0)

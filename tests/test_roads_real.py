@@ -8,13 +8,15 @@ in any stage fails here. None of these images is in the road model's training da
 
 from __future__ import annotations
 
+import multiprocessing
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
-from functools import cache
 from pathlib import Path
 
 import pytest
 
-from ingest.roads.pipeline import ExtractParams, extract_roads
+from ingest.roads.pipeline import Classifier, ExtractParams, extract_roads
 from testkit.roads_accuracy import SAMPLES, Evaluation, evaluate_sample, load_sample, score_lines
 
 pytestmark = pytest.mark.slow
@@ -45,55 +47,82 @@ def road_imagery(shared_data: Path) -> Path:
     return root
 
 
-@cache
-def evaluation(root: Path, name: str, classifier: str) -> Evaluation:
-    """Scores at 1 m and 2 m and APLS (each extraction runs once per session)."""
+def grey_evaluation(root: Path) -> Evaluation:
+    """Massachusetts 01 as one grey band (a panchromatic image), zero-shot, scored."""
+    sample = next(s for s in SAMPLES if s.name == "massachusetts_01")
+    image, truth = load_sample(sample, root)
+    grey = replace(image, pixels=image.pixels[..., :3].mean(axis=-1, keepdims=True))
+    result = extract_roads(grey, None, ExtractParams(classifier="model"))
+    return score_lines(truth, result.source_lines())
+
+
+def sample_evaluation(root: Path, name: str, classifier: Classifier) -> Evaluation:
+    """Scores at 1 m and 2 m and APLS of one classifier on one sample."""
     return evaluate_sample(next(s for s in SAMPLES if s.name == name), root, classifier)
 
 
+EXTRACTIONS: list[tuple[str, str]] = [
+    # The longest first (measured 37, 24, 21, 16, 8, 6, 6 s), so the two processes end together.
+    ("massachusetts_01", "spectral"), ("massachusetts_01", "grey"),
+    ("massachusetts_01", "learned"), ("massachusetts_01", "model"),
+    ("deepglobe_113", "model"), ("spacenet_vegas", "learned"), ("deepglobe_104", "model")]
+"""Every (sample, classifier) the tests below score; "grey" is :func:`grey_evaluation`."""
+
+
+@pytest.fixture(scope="module")
+def evaluation(road_imagery: Path) -> Iterator[Callable[[str, str], Evaluation]]:
+    """``evaluation(sample, classifier)``: every extraction of :data:`EXTRACTIONS` runs once,
+    shared by the tests that assert on it. They are independent CPU work of minutes in all,
+    so they start at once on two processes and each test waits for the ones it reads."""
+    spawn = multiprocessing.get_context("spawn")  # not fork: onnxruntime and torch threads
+    with ProcessPoolExecutor(max_workers=2, mp_context=spawn) as pool:
+        running = {(name, classifier): (pool.submit(grey_evaluation, road_imagery)
+                                        if classifier == "grey" else
+                                        pool.submit(sample_evaluation, road_imagery, name,
+                                                    classifier))
+                   for name, classifier in EXTRACTIONS}
+        yield lambda name, classifier: running[(name, classifier)].result()
+
+
 @pytest.mark.parametrize("name", sorted(LEARNED_FLOORS))
-def test_learned_classifier_meets_measured_floor(road_imagery: Path, name: str) -> None:
-    at_1m, at_2m = evaluation(road_imagery, name, "learned").scores
+def test_learned_classifier_meets_measured_floor(evaluation, name: str) -> None:
+    at_1m, at_2m = evaluation(name, "learned").scores
     floor_p, floor_r = LEARNED_FLOORS[name]
     assert at_2m.precision >= floor_p, at_2m
     assert at_2m.recall >= floor_r, at_2m
     assert at_1m.precision <= at_2m.precision and at_1m.recall <= at_2m.recall
 
 
-def test_learned_beats_the_spectral_line(road_imagery: Path) -> None:
-    spectral = evaluation(road_imagery, "massachusetts_01", "spectral").scores[1]
-    learned = evaluation(road_imagery, "massachusetts_01", "learned").scores[1]
+def test_learned_beats_the_spectral_line(evaluation) -> None:
+    spectral = evaluation("massachusetts_01", "spectral").scores[1]
+    learned = evaluation("massachusetts_01", "learned").scores[1]
     assert spectral.precision < SPECTRAL_PRECISION_CEILING
     assert learned.precision > 3 * spectral.precision
     assert learned.quality > 2 * spectral.quality
 
 
 @pytest.mark.parametrize("name", sorted(MODEL_FLOORS))
-def test_zero_shot_model_meets_measured_floor(road_imagery: Path, name: str) -> None:
-    at_2m = evaluation(road_imagery, name, "model").scores[1]
+def test_zero_shot_model_meets_measured_floor(evaluation, name: str) -> None:
+    at_2m = evaluation(name, "model").scores[1]
     floor_p, floor_r = MODEL_FLOORS[name]
     assert at_2m.precision >= floor_p, at_2m
     assert at_2m.recall >= floor_r, at_2m
 
 
-def test_zero_shot_beats_the_learned_classifier_at_equal_recall(road_imagery: Path) -> None:
+def test_zero_shot_beats_the_learned_classifier_at_equal_recall(evaluation) -> None:
     """With no sample at all, more precise than the per-job classifier trained on a quadrant,
     without giving up recall (the learned one's recall is the floor)."""
-    model = evaluation(road_imagery, "massachusetts_01", "model")
-    learned = evaluation(road_imagery, "massachusetts_01", "learned")
+    model = evaluation("massachusetts_01", "model")
+    learned = evaluation("massachusetts_01", "learned")
     assert model.scores[1].recall >= learned.scores[1].recall
     assert model.scores[1].precision > learned.scores[1].precision + 0.1
     assert model.apls > learned.apls
 
 
-def test_single_band_imagery_works_like_rgb(road_imagery: Path) -> None:
+def test_single_band_imagery_works_like_rgb(evaluation) -> None:
     """A panchromatic image: Massachusetts 01 as one grey band, zero-shot, against the same
     tile in colour (measured, roads-v2: grey 0.782 / 0.737 at 2 m, colour 0.780 / 0.811)."""
-    sample = next(s for s in SAMPLES if s.name == "massachusetts_01")
-    image, truth = load_sample(sample, road_imagery)
-    grey = replace(image, pixels=image.pixels[..., :3].mean(axis=-1, keepdims=True))
-    result = extract_roads(grey, None, ExtractParams(classifier="model"))
-    at_2m = score_lines(truth, result.source_lines()).scores[1]
-    colour = evaluation(road_imagery, "massachusetts_01", "model").scores[1]
+    at_2m = evaluation("massachusetts_01", "grey").scores[1]
+    colour = evaluation("massachusetts_01", "model").scores[1]
     assert at_2m.precision >= colour.precision - 0.1, (at_2m, colour)
     assert at_2m.recall >= colour.recall - 0.15, (at_2m, colour)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import re
+from collections.abc import Iterator
 
 import cv2
 import httpx
@@ -26,8 +27,9 @@ from testkit.server import running_server
 pytestmark = pytest.mark.slow
 
 MAGENTA = (230, 20, 200)
-# The scene sits where no other test puts data (the session database is shared): network tests
-# use (10, 50). Latitude 50 keeps the metre figures below: 0.001 deg = 71.5 m east, 111 m north.
+# The module has a database of its own (``web_server``); the scene still sits where no other
+# test puts data (network tests use (10, 50)). Latitude 50 keeps the metre figures below:
+# 0.001 deg = 71.5 m east, 111 m north.
 ORIGIN = (7.777, 50.0)
 
 
@@ -51,7 +53,17 @@ def cli(*args: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def world(live_server: str, tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+def web_server(module_database: str) -> Iterator[str]:
+    """The real server on the module's own database: the page draws every layer and network
+    in the database, so on the session's one (all the other modules' data) each page took
+    three to five times as long to settle."""
+    with running_server({"DATABASE_URL": module_database,
+                         "UGVMAP_RASTER_STORE": os.environ["UGVMAP_RASTER_STORE"]}) as base:
+        yield base
+
+
+@pytest.fixture(scope="module")
+def world(web_server: str, tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     """Ingest the magenta layer and the A/B network once for the module; an editor token."""
     folder = tmp_path_factory.mktemp("web-data")
     tif = folder / "magenta.tif"
@@ -75,7 +87,7 @@ def world(live_server: str, tmp_path_factory: pytest.TempPathFactory) -> dict[st
     cli("ingest", "network", str(roads), "--network", "webnet")
     token = re.search(r"\S{20,}", cli("tokens", "create", "--role", "editor", "--name", "web"))
     assert token, "tokens create printed no token"
-    return {"base": live_server, "token": token.group(0)}
+    return {"base": web_server, "token": token.group(0)}
 
 
 def open_map(browser, world, request, tmp_path, viewport=(1100, 750), fit=True, path="/"):
@@ -91,7 +103,7 @@ def open_map(browser, world, request, tmp_path, viewport=(1100, 750), fit=True, 
     request.addfinalizer(lambda: finish(page, context, request, tmp_path, errors, outside))
     page.goto(world["base"] + path)
     page.wait_for_selector("body[data-ready=true]", timeout=20_000)
-    if fit:  # the (shared) test database holds other tests' data too; look at this scene
+    if fit:  # the database holds the review scene and 'web-far' too; look at this one
         page.evaluate("(b) => window.ugvmap.map.fitBounds(b, {padding: 30, duration: 0})",
                       list(RASTER_BOUNDS))
     wait_idle(page)
@@ -119,13 +131,13 @@ def test_opens_on_imagery_with_roads_and_keeps_the_view_in_the_url(browser, worl
 
 
 def test_networks_that_need_a_reader_token(browser, world, request, tmp_path,
-                                           database_url: str) -> None:
+                                           module_database: str) -> None:
     """With ``UGVMAP_NETWORK_READ_ROLE`` set, the page says why no road network shows; once a
     viewer token is pasted it reloads and draws the roads, its network tile requests carrying
     the token and its raster tile requests not (they stay cacheable by the front cache)."""
     viewer = re.search(r"\S{20,}", cli("tokens", "create", "--role", "viewer", "--name", "web-r"))
     assert viewer, "tokens create printed no token"
-    env = {"DATABASE_URL": database_url, "UGVMAP_NETWORK_READ_ROLE": "viewer",
+    env = {"DATABASE_URL": module_database, "UGVMAP_NETWORK_READ_ROLE": "viewer",
            "UGVMAP_RASTER_STORE": os.environ["UGVMAP_RASTER_STORE"]}
     with running_server(env) as base:
         context = browser.new_context(viewport={"width": 1100, "height": 750})

@@ -12,9 +12,10 @@ lower-cased whatever the application gives it.
 response header its conventional spelling (``Content-Type``, ``ETag``, ``Allow``,
 ``Location``, ``Content-Crs``...) as the head leaves for the socket (:class:`RespelledHead`),
 and answers a request that is not valid HTTP with the service's JSON error body instead of
-uvicorn's plain text. Why not uvicorn's h11 implementation, which writes names as given: it is
-pure Python, and cost every request ~0.1 ms (a third of the requests per second of
-``/healthz``, ``bench/http_protocol.py``), as much as planning a city route.
+uvicorn's plain text. Why not uvicorn's h11 implementation, which writes names as given (it
+served until 2026-11): it is pure Python, and cost every request ~0.1 ms (29-31 % fewer
+requests per second than httptools on ``/healthz``, a cached tile or a feature page,
+``bench/http_protocol.py``); the respelling costs 2-8 %.
 """
 
 from __future__ import annotations
@@ -56,8 +57,9 @@ def respelled(head: bytes) -> bytes:
 class RespelledHead:
     """The transport one response is written to: its head (which uvicorn writes whole, in one
     call) respelled and held until the body's first bytes, so that both leave in one write:
-    one system call and one wake-up of the client instead of two (the write was a quarter of
-    the server's time on a city route); the rest passed through untouched."""
+    one system call and one wake-up of the client instead of two (A/B on live servers: -0.07
+    ms of a 1.8 ms Andorra route, -0.04 ms of ``/healthz``); the rest passed through
+    untouched."""
 
     def __init__(self, transport: asyncio.Transport) -> None:
         self._transport = transport

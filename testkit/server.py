@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import httpx
 
@@ -62,3 +63,16 @@ def running_server(env: dict[str, str], workers: int = 1,
                 proc.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 proc.kill()
+
+
+def raw_exchange(base: str, payload: bytes) -> bytes:
+    """Send ``payload`` as it is to the server at ``base`` and read until it closes the
+    connection: for what an HTTP client would not send or would not show (malformed requests,
+    pipelining, header names as spelled on the wire)."""
+    parts = urlsplit(base)
+    with socket.create_connection((parts.hostname, parts.port), timeout=10) as raw:
+        raw.sendall(payload)
+        answer = b""
+        while chunk := raw.recv(65536):
+            answer += chunk
+    return answer

@@ -4,8 +4,6 @@ refused or answered properly now, with nothing stored changed."""
 from __future__ import annotations
 
 import logging
-import socket
-from urllib.parse import urlsplit
 
 import httpx
 import pytest
@@ -14,6 +12,7 @@ from sqlalchemy.exc import OperationalError
 from app.api.errors import database_unavailable
 from app.jobs.redact import strip_paths
 from testkit.network_helpers import bearer, grid_network
+from testkit.server import raw_exchange
 
 
 @pytest.fixture()
@@ -137,12 +136,7 @@ def test_refused_preflight_and_malformed_http_answer_json(client, live_server: s
                                                 "Access-Control-Request-Method": "DELETE"})
     assert (r.status_code, r.json()["code"]) == (400, "CorsRefused")
     assert "origin" in r.json()["message"]
-    parts = urlsplit(live_server)
-    with socket.create_connection((parts.hostname, parts.port), timeout=10) as raw:
-        raw.sendall(b"NOT HTTP AT ALL\r\n\r\n")
-        answer = b""
-        while chunk := raw.recv(4096):
-            answer += chunk
+    answer = raw_exchange(live_server, b"NOT HTTP AT ALL\r\n\r\n")
     head, _, body = answer.partition(b"\r\n\r\n")
     assert head.startswith(b"HTTP/1.1 400") and b"Content-Type: application/json" in head
     assert httpx.Response(400, content=body).json()["code"] == "InvalidParameterValue"

@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import socket
-from urllib.parse import urlsplit
-
 from app.api.wire import RespelledHead, canonical, respelled
+from testkit.server import raw_exchange
 
 
 class Sink:
@@ -59,20 +57,10 @@ def test_the_head_is_respelled_and_leaves_with_the_body() -> None:
     assert bodiless.closed
 
 
-def _exchange(base: str, payload: bytes) -> bytes:
-    parts = urlsplit(base)
-    with socket.create_connection((parts.hostname, parts.port), timeout=10) as raw:
-        raw.sendall(payload)
-        answer = b""
-        while chunk := raw.recv(65536):
-            answer += chunk
-    return answer
-
-
 def test_pipelined_requests_each_get_a_respelled_head(live_server: str) -> None:
     """Two requests sent at once on one connection (the second waits for the first, in
     uvicorn's pipeline): both heads spelled conventionally, both bodies intact."""
-    answer = _exchange(live_server,
+    answer = raw_exchange(live_server,
                        b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n"
                        b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
     first, second = answer.split(b"HTTP/1.1 200 OK\r\n")[1:]
@@ -87,7 +75,7 @@ def test_pipelined_requests_each_get_a_respelled_head(live_server: str) -> None:
 def test_head_and_empty_answers_leave_whole(live_server: str) -> None:
     """A HEAD (no body bytes are written) and an OPTIONS answer (an empty body) still send
     their head, then the next request on the connection is answered."""
-    answer = _exchange(live_server,
+    answer = raw_exchange(live_server,
                        b"HEAD /healthz HTTP/1.1\r\nHost: x\r\n\r\n"
                        b"OPTIONS /healthz HTTP/1.1\r\nHost: x\r\n\r\n"
                        b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")

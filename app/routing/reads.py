@@ -74,6 +74,13 @@ class VersionReader:
         self._dsn = libpq_dsn(database_url)
         self._idle: list[psycopg.Connection] = []
         self._lock = threading.Lock()  # several loops (test clients) may share a reader
+        self._ids: dict[str, int] = {}  # network id of each name as last read
+
+    def known_id(self, name: str) -> int | None:
+        """The id ``name`` had when this reader last read it (``None``: never read): which
+        graph a plan made before the read returns may use. A network deleted and created again
+        under the same name gets a new id, which the read then tells."""
+        return self._ids.get(name)
 
     async def read(self, name: str) -> ReadAhead:
         """The network's id and version (404 when there is none, 503 when the database cannot
@@ -154,6 +161,7 @@ class PendingRead:
         reader._give_back(conn)
         if row is None:
             raise NotFoundError(f"network {name!r} does not exist")
+        reader._ids[name] = row[0]
         return ReadAhead(name, *row)
 
     def abandon(self) -> None:

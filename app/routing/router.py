@@ -152,14 +152,9 @@ class Early:
         return self.network_id == ahead.network_id and self.version >= ahead.version
 
 
-# Network id of each name this process has read: which graph an early plan may use. A name
-# deleted and created again gets a new id; the version read tells, and the plan is redone.
-_network_ids: dict[str, int] = {}
-
-
-def _plan_early(name: str, call: Call) -> Early | None:
-    """Plan on the graph this process holds, when the call is quick on it."""
-    network_id = _network_ids.get(name)
+def _plan_early(name: str, network_id: int | None, call: Call) -> Early | None:
+    """Plan on the graph this process holds of ``network_id`` (the name's id when last read),
+    when the call is quick on it."""
     graph = current_graph(network_id, 0) if network_id is not None else None
     if graph is None or not call.quick(graph):
         return None
@@ -183,14 +178,14 @@ async def _answer(name: str, call: Call) -> Response:
     1.3 ms Andorra route), on the graph this process holds; it stands when that graph holds
     the version read, nearly always since the listener applies an edit within milliseconds.
     Else the request plans again, on a graph at that version, as it would have anyway."""
-    read = version_reader().begin(name)
+    reader = version_reader()
+    read = reader.begin(name)
     try:
-        early = _plan_early(name, call)
+        early = _plan_early(name, reader.known_id(name), call)
     except BaseException:
         read.abandon()
         raise
     ahead = await read.result()
-    _network_ids[name] = ahead.network_id
     if early is not None and early.stands(ahead):
         if early.error is not None:
             raise early.error

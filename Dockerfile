@@ -27,6 +27,9 @@ COPY migrations ./migrations
 COPY models ./models
 # Installed in place: the web router serves app/web/node_modules next to its own files.
 RUN pip install --no-cache-dir -e .
+# Routing's compiled kernels (numba, app/routing/native.py) into the image's numba cache, so
+# no container compiles them at start.
+RUN python -c "import app.routing.planner"
 COPY --from=web /web/node_modules ./app/web/node_modules
 ENV UGVMAP_RASTER_STORE=/data/rasters UGVMAP_DATA_DIR=/data
 EXPOSE 8000

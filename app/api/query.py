@@ -12,10 +12,14 @@ from app.errors import InvalidParameterValueError
 from app.params import shown
 
 
-def single_valued_query(request: Request) -> None:
+async def single_valued_query(request: Request) -> None:
     """Router dependency: a query parameter given twice is a 400, not silently the last value
     (``revert?to=1&to=2`` would revert to one of them, ``bbox`` twice filter by one). The
-    OSRM-shaped routing URLs refuse it themselves, with OSRM's ``InvalidQuery``."""
+    OSRM-shaped routing URLs refuse it themselves, with OSRM's ``InvalidQuery``.
+
+    ``async`` although it awaits nothing: FastAPI runs a plain function dependency in its
+    thread pool, and that hop (two thread wake-ups) was most of what a ``/healthz`` cost in
+    process (207 -> 100 us) and was paid by every tile and feature request too."""
     seen: set[str] = set()
     for key, _ in request.query_params.multi_items():
         if key in seen:

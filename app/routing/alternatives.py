@@ -83,11 +83,11 @@ def alternatives(graph: RoadGraph, cg: CostGraph, snaps: list[Snap], best: Leg,
         metres = _metres(graph, leg)
         for row in metres:
             used[row] += 1
-        weight = sum(abs(p.f_to - p.f_from) * float(cg.seg_cost[p.row]) for p in leg.pieces)
+        weight = float((np.abs(leg.f_to - leg.f_from) * cg.seg_cost[leg.rows]).sum())
         if weight > (1.0 + MAX_STRETCH) * best.weight:
             continue
         if any(_share(metres, other) > MAX_SHARE for other in kept):
             continue
         kept.append(metres)
-        found.append(Leg(leg.start, leg.end, weight, leg.pieces))
+        found.append(dataclasses.replace(leg, weight=weight))
     return sorted(found, key=lambda leg: leg.weight)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -38,13 +39,34 @@ class Piece:
     f_to: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Leg:
-    """One leg of a route: its snapped ends, total weight and the segment pieces driven."""
+    """One leg of a route: its snapped ends, total weight and the segment pieces driven, as
+    arrays (segment row, and the fractions each piece is driven from and to, in driving
+    order). Arrays because a city leg drives ~100 pieces, and everything shaping the answer
+    reads them as arrays: made as objects, they cost more than the search that found them;
+    :attr:`pieces` makes them when a consumer walks the pieces one by one."""
+
     start: Snap
     end: Snap
     weight: float
-    pieces: list[Piece]
+    rows: np.ndarray
+    f_from: np.ndarray
+    f_to: np.ndarray
+
+    @classmethod
+    def of(cls, start: Snap, end: Snap, weight: float, pieces: Sequence[Piece]) -> Leg:
+        """The leg driving ``pieces``."""
+        n = len(pieces)
+        return cls(start, end, weight, np.fromiter((p.row for p in pieces), np.int64, n),
+                   np.fromiter((p.f_from for p in pieces), np.float64, n),
+                   np.fromiter((p.f_to for p in pieces), np.float64, n))
+
+    @cached_property
+    def pieces(self) -> list[Piece]:
+        """The pieces as objects."""
+        return [Piece(*p) for p in zip(self.rows.tolist(), self.f_from.tolist(),
+                                       self.f_to.tolist(), strict=True)]
 
 
 @dataclass(frozen=True)
@@ -161,7 +183,7 @@ class Router:
         straight = direct(self.graph, self.cg, a, b, out_way, in_way)
         if not (outs and ins):
             if straight:
-                return Leg(a.snap, b.snap, straight[0], [straight[1]])
+                return Leg.of(a.snap, b.snap, straight[0], [straight[1]])
             raise self._no_route(a, b)
         found = self.cg.fast_path([(n, c) for n, c, _ in outs], [(n, c) for n, c, _ in ins])
         if found is not None:
@@ -171,15 +193,17 @@ class Router:
         else:
             weight, first, rows, ways, last = self._dijkstra(a, b, outs, ins)
         if straight and straight[0] <= weight:
-            return Leg(a.snap, b.snap, straight[0], [straight[1]])
+            return Leg.of(a.snap, b.snap, straight[0], [straight[1]])
         if not np.isfinite(weight):
             raise self._no_route(a, b)
-        pieces = [first] if first is not None else []
-        pieces.extend(Piece(row, 0.0, 1.0) if way > 0 else Piece(row, 1.0, 0.0)
-                      for row, way in zip(rows.tolist(), ways.tolist(), strict=True))
-        if last is not None:
-            pieces.append(last)
-        return Leg(a.snap, b.snap, weight, pieces)
+        f_from = np.where(ways > 0, 0.0, 1.0)
+        head, tail = [first] if first is not None else [], [last] if last is not None else []
+        return Leg(a.snap, b.snap, weight,
+                   np.concatenate([[p.row for p in head], rows, [p.row for p in tail]]
+                                  ).astype(np.int64),
+                   np.concatenate([[p.f_from for p in head], f_from, [p.f_from for p in tail]]),
+                   np.concatenate([[p.f_to for p in head], 1.0 - f_from,
+                                   [p.f_to for p in tail]]))
 
     def legs(self, seq: Sequence[int], continue_straight: bool = False) -> list[Leg]:
         """The legs visiting the places ``seq`` in order. With ``continue_straight`` (OSRM's

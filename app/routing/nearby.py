@@ -25,6 +25,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 
+from app.routing.native import kernel
+
 if TYPE_CHECKING:
     from app.routing.graph import RoadGraph
 
@@ -145,44 +147,55 @@ def within(graph: RoadGraph, points: np.ndarray, radius_m: np.ndarray,
 def _measure(graph: RoadGraph, points: np.ndarray, east: np.ndarray, north: np.ndarray,
              which: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(distance m, fraction) from ``points[which]`` to segment ``rows``: the nearest point of
-    the line, measured in the query point's local frame."""
-    if not len(rows):
-        return np.zeros(0), np.zeros(0)
-    offsets, coords, fracs = graph.segs.offsets, graph.segs.coords, graph.fracs
-    n_edges = np.maximum(offsets[rows + 1] - offsets[rows] - 1, 1)
-    pair = np.repeat(np.arange(len(rows)), n_edges)
-    first = np.concatenate([[0], np.cumsum(n_edges)[:-1]])
-    k = np.repeat(offsets[rows], n_edges) + np.arange(len(pair)) - np.repeat(first, n_edges)
-    nxt = np.minimum(k + 1, np.repeat(offsets[rows + 1] - 1, n_edges))
-    origin = points[which[pair]]
-    kx, ky = east[which[pair]], north[which[pair]]
-    ax = _wrap(coords[k, 0] - origin[:, 0]) * kx
-    ay = (coords[k, 1] - origin[:, 1]) * ky
-    dx = _wrap(coords[nxt, 0] - coords[k, 0]) * kx
-    dy = (coords[nxt, 1] - coords[k, 1]) * ky
-    length2 = dx * dx + dy * dy
-    with np.errstate(invalid="ignore", divide="ignore"):
-        t = np.where(length2 > 0, -(ax * dx + ay * dy) / length2, 0.0).clip(0.0, 1.0)
-    cx, cy = ax + t * dx, ay + t * dy
-    d2 = _nan_last(cx * cx + cy * cy)  # off the globe: measured as inf
-    best = np.minimum.reduceat(d2, first)
-    at_best = np.flatnonzero(d2 == best[pair])
-    _, first_best = np.unique(pair[at_best], return_index=True)
-    edge = at_best[first_best]
-    fraction = fracs[k[edge]] + t[edge] * (fracs[nxt[edge]] - fracs[k[edge]])
-    distance = np.sqrt(best)
-    b = graph.bbox[rows]
-    off = (b[:, 0] < -180) | (b[:, 2] > 180) | (b[:, 1] < -90) | (b[:, 3] > 90)
-    distance[off] = np.nan
-    fraction[off] = np.nan
+    the line, measured in the query point's local frame (:func:`_nearest_on_lines`)."""
+    return _nearest_on_lines(points, east, north, which, rows, graph.segs.offsets,
+                             graph.segs.coords, graph.fracs, graph.bbox)
+
+
+@kernel("UniTuple(f8[:], 2)(f8[:, :], f8[:], f8[:], i8[:], i8[:], i8[:], f8[:, :], f8[:], "
+        "f8[:, :])")
+def _nearest_on_lines(points: np.ndarray, east: np.ndarray, north: np.ndarray,
+                      which: np.ndarray, rows: np.ndarray, offsets: np.ndarray,
+                      coords: np.ndarray, fracs: np.ndarray, bbox: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """For each (point ``which[i]``, segment ``rows[i]``): the distance in metres to the
+    segment's nearest point, each vertex pair measured in the point's local frame (``east``,
+    ``north`` metres per degree; longitudes taken the short way round), and that point's
+    metric fraction along the segment. The first pair wins a tie; a NaN distance measures as
+    infinity; a segment whose bounding box leaves the globe gets NaN for both."""
+    n = len(rows)
+    distance = np.empty(n)
+    fraction = np.empty(n)
+    for i in range(n):
+        row, p = rows[i], which[i]
+        ox, oy, kx, ky = points[p, 0], points[p, 1], east[p], north[p]
+        lo, hi = offsets[row], offsets[row + 1]
+        best, best_f = np.inf, np.nan
+        for k in range(lo, max(hi - 1, lo + 1)):
+            nxt = min(k + 1, hi - 1)
+            ax = ((coords[k, 0] - ox + 180.0) % 360.0 - 180.0) * kx
+            ay = (coords[k, 1] - oy) * ky
+            dx = ((coords[nxt, 0] - coords[k, 0] + 180.0) % 360.0 - 180.0) * kx
+            dy = (coords[nxt, 1] - coords[k, 1]) * ky
+            length2 = dx * dx + dy * dy
+            t = -(ax * dx + ay * dy) / length2 if length2 > 0.0 else 0.0
+            if t < 0.0:
+                t = 0.0
+            elif t > 1.0:
+                t = 1.0
+            cx, cy = ax + t * dx, ay + t * dy
+            d2 = cx * cx + cy * cy
+            if np.isnan(d2):
+                d2 = np.inf
+            if d2 < best or k == lo:
+                best, best_f = d2, fracs[k] + t * (fracs[nxt] - fracs[k])
+        distance[i], fraction[i] = np.sqrt(best), best_f
+        if bbox[row, 0] < -180.0 or bbox[row, 2] > 180.0 or bbox[row, 1] < -90.0 \
+                or bbox[row, 3] > 90.0:
+            distance[i], fraction[i] = np.nan, np.nan
     return distance, fraction
 
 
 def _nan_last(x: np.ndarray) -> np.ndarray:
     """``x`` with NaN as infinity (np.nan_to_num's work, at a fifth of its call overhead)."""
     return np.where(np.isnan(x), np.inf, x)
-
-
-def _wrap(dlon: np.ndarray) -> np.ndarray:
-    """Longitude differences across the antimeridian taken the short way."""
-    return (dlon + 180.0) % 360.0 - 180.0

@@ -100,7 +100,7 @@ class Shaper:
             pair_m = run.pair_m
             distance.extend(pair_m.tolist())
             duration.extend((pair_m / run.speed_ms).tolist())
-        if not t.pieces:
+        if not len(t.rows):
             distance, duration = [0.0], [0.0]
         out: dict[str, Any] = {}
         if "distance" in wanted:

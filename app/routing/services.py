@@ -151,7 +151,7 @@ def _joined(legs: Sequence[Leg]) -> Leg:
                 pieces[-1] = Piece(p.row, last.f_from, p.f_to)
             else:
                 pieces.append(p)
-    return Leg(legs[0].start, legs[-1].end, sum(leg.weight for leg in legs), pieces)
+    return Leg.of(legs[0].start, legs[-1].end, sum(leg.weight for leg in legs), pieces)
 
 
 def _legs(router: engine.Router, m: Matching, waypoints: set[int] | None) -> list[Leg]:

@@ -142,12 +142,12 @@ def _exits_passed(ctx: StepContext, leg: _Leg, step: _Step) -> int:
 def _group(ctx: StepContext, leg: _Leg) -> list[_Step]:
     """The leg's runs grouped into steps (before ``arrive``)."""
     t, ends = leg.t, leg.t.ends
-    if not t.pieces:
+    if not len(t.rows):
         return []
     steps = [_Step("depart", None, 0, t.start, 0.0, ends.b_out[0], leg.attrs[0], 1, [{
         "location": t.start, "bearings": [round(ends.b_out[0]) % 360], "entry": [True],
         "out": 0}])]
-    for k in range(1, len(t.pieces)):
+    for k in range(1, len(t.rows)):
         attrs, step = leg.attrs[k], steps[-1]
         turn = modifier(ends.b_in[k - 1], ends.b_out[k])
         on_roundabout = step.kind == "roundabout" and leg.roundabout[k]
@@ -208,11 +208,11 @@ def _render(ctx: StepContext, leg: _Leg, s: _Step, distance: float, duration: fl
 
 
 def _arrive(ctx: StepContext, t: Trace, name: str) -> dict[str, Any]:
-    heading = t.ends.b_in[-1] if t.pieces else 0.0
+    heading = t.ends.b_in[-1] if len(t.rows) else 0.0
     maneuver: dict[str, Any] = {"type": "arrive", "location": t.end,
                                 "bearing_before": round(heading) % 360, "bearing_after": 0}
     snap = t.leg.end
-    if t.pieces and snap.distance_m > ON_ROAD_M:
+    if len(t.rows) and snap.distance_m > ON_ROAD_M:
         maneuver["modifier"] = "right" if side_of(t.end, heading, snap.point) > 0 else "left"
     return {
         "distance": 0.0, "duration": 0.0, "weight": 0.0,
@@ -228,10 +228,10 @@ def leg_steps(ctx: StepContext, t: Trace) -> list[dict[str, Any]]:
     """The OSRM steps of one leg, ending with ``arrive``."""
     leg = _Leg.of(ctx, t)
     steps = _group(ctx, leg)
-    bounds = [s.first for s in steps] + [len(t.pieces)]
+    bounds = [s.first for s in steps] + [len(t.rows)]
     # Each step's distance and duration: numpy's sum over the step's pieces, for all at once.
     distance = np.add.reduceat(t.distance, bounds[:-1]).tolist() if steps else []
     duration = np.add.reduceat(t.duration, bounds[:-1]).tolist() if steps else []
     return [*(_render(ctx, leg, s, d, u) for s, d, u in zip(steps, distance, duration,
                                                             strict=True)),
-            _arrive(ctx, t, leg.attrs[-1][0] if t.pieces else "")]
+            _arrive(ctx, t, leg.attrs[-1][0] if len(t.rows) else "")]

@@ -15,6 +15,7 @@ import numpy as np
 from app.routing.engine import Leg, Piece
 from app.routing.geometry import bearing, cut_with_fractions, point_at
 from app.routing.graph import RoadGraph
+from app.routing.native import kernel
 from app.routing.snap import Snap
 
 # Vertex ids for coordinates that are not network nodes (OSRM's annotation.nodes gives an id
@@ -62,7 +63,6 @@ class Trace:
 
     leg: Leg
     graph: RoadGraph
-    pieces: list[Piece]
     rows: np.ndarray  # segment row of each piece
     f_from: np.ndarray  # ... and the fractions it is driven from and to
     f_to: np.ndarray
@@ -78,7 +78,7 @@ class Trace:
     @cached_property
     def runs(self) -> list[Run]:
         """The pieces as runs (coordinates and bearings of each)."""
-        return runs_of(self.graph, self.pieces)
+        return runs_of(self.graph, self.rows, self.f_from, self.f_to)
 
     @cached_property
     def ends(self) -> Ends:
@@ -125,83 +125,98 @@ def ends_of(graph: RoadGraph, rows: np.ndarray, f_from: np.ndarray, f_to: np.nda
     return Ends(first, b_out, b_in)
 
 
-def runs_of(graph: RoadGraph, pieces: list[Piece]) -> list[Run]:
-    """The runs of ``pieces``: coordinates cut at their fractions, bearings at their ends
-    (:func:`ends_of`). Per-piece numbers are read for all pieces at once (a city route has
-    ~100)."""
-    if not pieces:
+def runs_of(graph: RoadGraph, rows: np.ndarray, f_from: np.ndarray, f_to: np.ndarray
+            ) -> list[Run]:
+    """The runs of the pieces (segment ``rows`` driven from ``f_from`` to ``f_to``):
+    coordinates cut at their fractions, bearings at their ends (:func:`ends_of`). Per-piece
+    numbers are read for all pieces at once (a city route has ~100)."""
+    if not len(rows):
         return []
-    rows, f_from, f_to = _arrays(pieces)
     ends = ends_of(graph, rows, f_from, f_to)
     lengths = graph.segs.length_m[rows]
     speeds = graph.speed_kph[rows] / 3.6
     distances = np.abs(f_to - f_from) * lengths
     runs = []
-    for k, (p, sid, length, speed, distance, duration) in enumerate(zip(
-            pieces, graph.segs.ids[rows].tolist(), lengths.tolist(), speeds.tolist(),
-            distances.tolist(), (distances / speeds).tolist(), strict=True)):
-        line, line_fracs = graph.line(p.row)
-        coords, fracs = cut_with_fractions(line, line_fracs, p.f_from, p.f_to)
-        runs.append(Run(p, sid, coords, fracs, length, speed, ends.b_out[k], ends.b_in[k],
-                        distance, duration))
+    for k, (row, a, b, sid, length, speed, distance, duration) in enumerate(zip(
+            rows.tolist(), f_from.tolist(), f_to.tolist(), graph.segs.ids[rows].tolist(),
+            lengths.tolist(), speeds.tolist(), distances.tolist(),
+            (distances / speeds).tolist(), strict=True)):
+        line, line_fracs = graph.line(row)
+        coords, fracs = cut_with_fractions(line, line_fracs, a, b)
+        runs.append(Run(Piece(row, a, b), sid, coords, fracs, length, speed, ends.b_out[k],
+                        ends.b_in[k], distance, duration))
     return runs
 
 
 def run_of(graph: RoadGraph, p: Piece) -> Run:
     """The run of one piece."""
-    return runs_of(graph, [p])[0]
-
-
-def _arrays(pieces: list[Piece]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(rows, f_from, f_to) of ``pieces``."""
-    n = len(pieces)
-    return (np.fromiter((p.row for p in pieces), np.int64, n),
-            np.fromiter((p.f_from for p in pieces), np.float64, n),
-            np.fromiter((p.f_to for p in pieces), np.float64, n))
+    return runs_of(graph, np.array([p.row]), np.array([p.f_from]), np.array([p.f_to]))[0]
 
 
 def trace(graph: RoadGraph, leg: Leg) -> Trace:
     """The leg's pieces and coordinates. What every answer needs is read for all pieces at
     once (a city route has ~100): whole segments contribute the graph's coordinates, only the
     cut ends are interpolated."""
-    pieces = [p for p in leg.pieces if p.f_from != p.f_to]
+    driven = leg.f_from != leg.f_to
+    rows, f_from, f_to = leg.rows[driven], leg.f_from[driven], leg.f_to[driven]
     start, end = location(graph, leg.start), location(graph, leg.end)
-    rows, f_from, f_to = _arrays(pieces)
     distance = np.abs(f_to - f_from) * graph.segs.length_m[rows]
     coords, starts = _coords(graph, rows, f_from, f_to, start, end)
-    return Trace(leg, graph, pieces, rows, f_from, f_to, graph.segs.ids[rows], f_to >= f_from,
+    return Trace(leg, graph, rows, f_from, f_to, graph.segs.ids[rows], f_to >= f_from,
                  distance, distance / (graph.speed_kph[rows] / 3.6), coords, starts, start, end)
 
 
 def _coords(graph: RoadGraph, rows: np.ndarray, f_from: np.ndarray, f_to: np.ndarray,
             start: list[float], end: list[float]) -> tuple[np.ndarray, np.ndarray]:
     """A leg's coordinates (start point first, joints not repeated) and the index of each
-    piece's first coordinate (then of the last): whole pieces gathered from the graph's
-    coordinates in one indexing, cut pieces (the leg's ends) interpolated."""
+    piece's first coordinate (then of the last): :func:`_gathered`."""
     if not len(rows):  # start and end coincide: OSRM still sends a two-point line
         return np.array([start, end]), np.array([0, 1])
-    offsets, all_coords = graph.segs.offsets, graph.segs.coords
-    lo, hi = offsets[rows], offsets[rows + 1]
-    forward = (f_from == 0.0) & (f_to == 1.0)
-    cut = np.flatnonzero(~(forward | ((f_from == 1.0) & (f_to == 0.0))))
-    whole = hi - lo - 1  # coordinates of a whole piece: every vertex but the joint
-    whole[cut] = 0
-    count = whole.copy()
-    parts = {}
-    for k in cut.tolist():
-        a, b = int(lo[k]), int(hi[k])
-        parts[k] = cut_with_fractions(all_coords[a:b], graph.fracs[a:b], float(f_from[k]),
-                                      float(f_to[k]))[0][1:]
-        count[k] = len(parts[k])
-    starts = np.concatenate([[0], np.cumsum(count)])
-    out = np.empty((int(starts[-1]) + 1, 2))
+    return _gathered(rows, f_from, f_to, graph.segs.offsets, graph.segs.coords, graph.fracs,
+                     np.array(start, np.float64))
+
+
+@kernel("Tuple((f8[:, :], i8[:]))(i8[:], f8[:], f8[:], i8[:], f8[:, :], f8[:], f8[:])")
+def _gathered(rows: np.ndarray, f_from: np.ndarray, f_to: np.ndarray, offsets: np.ndarray,
+              coords: np.ndarray, fracs: np.ndarray, start: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The coordinates of the pieces (segment ``rows`` driven from ``f_from`` to ``f_to``)
+    after ``start``, each piece's without its first (the joint), and the index of each piece's
+    first coordinate, then of the last: a whole piece is its segment's vertices in driving
+    order; a cut one (the leg's ends) is :func:`~app.routing.geometry.cut_with_fractions`'s
+    line: the vertices strictly between its fractions, then the point at its far end,
+    interpolated at the metric fraction."""
+    m = len(rows)
+    starts = np.zeros(m + 1, np.int64)
+    for k in range(m):
+        lo_f, hi_f = min(f_from[k], f_to[k]), max(f_from[k], f_to[k])
+        a, b = offsets[rows[k]], offsets[rows[k] + 1]
+        if lo_f == 0.0 and hi_f == 1.0:
+            count = b - a - 1
+        else:
+            count = 1
+            for v in range(a, b):
+                count += lo_f < fracs[v] < hi_f
+        starts[k + 1] = starts[k] + count
+    out = np.empty((starts[m] + 1, 2))
     out[0] = start
-    within = np.arange(int(whole.sum())) - np.repeat(np.cumsum(whole) - whole, whole)
-    source = np.repeat(np.where(forward, lo + 1, hi - 2), whole) + \
-        within * np.repeat(np.where(forward, 1, -1), whole)
-    out[np.repeat(starts[:-1] + 1, whole) + within] = all_coords[source]
-    for k, part in parts.items():
-        out[starts[k] + 1:starts[k + 1] + 1] = part
+    for k in range(m):
+        a, b = offsets[rows[k]], offsets[rows[k] + 1]
+        forward = f_to[k] >= f_from[k]
+        lo_f, hi_f = min(f_from[k], f_to[k]), max(f_from[k], f_to[k])
+        at = starts[k] + 1
+        if lo_f == 0.0 and hi_f == 1.0:
+            for v in range(b - a - 1):
+                out[at + v] = coords[a + 1 + v] if forward else coords[b - 2 - v]
+            continue
+        inner = range(a, b) if forward else range(b - 1, a - 1, -1)
+        for v in inner:
+            if lo_f < fracs[v] < hi_f:
+                out[at] = coords[v]
+                at += 1
+        far = f_to[k]
+        out[at, 0] = np.interp(far, fracs[a:b], coords[a:b, 0])
+        out[at, 1] = np.interp(far, fracs[a:b], coords[a:b, 1])
     return out, starts
 
 
@@ -210,7 +225,7 @@ def node_ids(graph: RoadGraph, t: Trace) -> list[int]:
     node ids; inner vertices get :data:`VERTEX_BASE` ids; a snapped point takes the id of the
     vertex behind it (start) or ahead of it (end), so each consecutive pair of ids names the
     piece of road the pair lies on, as OSRM's OSM node pairs do."""
-    if not t.pieces:  # zero-length leg on one segment
+    if not len(t.rows):  # zero-length leg on one segment
         return nodes_around(graph, t.leg.start)
     ids: list[int] = []
     last = len(t.runs) - 1

@@ -1,0 +1,132 @@
+"""The compiled routing kernels (app.routing.native) against independent references: GEOS's
+distance and Douglas-Peucker (shapely), the ``polyline`` package's encoder, and the cut lines
+of :func:`app.routing.geometry.cut_with_fractions`, on random synthetic lines with known
+edge cases (antimeridian, zero-length edges, points off the globe, rounding halves)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import polyline
+import pytest
+import shapely
+
+from app.routing.encoded_polyline import encode
+from app.routing.geometry import cut_with_fractions, point_at, vertex_fractions
+from app.routing.nearby import _nearest_on_lines, metres_per_degree
+from app.routing.overview import MERCATOR_R, PIXEL_M, fitted_zoom, simplify
+from app.routing.trace import _gathered
+
+
+def _lines(rng: np.random.Generator, n: int, lon: float = 1.52, lat: float = 42.5
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` random polylines of 1-12 vertices near (lon, lat), flat with offsets; one in
+    five repeats a vertex (a zero-length edge)."""
+    parts = []
+    for _ in range(n):
+        k = int(rng.integers(1, 13))
+        walk = np.cumsum(rng.normal(0.0, 2e-4, (k, 2)), axis=0) + np.array([lon, lat])
+        if k > 2 and rng.random() < 0.2:
+            walk[1] = walk[0]
+        parts.append(walk + rng.normal(0.0, 1e-3, 2))
+    offsets = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int64)
+    return np.concatenate(parts), offsets
+
+
+def _bbox(coords: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    return np.array([[*coords[a:b].min(axis=0), *coords[a:b].max(axis=0)]
+                     for a, b in itertools.pairwise(offsets)])
+
+
+def test_nearest_on_lines_is_geos_distance_in_the_local_frame() -> None:
+    rng = np.random.default_rng(7)
+    coords, offsets = _lines(rng, 60)
+    fracs = vertex_fractions(coords, offsets)
+    points = coords[rng.integers(0, len(coords), 25)] + rng.normal(0.0, 3e-4, (25, 2))
+    east, north = metres_per_degree(points[:, 1])
+    which = np.repeat(np.arange(25), 60).astype(np.int64)
+    rows = np.tile(np.arange(60), 25).astype(np.int64)
+    distance, fraction = _nearest_on_lines(points, east, north, which, rows, offsets, coords,
+                                           fracs, _bbox(coords, offsets))
+    for i, (p, r) in enumerate(zip(which, rows, strict=True)):
+        line = coords[offsets[r]:offsets[r + 1]]
+        local = (line - points[p]) * [east[p], north[p]]
+        geom = shapely.LineString(local) if len(local) > 1 else shapely.Point(local[0])
+        assert distance[i] == pytest.approx(shapely.distance(geom, shapely.Point(0, 0)),
+                                            rel=1e-9, abs=1e-9)
+        # The fraction names the point measured: at that distance from the query point.
+        at = np.subtract(point_at(line, fracs[offsets[r]:offsets[r + 1]], fraction[i]),
+                         points[p]) * [east[p], north[p]]
+        assert np.hypot(*at) == pytest.approx(distance[i], abs=1e-6)
+
+
+def test_nearest_on_lines_across_the_antimeridian_and_off_the_globe() -> None:
+    coords = np.array([[179.9999, 10.0], [-179.9999, 10.0], [0.0, 95.0], [1.0, 95.0]])
+    offsets = np.array([0, 2, 4], np.int64)
+    fracs = np.array([0.0, 1.0, 0.0, 1.0])
+    points = np.array([[180.0, 10.0001]])
+    east, north = metres_per_degree(points[:, 1])
+    distance, fraction = _nearest_on_lines(points, east, north, np.zeros(2, np.int64),
+                                           np.arange(2, dtype=np.int64), offsets, coords,
+                                           fracs, _bbox(coords, offsets))
+    assert distance[0] == pytest.approx(0.0001 * north[0], rel=1e-9)  # the short way round
+    assert fraction[0] == pytest.approx(0.5)
+    assert np.isnan(distance[1]) and np.isnan(fraction[1])  # latitude 95: not on the globe
+
+
+@pytest.mark.parametrize("n", [3, 10, 200, 3000])
+def test_simplify_keeps_the_vertices_geos_keeps(n: int) -> None:
+    rng = np.random.default_rng(n)
+    t = np.linspace(0.0, 1.0, n)  # a winding road with centimetre jitter
+    lonlat = np.column_stack([1.52 + 0.01 * t, 42.5 + 0.002 * np.sin(6 * t)]) + \
+        rng.normal(0.0, 1e-7, (n, 2))
+    x = np.radians(lonlat[:, 0]) * MERCATOR_R
+    y = np.log(np.tan(np.pi / 4 + np.radians(lonlat[:, 1]) / 2)) * MERCATOR_R
+    tolerance = PIXEL_M[fitted_zoom(max(np.ptp(x), np.ptp(y)))]
+    geos = shapely.simplify(shapely.linestrings(x, y, np.arange(n, dtype=float)), tolerance,
+                            preserve_topology=False)
+    kept = shapely.get_coordinates(geos, include_z=True)[:, 2].astype(int)
+    assert np.array_equal(simplify(lonlat), lonlat[kept])
+    assert n < 200 or len(kept) < n / 2  # it does thin
+
+
+def test_simplify_leaves_lines_off_the_globe_and_short_ones() -> None:
+    beyond = np.array([[0.0, 0.0], [0.0, 91.0], [1.0, 1.0]])
+    assert simplify(beyond) is beyond
+    two = np.array([[0.0, 0.0], [1.0, 1.0]])
+    assert simplify(two) is two
+
+
+@pytest.mark.parametrize("precision", [5, 6])
+def test_encode_is_the_polyline_package(precision: int) -> None:
+    rng = np.random.default_rng(precision)
+    lonlat = np.column_stack([rng.uniform(-180, 180, 300), rng.uniform(-90, 90, 300)])
+    halves = np.array([[-179.9999995, 89.9999995], [0.0000005, -0.0000005],
+                       [-0.0000015, 0.0000025], [0.0, 0.0]])
+    for line in (lonlat, halves, lonlat[:1]):
+        assert encode(line, precision) == polyline.encode([(y, x) for x, y in line], precision)
+    assert encode(np.zeros((0, 2)), precision) == ""
+
+
+def test_gathered_is_the_pieces_cut_lines_joined() -> None:
+    rng = np.random.default_rng(3)
+    coords, offsets = _lines(rng, 40)
+    fracs = vertex_fractions(coords, offsets)
+    for _ in range(50):
+        m = int(rng.integers(1, 8))
+        rows = rng.integers(0, 40, m).astype(np.int64)
+        f_from = rng.choice([0.0, 1.0], m)
+        f_to = 1.0 - f_from
+        f_from[0], f_to[-1] = rng.uniform(0, 1), rng.uniform(0, 1)  # the cut ends
+        start = np.array(point_at(coords[offsets[rows[0]]:offsets[rows[0] + 1]],
+                                  fracs[offsets[rows[0]]:offsets[rows[0] + 1]], f_from[0]))
+        out, starts = _gathered(rows, f_from, f_to, offsets, coords, fracs, start)
+        expected = [start]
+        first = [0]
+        for r, a, b in zip(rows, f_from, f_to, strict=True):
+            lo, hi = offsets[r], offsets[r + 1]
+            expected.extend(cut_with_fractions(coords[lo:hi], fracs[lo:hi], a, b)[0][1:])
+            first.append(len(expected) - 1)
+        assert np.array_equal(out, np.array(expected))
+        assert starts.tolist() == first

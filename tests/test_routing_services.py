@@ -123,6 +123,18 @@ def test_nearest_is_the_routes_snapped_waypoint(client, grid) -> None:
     assert ends == row[:2]
 
 
+def test_segments_meeting_at_the_nearest_vertex_tie_and_go_by_id(client, grid) -> None:
+    """A point north-east of a grid node: the streets leaving the node east and north pass
+    nearer; the two leaving it west and south are nearest at the node itself, at one
+    distance (each reaches the node as a different end, which floating point rounds apart:
+    ties are to the micrometre), and come in the order of their ids."""
+    near = osrm(client, grid["name"], "nearest", [at(3.2, 4.3)], number=4)["waypoints"]
+    distances = [w["distance"] for w in near]
+    assert distances[0] < distances[1] < distances[2] == distances[3]
+    assert near[2]["segment_id"] < near[3]["segment_id"]
+    assert near[2]["location"] == near[3]["location"]
+
+
 def test_table_cells_are_the_routes_between_the_points(client, grid) -> None:
     name = grid["name"]
     table = osrm(client, name, "table", POINTS, annotations="duration,distance")

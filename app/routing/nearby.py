@@ -93,9 +93,9 @@ def _rows_of(graph: RoadGraph, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 @dataclass(frozen=True)
 class Hits:
-    """Segments near query points, per point nearest first (then a segment ending at the
-    point, then the lowest id); ``distance_m`` and ``fraction`` are NaN for a segment whose
-    coordinates are off the globe (a bad import), which sorts last."""
+    """Segments near query points, per point nearest first (distances to the micrometre; then
+    a segment ending at the point, then the lowest id); ``distance_m`` and ``fraction`` are NaN
+    for a segment whose coordinates are off the globe (a bad import), which sorts last."""
 
     point: np.ndarray  # index of the query point
     row: np.ndarray
@@ -112,26 +112,39 @@ class Hits:
         return len(self.row)
 
 
+@kernel("UniTuple(f8[:], 2)(f8[:])")
 def metres_per_degree(lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(east, north) metres per degree of longitude and latitude at ``lat``, on WGS84."""
-    s2 = np.sin(np.radians(lat)) ** 2
-    w = np.sqrt(1.0 - WGS84_E2 * s2)
-    north = WGS84_A * (1.0 - WGS84_E2) / w**3 * DEG
-    east = WGS84_A / w * np.cos(np.radians(lat)) * DEG
+    east, north = np.empty(len(lat)), np.empty(len(lat))
+    for i in range(len(lat)):
+        w = np.sqrt(1.0 - WGS84_E2 * np.sin(np.radians(lat[i])) ** 2)
+        north[i] = WGS84_A * (1.0 - WGS84_E2) / w**3 * DEG
+        east[i] = WGS84_A / w * np.cos(np.radians(lat[i])) * DEG
     return east, north
+
+
+@kernel("f8[:, :](f8[:, :], f8[:], f8[:], f8[:])")
+def _boxes(points: np.ndarray, reach: np.ndarray, east: np.ndarray, north: np.ndarray
+           ) -> np.ndarray:
+    """(min lon, min lat, max lon, max lat) of each point's search area: ``reach`` metres
+    around it (at most the whole circle of longitudes)."""
+    boxes = np.empty((len(points), 4))
+    for i in range(len(points)):
+        dlon = min(reach[i] / max(east[i], 1e-3), 360.0)
+        dlat = reach[i] / north[i]
+        boxes[i] = (points[i, 0] - dlon, points[i, 1] - dlat, points[i, 0] + dlon,
+                    points[i, 1] + dlat)
+    return boxes
 
 
 def within(graph: RoadGraph, points: np.ndarray, radius_m: np.ndarray,
            avoid: frozenset[str] = frozenset()) -> Hits:
     """Every segment within ``radius_m[i]`` of ``points[i]`` (lon/lat rows), except those of
     the ``avoid`` classes: where on it the point projects and how far it is, sorted."""
-    points = np.asarray(points, np.float64).reshape(-1, 2)
-    east, north = metres_per_degree(points[:, 1])
-    reach = np.asarray(radius_m, np.float64) * 1.001 + 1e-3
-    dlon = np.minimum(reach / np.maximum(east, 1e-3), 360.0)
-    dlat = reach / north
-    boxes = np.column_stack([points[:, 0] - dlon, points[:, 1] - dlat,
-                             points[:, 0] + dlon, points[:, 1] + dlat])
+    points = np.ascontiguousarray(points, np.float64).reshape(-1, 2)
+    east, north = metres_per_degree(points[:, 1].copy())
+    reach = np.asarray(radius_m, np.float64).reshape(-1) * 1.001 + 1e-3
+    boxes = _boxes(points, reach, east, north)
     which, rows = graph.index.pairs(graph, boxes)
     if avoid and len(rows):
         keep = ~np.isin(graph.segs.road_class[rows].astype(str), list(avoid))
@@ -140,6 +153,10 @@ def within(graph: RoadGraph, points: np.ndarray, radius_m: np.ndarray,
     near = (distance <= reach[which]) | np.isnan(distance)
     which, rows, distance, fraction = which[near], rows[near], distance[near], fraction[near]
     inner = (fraction > 0.0) & (fraction < 1.0)
+    # Distances to the micrometre: the segments meeting at a vertex nearest the point measure
+    # the same distance but for floating-point rounding (one reaches the vertex as its start,
+    # another as its end), and the order between them is the tie-break's, not the rounding's.
+    distance = distance.round(6)
     order = np.lexsort((graph.segs.ids[rows], inner, _nan_last(distance), which))
     return Hits(which[order], rows[order], distance[order], fraction[order])
 

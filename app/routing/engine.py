@@ -196,6 +196,8 @@ class Router:
             return Leg.of(a.snap, b.snap, straight[0], [straight[1]])
         if not np.isfinite(weight):
             raise self._no_route(a, b)
+        # The piece leaving a (none when a is at a node), whole segments driven along (+1) or
+        # against their geometry, the piece reaching b.
         f_from = np.where(ways > 0, 0.0, 1.0)
         head, tail = [first] if first is not None else [], [last] if last is not None else []
         return Leg(a.snap, b.snap, weight,

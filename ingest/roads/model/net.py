@@ -7,6 +7,8 @@ Two architectures, one interface (RGB in [0, 1], (N, 3, H, W) with H and W multi
   (:mod:`ingest.roads.model.encoder`), cut at stride 16, under a small U-Net decoder that joins
   the encoder's stride 8/4/2 maps and a full-resolution branch back up. The pretrained
   encoder is what lets the model find roads on imagery unlike its ~250 training scenes.
+- ``lite2``: the same with EfficientNet-Lite2's encoder (wider, deeper): the ablation of a
+  bigger pretrained encoder.
 - ``unet`` (roads-v1): a compact U-Net trained from scratch, four 2x down-samplings, two 3x3
   conv + BatchNorm + ReLU per level. Kept to reproduce v1 and for the ablation.
 
@@ -26,11 +28,11 @@ from torch import nn
 
 from ingest.roads.model.encoder import LiteEncoder, load_imagenet_weights
 
-Arch = Literal["lite0", "unet"]
+Arch = Literal["lite0", "lite2", "unet"]
 WIDTHS = (16, 32, 64, 96, 128)
 """``unet``: channels per level, full resolution first."""
 DECODER = (64, 48, 32, 16)
-"""``lite0``: decoder channels at strides 8, 4, 2 and 1."""
+"""``lite0``/``lite2``: decoder channels at strides 8, 4, 2 and 1."""
 
 
 def _block(cin: int, cout: int) -> nn.Sequential:
@@ -73,11 +75,11 @@ class RoadUNet(nn.Module):
 
 
 class LiteUNet(nn.Module):
-    """roads-v2: EfficientNet-Lite0 encoder + U-Net decoder (see module doc)."""
+    """roads-v2: EfficientNet-Lite0 (or -Lite2) encoder + U-Net decoder (see module doc)."""
 
-    def __init__(self, decoder: tuple[int, ...] = DECODER) -> None:
+    def __init__(self, decoder: tuple[int, ...] = DECODER, variant: str = "lite0") -> None:
         super().__init__()
-        self.encoder = LiteEncoder()
+        self.encoder = LiteEncoder(variant=variant)
         skips = self.encoder.channels  # stride 2, 4, 8, 16
         self.full = nn.Sequential(nn.Conv2d(3, decoder[-1], 3, padding=1, bias=False),
                                   nn.BatchNorm2d(decoder[-1]), nn.ReLU(inplace=True))
@@ -103,10 +105,10 @@ class LiteUNet(nn.Module):
 
 
 def build(arch: Arch, pretrained: bool = True, widths: tuple[int, ...] = WIDTHS) -> nn.Module:
-    """A fresh network; ``pretrained`` loads ImageNet weights into the ``lite0`` encoder."""
+    """A fresh network; ``pretrained`` loads ImageNet weights into a ``lite`` encoder."""
     if arch == "unet":
         return RoadUNet(widths)
-    net = LiteUNet()
+    net = LiteUNet(variant=arch)
     if pretrained:
         load_imagenet_weights(net.encoder)
     return net

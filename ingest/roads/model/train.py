@@ -52,7 +52,8 @@ class TrainConfig:
 
     arch: Arch = "lite0"
     pretrained: bool = True
-    """``lite0``: start the encoder from ImageNet weights (False = from scratch, the ablation)."""
+    """``lite0``/``lite2``: start the encoder from ImageNet weights (False = from scratch, the
+    ablation)."""
     encoder_lr_scale: float = 0.3
     resolution_m: float = 0.5
     crop_px: int = 256

@@ -142,7 +142,7 @@ def within(graph: RoadGraph, points: np.ndarray, radius_m: np.ndarray,
     """Every segment within ``radius_m[i]`` of ``points[i]`` (lon/lat rows), except those of
     the ``avoid`` classes: where on it the point projects and how far it is, sorted."""
     points = np.ascontiguousarray(points, np.float64).reshape(-1, 2)
-    east, north = metres_per_degree(points[:, 1].copy())
+    east, north = metres_per_degree(points[:, 1])
     reach = np.asarray(radius_m, np.float64).reshape(-1) * 1.001 + 1e-3
     boxes = _boxes(points, reach, east, north)
     which, rows = graph.index.pairs(graph, boxes)

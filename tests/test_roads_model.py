@@ -80,37 +80,39 @@ def test_tiny_training_run_lowers_the_loss_and_writes_a_model(tiny_run: tuple[Pa
 def test_the_bigger_encoder_trains_and_exports_too(dataset: Path, tmp_path: Path) -> None:
     """``--arch lite2`` (the ablation of a bigger pretrained encoder): the same tiny run lowers
     the loss and writes a model whose ONNX answers like its weights."""
-    from ingest.roads.model.net import build
     from ingest.roads.model.train import TrainConfig, initial_loss, train
 
     config = TrainConfig(**TINY, arch="lite2")
     report = train(dataset, tmp_path, config, progress=False)
     losses = [h["loss"] for h in report["history"]]
     assert losses[-1] < 0.8 * initial_loss(config, dataset), losses
-    net = build("lite2", pretrained=False)
-    net.load_state_dict(torch.load(tmp_path / "weights.pt"))
-    net.eval()
     x = np.random.default_rng(3).random((1, 3, 64, 96), dtype=np.float32)
-    with torch.no_grad():
-        logit, _ = net(torch.from_numpy(x))
-    prob = load_model(tmp_path / "model.onnx").session.run(["road"], {"rgb": x})[0]
-    np.testing.assert_allclose(prob, torch.sigmoid(logit).numpy(), atol=1e-5)
+    (prob, _), (prob_onnx, _) = _torch_and_onnx("lite2", tmp_path, x)
+    np.testing.assert_allclose(prob_onnx, prob, atol=1e-5)
     assert "EfficientNet-Lite2" in (tmp_path / "README.md").read_text()
 
 
-def test_onnx_and_torch_agree(tiny_run: tuple[Path, dict]) -> None:
+def _torch_and_onnx(arch: str, out: Path, x: np.ndarray
+                    ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """(probability, features) of ``x`` from ``out``'s weights.pt run by torch, and from its
+    model.onnx run by onnxruntime."""
     from ingest.roads.model.net import build
 
-    out, _ = tiny_run
-    net = build("lite0", pretrained=False)
+    net = build(arch, pretrained=False)
     net.load_state_dict(torch.load(out / "weights.pt"))
     net.eval()
-    x = np.random.default_rng(1).random((2, 3, 96, 160), dtype=np.float32)
     with torch.no_grad():
         logit, feats = net(torch.from_numpy(x))
-    prob_onnx, feats_onnx = load_model(out / "model.onnx").session.run(None, {"rgb": x})
-    np.testing.assert_allclose(prob_onnx, torch.sigmoid(logit).numpy(), atol=1e-5)
-    np.testing.assert_allclose(feats_onnx, feats.numpy(), atol=1e-4)
+    return ([torch.sigmoid(logit).numpy(), feats.numpy()],
+            load_model(out / "model.onnx").session.run(None, {"rgb": x}))
+
+
+def test_onnx_and_torch_agree(tiny_run: tuple[Path, dict]) -> None:
+    out, _ = tiny_run
+    x = np.random.default_rng(1).random((2, 3, 96, 160), dtype=np.float32)
+    (prob, feats), (prob_onnx, feats_onnx) = _torch_and_onnx("lite0", out, x)
+    np.testing.assert_allclose(prob_onnx, prob, atol=1e-5)
+    np.testing.assert_allclose(feats_onnx, feats, atol=1e-4)
 
 
 def test_training_is_reproducible(dataset: Path, tiny_run: tuple[Path, dict],

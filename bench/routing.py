@@ -38,7 +38,9 @@ import sys
 import tempfile
 import time
 import tracemalloc
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 from urllib.parse import urlencode, urlsplit
 
 import httpx
@@ -105,31 +107,50 @@ class Wire:
         return response.status, body
 
 
+def requests(wire: Wire, conn: psycopg.Connection, name: str, edges: str
+             ) -> dict[str, Callable[[tuple, tuple], Any]]:
+    """The three requests each pair of nodes ((id, lon, lat), twice) is timed with: our HTTP
+    route with our URL's defaults (GeoJSON, full overview, steps), OSRM's URL with OSRM's
+    (polyline, simplified, no steps), and pgr_dijkstra on the same edges."""
+    def ours(a: tuple, b: tuple) -> tuple[int, bytes]:
+        return wire.get(f"/networks/{name}/route",
+                        {"points": f"{a[1]!r},{a[2]!r};{b[1]!r},{b[2]!r}", "cost": "time"})
+
+    def osrm(a: tuple, b: tuple) -> tuple[int, bytes]:
+        return wire.get(f"/networks/{name}/route/v1/driving/{a[1]!r},{a[2]!r};{b[1]!r},{b[2]!r}")
+
+    def pgr(a: tuple, b: tuple) -> list:
+        return conn.execute("SELECT agg_cost FROM pgr_dijkstra(%s, %s::bigint, %s::bigint) "
+                            "ORDER BY seq", (edges, a[0], b[0])).fetchall()
+
+    return {OURS: ours, OSRM_URL: osrm, PGR: pgr}
+
+
+def _timed(call: Callable[[tuple, tuple], Any], a: tuple, b: tuple) -> tuple[float, Any]:
+    """Seconds one request took, and its answer."""
+    t = time.perf_counter()
+    answer = call(a, b)
+    return time.perf_counter() - t, answer
+
+
 def time_pass(wire: Wire, conn: psycopg.Connection, name: str, edges: str,
               pairs: list) -> tuple[dict[str, list[float]], list[float]]:
-    """Time each pair through our HTTP route, once with our URL's defaults (GeoJSON, full
-    overview, steps) and once on OSRM's URL with OSRM's (polyline, simplified, no steps), and
-    through pgr_dijkstra on the same edges; compare the answers: the relative difference of
-    each route's cost (our ``weight``, the last ``agg_cost`` of pgr_dijkstra), so every figure
-    is of routes known to be equal."""
+    """Time each pair through the three :func:`requests`, one after the other; compare the
+    answers: the relative difference of each route's cost (our ``weight``, the last
+    ``agg_cost`` of pgr_dijkstra), so every figure is of routes known to be equal."""
     times: dict[str, list[float]] = {OURS: [], OSRM_URL: [], PGR: []}
     diffs = []
-    for (a, ax, ay), (b, bx, by) in pairs:
-        t = time.perf_counter()
-        status, ours = wire.get(f"/networks/{name}/route",
-                                {"points": f"{ax!r},{ay!r};{bx!r},{by!r}", "cost": "time"})
-        times[OURS].append(time.perf_counter() - t)
-        assert status == 200, ours
-        t = time.perf_counter()
-        status, osrm = wire.get(f"/networks/{name}/route/v1/driving/{ax!r},{ay!r};{bx!r},{by!r}")
-        times[OSRM_URL].append(time.perf_counter() - t)
-        assert status == 200, osrm
-        t = time.perf_counter()
-        rows = conn.execute("SELECT agg_cost FROM pgr_dijkstra(%s, %s::bigint, %s::bigint) "
-                            "ORDER BY seq", (edges, a, b)).fetchall()
-        times[PGR].append(time.perf_counter() - t)
-        expected = float(rows[-1][0])
-        for got in (json.loads(body)["routes"][0]["weight"] for body in (ours, osrm)):
+    calls = requests(wire, conn, name, edges)
+    for a, b in pairs:
+        answers = {}
+        for key, call in calls.items():
+            seconds, answers[key] = _timed(call, a, b)
+            times[key].append(seconds)
+        expected = float(answers[PGR][-1][0])
+        for key in (OURS, OSRM_URL):
+            status, body = answers[key]
+            assert status == 200, body
+            got = json.loads(body)["routes"][0]["weight"]
             diffs.append(abs(float(got) - expected) / max(expected, 1e-9))
     return times, diffs
 
@@ -194,21 +215,8 @@ def back_to_back(wire: Wire, conn: psycopg.Connection, name: str, edges: str,
     are cold and each hop (client, server, database, client) waits for a CPU to wake, which
     an HTTP request of several hops pays more than one SQL round trip. In a row, each side is
     measured in its own steady state, as a planner sending a burst of queries sees it."""
-    times: dict[str, list[float]] = {OURS: [], OSRM_URL: [], PGR: []}
-    for (_, ax, ay), (_, bx, by) in pairs:
-        t = time.perf_counter()
-        wire.get(f"/networks/{name}/route", {"points": f"{ax!r},{ay!r};{bx!r},{by!r}",
-                                             "cost": "time"})
-        times[OURS].append(time.perf_counter() - t)
-    for (_, ax, ay), (_, bx, by) in pairs:
-        t = time.perf_counter()
-        wire.get(f"/networks/{name}/route/v1/driving/{ax!r},{ay!r};{bx!r},{by!r}")
-        times[OSRM_URL].append(time.perf_counter() - t)
-    for (a, _, _), (b, _, _) in pairs:
-        t = time.perf_counter()
-        conn.execute("SELECT agg_cost FROM pgr_dijkstra(%s, %s::bigint, %s::bigint) "
-                     "ORDER BY seq", (edges, a, b)).fetchall()
-        times[PGR].append(time.perf_counter() - t)
+    times = {key: [_timed(call, a, b)[0] for a, b in pairs]
+             for key, call in requests(wire, conn, name, edges).items()}
     p50 = {key: percentile(xs, 0.5) * 1e3 for key, xs in times.items()}
     for key in (OURS, OSRM_URL):
         print(f"  back to back {key:27s} p50 {p50[key]:6.2f} ms vs {p50[PGR]:.2f} ms: "

@@ -12,7 +12,6 @@ import orjson
 from app.errors import DatabaseUnavailableError
 from app.routing.costs import Cost
 from app.routing.options import FORMATS, GEOMETRIES, parse, parse_points
-from app.routing.planner import plan_route
 from app.routing.reads import read_connection
 
 
@@ -33,6 +32,10 @@ from app.routing.reads import read_connection
 def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geometries: str,
           fmt: str, spacing: str | None, radius: str | None) -> None:
     """Plan a route on NETWORK through the given points."""
+    # Here, not at the top: the planner loads routing's compiled kernels (numba), which every
+    # other command (`ugvmap --help`, `db start`...) would pay for at start-up.
+    from app.routing.planner import plan_route
+
     raw = {"cost": cost, "avoid": avoid, "optimize": "true" if optimize else "false"}
     if fmt == "waypoints":
         raw.update(format="waypoints", **({"spacing": spacing} if spacing is not None else {}))

@@ -169,6 +169,12 @@ def _measure(graph: RoadGraph, points: np.ndarray, east: np.ndarray, north: np.n
                              graph.segs.coords, graph.fracs, graph.bbox)
 
 
+@kernel("f8(f8)")
+def _short_way(dlon: float) -> float:
+    """A longitude difference taken the short way round the antimeridian."""
+    return (dlon + 180.0) % 360.0 - 180.0
+
+
 @kernel("UniTuple(f8[:], 2)(f8[:, :], f8[:], f8[:], i8[:], i8[:], i8[:], f8[:, :], f8[:], "
         "f8[:, :])")
 def _nearest_on_lines(points: np.ndarray, east: np.ndarray, north: np.ndarray,
@@ -190,9 +196,9 @@ def _nearest_on_lines(points: np.ndarray, east: np.ndarray, north: np.ndarray,
         best, best_f = np.inf, np.nan
         for k in range(lo, max(hi - 1, lo + 1)):
             nxt = min(k + 1, hi - 1)
-            ax = ((coords[k, 0] - ox + 180.0) % 360.0 - 180.0) * kx
+            ax = _short_way(coords[k, 0] - ox) * kx
             ay = (coords[k, 1] - oy) * ky
-            dx = ((coords[nxt, 0] - coords[k, 0] + 180.0) % 360.0 - 180.0) * kx
+            dx = _short_way(coords[nxt, 0] - coords[k, 0]) * kx
             dy = (coords[nxt, 1] - coords[k, 1]) * ky
             length2 = dx * dx + dy * dy
             t = -(ax * dx + ay * dy) / length2 if length2 > 0.0 else 0.0

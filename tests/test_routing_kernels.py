@@ -14,8 +14,10 @@ import shapely
 
 from app.routing.encoded_polyline import encode
 from app.routing.geometry import cut_with_fractions, point_at, vertex_fractions
+from app.routing.junctions import _crossings
 from app.routing.nearby import _nearest_on_lines, metres_per_degree
 from app.routing.overview import MERCATOR_R, PIXEL_M, fitted_zoom, simplify
+from app.routing.steps import modifier
 from app.routing.trace import _gathered
 
 
@@ -130,3 +132,50 @@ def test_gathered_is_the_pieces_cut_lines_joined() -> None:
             first.append(len(expected) - 1)
         assert np.array_equal(out, np.array(expected))
         assert starts.tolist() == first
+
+
+@pytest.mark.parametrize(("before", "after", "expected"), [
+    (0.0, 0.0, "straight"), (10.0, 40.0, "straight"), (350.0, 20.0, "straight"),
+    (0.0, 30.5, "slight right"), (0.0, 60.0, "slight right"), (300.0, 0.0, "slight right"),
+    (0.0, 61.0, "right"), (90.0, 210.0, "right"), (0.0, 121.0, "sharp right"),
+    (0.0, 169.0, "sharp right"), (0.0, 170.0, "uturn"), (0.0, 180.0, "uturn"),
+    (0.0, 190.0, "uturn"), (0.0, 315.0, "slight left"), (10.0, 280.0, "left"),
+    (0.0, 200.0, "sharp left"), (0.0, 329.5, "slight left"), (0.0, 330.0, "straight"),
+])
+def test_turn_modifiers_follow_osrms_angles(before: float, after: float, expected: str) -> None:
+    assert modifier(before, after) == expected
+
+
+def test_crossings_are_each_nodes_roads_read_one_by_one() -> None:
+    rng = np.random.default_rng(3)
+    n_nodes, n_rows = 40, 70
+    degree = rng.integers(1, 6, n_nodes)
+    offsets = np.concatenate([[0], np.cumsum(degree)]).astype(np.int64)
+    row = rng.integers(0, n_rows, offsets[-1]).astype(np.int64)
+    at_target = rng.random(offsets[-1]) < 0.5
+    bearing = rng.integers(0, 360, offsets[-1]).astype(np.int64)
+    oneway = rng.integers(-1, 2, n_rows).astype(np.int8)
+    nodes = rng.integers(0, n_nodes, 30).astype(np.int64)
+    # Arrive and leave by one of the node's roads, or (one in five) by a road not there.
+    pick = [int(offsets[k] + rng.integers(0, degree[k])) for k in nodes]
+    came_rows = np.where(rng.random(30) < 0.2, n_rows, row[pick]).astype(np.int64)
+    came_at = at_target[pick].copy()
+    pick = [int(offsets[k] + rng.integers(0, degree[k])) for k in nodes]
+    leaves_rows, leaves_at = row[pick].astype(np.int64), at_target[pick].copy()
+
+    out_offsets, rows, bearings, entry, came, leaves = _crossings(
+        offsets, row, at_target, bearing, oneway, nodes, came_rows, came_at, leaves_rows,
+        leaves_at)
+    assert out_offsets[0] == 0
+    for k, node in enumerate(nodes):
+        roads = range(offsets[node], offsets[node + 1])
+        at = slice(out_offsets[k], out_offsets[k + 1])
+        assert rows[at].tolist() == [row[j] for j in roads]
+        assert bearings[at].tolist() == [bearing[j] for j in roads]
+        # May be driven into: away from the node along the road's one-way direction.
+        assert entry[at].tolist() == [bool(oneway[row[j]] <= 0 if at_target[j]
+                                           else oneway[row[j]] >= 0) for j in roads]
+        for index, (r, t) in ((came[k], (came_rows[k], came_at[k])),
+                              (leaves[k], (leaves_rows[k], leaves_at[k]))):
+            matches = [i for i, j in enumerate(roads) if (row[j], at_target[j]) == (r, t)]
+            assert index == (matches[-1] if matches else -1)

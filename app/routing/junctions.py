@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from app.routing.graph import RoadGraph, Shape
+from app.routing.native import kernel
 
 KEEP = 2  # shapes whose index is kept (each ~5 bytes per segment end + 8 per node)
 
@@ -77,28 +78,54 @@ class Junctions:
 
     def crossings(self, graph: RoadGraph, nodes: np.ndarray, came: tuple[np.ndarray, np.ndarray],
                   leaves: tuple[np.ndarray, np.ndarray], avoid: frozenset[str]) -> Crossings:
-        """The roads at each of ``nodes`` (a leg's joints), read for all of them at once: a
-        city route passes ~70 junctions, a grid route ~170, and per node the numpy lookups
-        cost more than the arrays. ``came``/``leaves`` are (rows, at_target) per node of the
-        road arrived on and the road taken."""
-        lo = self.offsets[nodes]
-        degree = self.offsets[nodes + 1] - lo
-        ends = np.cumsum(degree)
-        within = np.arange(int(ends[-1]) if len(ends) else 0) - np.repeat(ends - degree, degree)
-        at = np.repeat(lo, degree) + within
-        rows, at_target = self.row[at], self.at_target[at]
-        way = graph.segs.oneway[rows]
-        entry = np.where(at_target, way <= 0, way >= 0)
+        """The roads at each of ``nodes`` (a leg's joints), read for all of them at once by
+        :func:`_crossings` (a city route passes ~70 junctions, a grid route ~170).
+        ``came``/``leaves`` are (rows, at_target) per node of the road arrived on and of the
+        road taken."""
+        offsets, rows, bearings, entry, came_at, leaves_at = _crossings(
+            self.offsets, self.row, self.at_target, self.bearing, graph.segs.oneway,
+            nodes.astype(np.int64, copy=False), came[0].astype(np.int64, copy=False), came[1],
+            leaves[0].astype(np.int64, copy=False), leaves[1])
         if avoid:
             entry &= ~np.isin(graph.segs.road_class[rows], list(avoid))
-        index = []
-        for road_rows, road_at in (came, leaves):
-            hit = (rows == np.repeat(road_rows, degree)) & (at_target == np.repeat(road_at, degree))
-            found = np.full(len(nodes), -1, np.int64)
-            found[np.repeat(np.arange(len(nodes)), degree)[hit]] = within[hit]
-            index.append(found.tolist())
-        return Crossings(np.concatenate([[0], ends]).tolist(), self.bearing[at].tolist(),
-                         entry.tolist(), index[0], index[1])
+        return Crossings(offsets.tolist(), bearings.tolist(), entry.tolist(), came_at.tolist(),
+                         leaves_at.tolist())
+
+
+@kernel("Tuple((i8[:], i8[:], i8[:], b1[:], i8[:], i8[:]))(i8[:], i8[:], b1[:], i8[:], i1[:], "
+        "i8[:], i8[:], b1[:], i8[:], b1[:])")
+def _crossings(offsets: np.ndarray, row: np.ndarray, at_target: np.ndarray, bearing: np.ndarray,
+               oneway: np.ndarray, nodes: np.ndarray, came_rows: np.ndarray,
+               came_at: np.ndarray, leaves_rows: np.ndarray, leaves_at: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                          np.ndarray]:
+    """The roads at each of ``nodes``, read off the index (``offsets``, ``row``, ``at_target``,
+    ``bearing``, sorted by node then clockwise): where each node's roads start in the flat
+    output (then the total), their rows, bearings and ``entry`` by the one-way rules (avoided
+    classes are the caller's), and the index among them of the road ``came`` on and of the
+    road it ``leaves`` by (-1: not there). One pass instead of ~15 numpy calls per leg, each of
+    which cost more than its few hundred elements."""
+    n = len(nodes)
+    out_offsets = np.zeros(n + 1, np.int64)
+    for k in range(n):
+        out_offsets[k + 1] = out_offsets[k] + offsets[nodes[k] + 1] - offsets[nodes[k]]
+    total = out_offsets[n]
+    rows = np.empty(total, np.int64)
+    bearings = np.empty(total, np.int64)
+    entry = np.empty(total, np.bool_)
+    came = np.full(n, -1, np.int64)
+    leaves = np.full(n, -1, np.int64)
+    for k in range(n):
+        lo = offsets[nodes[k]]
+        for j in range(out_offsets[k + 1] - out_offsets[k]):
+            r, target, at = row[lo + j], at_target[lo + j], out_offsets[k] + j
+            rows[at], bearings[at] = r, bearing[lo + j]
+            entry[at] = oneway[r] <= 0 if target else oneway[r] >= 0
+            if r == came_rows[k] and target == came_at[k]:
+                came[k] = j
+            if r == leaves_rows[k] and target == leaves_at[k]:
+                leaves[k] = j
+    return out_offsets, rows, bearings, entry, came, leaves
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,8 @@ into) and ``in``/``out`` indices.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -32,6 +33,7 @@ from app.routing.costs import Cost
 from app.routing.geometry import side_of
 from app.routing.graph import RoadGraph
 from app.routing.junctions import Crossings, Junctions
+from app.routing.native import kernel
 from app.routing.trace import Trace
 
 STRAIGHT_DEG = 30.0
@@ -41,17 +43,68 @@ UTURN_DEG = 170.0
 ON_ROAD_M = 0.5  # an end point this close to the road is on neither side
 
 
+# OSRM's turn modifiers, indexed by :func:`_turn`'s code.
+MODIFIERS = ("straight", "uturn", "slight right", "right", "sharp right", "slight left", "left",
+             "sharp left")
+STRAIGHT, UTURN = 0, 1
+# Maneuvers that start a step, indexed by :func:`_maneuvers`' code (0: no new step).
+KINDS = ("", "depart", "turn", "new name", "continue", "roundabout", "exit roundabout")
+DEPART, TURN, NEW_NAME, CONTINUE, ROUNDABOUT, EXIT_ROUNDABOUT = range(1, 7)
+
+
+@kernel("i8(f8, f8)")
+def _turn(before: float, after: float) -> int:
+    """The code in :data:`MODIFIERS` of OSRM's turn modifier from the bearing ``before`` to the
+    bearing ``after`` a maneuver point."""
+    delta = (after - before + 540.0) % 360.0 - 180.0  # -180..180, positive = clockwise
+    size = abs(delta)
+    if size <= STRAIGHT_DEG:
+        return STRAIGHT
+    if size >= UTURN_DEG:
+        return UTURN
+    grade = 2 if size <= SLIGHT_DEG else 3 if size <= PLAIN_DEG else 4
+    return grade if delta > 0 else grade + 3
+
+
 def modifier(before: float, after: float) -> str:
     """OSRM's turn modifier from the bearing before to the bearing after a maneuver point."""
-    delta = (after - before + 540.0) % 360.0 - 180.0  # -180..180, positive = clockwise
-    size, side = abs(delta), ("right" if delta > 0 else "left")
-    if size <= STRAIGHT_DEG:
-        return "straight"
-    if size >= UTURN_DEG:
-        return "uturn"
-    if size <= SLIGHT_DEG:
-        return f"slight {side}"
-    return side if size <= PLAIN_DEG else f"sharp {side}"
+    return MODIFIERS[_turn(before, after)]
+
+
+@kernel("UniTuple(i8[:], 2)(f8[:], f8[:], b1[:], b1[:], b1[:])")
+def _maneuvers(b_in: np.ndarray, b_out: np.ndarray, same_attrs: np.ndarray,
+               same_road: np.ndarray, roundabout: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per run of a leg, the maneuver (:data:`KINDS`) that starts a step there, 0 where the
+    run carries on the step before, and the turn (:data:`MODIFIERS`) from the run before.
+
+    ``same_attrs[k]``: run k has the attributes of run k - 1 (name, ref, lanes, speed limit,
+    speed, class), so it carries on that step when driven straight into; ``same_road[k]``:
+    it keeps run k - 1's name or ref (a new step there is a ``continue``). Comparing with the
+    run before is comparing with the step's first run, since a step's runs all share its
+    attributes; a roundabout step gathers the roundabout's runs whatever they are."""
+    n = len(b_in)
+    kind = np.zeros(n, np.int64)
+    turn = np.zeros(n, np.int64)
+    if n:
+        kind[0] = DEPART
+    current = DEPART
+    for k in range(1, n):
+        turn[k] = _turn(b_in[k - 1], b_out[k])
+        if current == ROUNDABOUT:
+            if roundabout[k]:
+                continue
+        elif turn[k] == STRAIGHT and same_attrs[k]:
+            continue
+        if roundabout[k] and not roundabout[k - 1]:
+            kind[k] = ROUNDABOUT
+        elif current == ROUNDABOUT:
+            kind[k] = EXIT_ROUNDABOUT
+        elif turn[k] == UTURN or same_road[k]:
+            kind[k] = CONTINUE
+        else:
+            kind[k] = NEW_NAME if turn[k] == STRAIGHT else TURN
+        current = kind[k]
+    return kind, turn
 
 
 @dataclass
@@ -74,11 +127,11 @@ Attrs = tuple[str, str, int, float | None, float, str]
 @dataclass(frozen=True)
 class _Leg:
     """A leg's runs as Python lists, and the roads at each joint: every lookup the grouping
-    loop makes, read for the whole leg at once (a grid route has ~300 runs)."""
+    makes, read for the whole leg at once (a grid route has ~300 runs)."""
 
     t: Trace
     attrs: list[Attrs]
-    roundabout: list[bool]
+    roundabout: np.ndarray  # bool per run
     segment_ids: list[int]
     nodes: list[int]  # graph node where run k ends, for k before the last
     crossings: Crossings  # joint k - 1: between runs k - 1 and k
@@ -98,18 +151,34 @@ class _Leg:
                 s.road_class[rows].tolist(), strict=True)]
         crossings = ctx.junctions.crossings(
             graph, nodes, (rows[:-1], t.forward[:-1]), (rows[1:], ~t.forward[1:]), ctx.avoid)
-        return _Leg(t, attrs, s.roundabout[rows].tolist(), t.segment_ids.tolist(),
-                    nodes.tolist(), crossings)
+        return _Leg(t, attrs, s.roundabout[rows], t.segment_ids.tolist(), nodes.tolist(),
+                    crossings)
+
+    def maneuvers(self) -> tuple[list[int], list[int], list[int]]:
+        """The runs where steps start, their maneuvers and turns (:func:`_maneuvers`)."""
+        attrs, ends = self.attrs, self.t.ends
+        pairs = list(pairwise(attrs))
+        same_attrs = [False, *(a == b for a, b in pairs)]
+        same_road = [False, *(bool(b[0] or b[1]) and a[:2] == b[:2] for a, b in pairs)]
+        kind, turn = _maneuvers(np.array(ends.b_in), np.array(ends.b_out),
+                                np.array(same_attrs), np.array(same_road), self.roundabout)
+        firsts = np.flatnonzero(kind)
+        return firsts.tolist(), kind[firsts].tolist(), turn[firsts].tolist()
 
     def intersection(self, k: int) -> dict[str, Any]:
         """OSRM's intersection where run ``k`` starts (k >= 1)."""
         return self.crossings.intersection(k - 1, self.t.ends.first[k])
 
+    def passed(self, first: int, end: int) -> list[dict[str, Any]]:
+        """The intersections (three or more roads) inside a step of runs ``first`` .. ``end``
+        - 1, after its maneuver point."""
+        degree = self.crossings.degree
+        return [self.intersection(k) for k in range(first + 1, end) if degree(k - 1) >= 3]
+
 
 @dataclass
 class _Step:
-    """A step being built: its runs ``first`` .. ``end`` - 1, maneuver and the intersections
-    it passes."""
+    """A step: its runs ``first`` .. ``end`` - 1, maneuver and the intersections it passes."""
 
     kind: str
     turn: str | None
@@ -118,13 +187,9 @@ class _Step:
     before: float
     after: float
     attrs: Attrs
-    end: int = 0  # one past its last run
-    intersections: list[dict[str, Any]] = field(default_factory=list)
+    end: int  # one past its last run
+    intersections: list[dict[str, Any]]
     exit: int | None = None
-
-
-def _same_road(a: Attrs, b: Attrs) -> bool:
-    return bool(a[0] or a[1]) and a[:2] == b[:2]
 
 
 def _exits_passed(ctx: StepContext, leg: _Leg, step: _Step) -> int:
@@ -140,41 +205,29 @@ def _exits_passed(ctx: StepContext, leg: _Leg, step: _Step) -> int:
 
 
 def _group(ctx: StepContext, leg: _Leg) -> list[_Step]:
-    """The leg's runs grouped into steps (before ``arrive``)."""
+    """The leg's runs grouped into steps (before ``arrive``): where each starts and with which
+    maneuver is :func:`_maneuvers`' decision; a roundabout step then takes its exit's number,
+    name and turn from the step that leaves it."""
     t, ends = leg.t, leg.t.ends
-    if not len(t.rows):
+    n = len(t.rows)
+    if not n:
         return []
-    steps = [_Step("depart", None, 0, t.start, 0.0, ends.b_out[0], leg.attrs[0], 1, [{
-        "location": t.start, "bearings": [round(ends.b_out[0]) % 360], "entry": [True],
-        "out": 0}])]
-    for k in range(1, len(t.rows)):
-        attrs, step = leg.attrs[k], steps[-1]
-        turn = modifier(ends.b_in[k - 1], ends.b_out[k])
-        on_roundabout = step.kind == "roundabout" and leg.roundabout[k]
-        if on_roundabout or (turn == "straight" and attrs == step.attrs
-                             and step.kind != "roundabout"):
-            step.end = k + 1
-            if leg.crossings.degree(k - 1) >= 3:
-                step.intersections.append(leg.intersection(k))
+    firsts, kinds, turns = leg.maneuvers()
+    steps = []
+    for first, end, kind, turn in zip(firsts, [*firsts[1:], n], kinds, turns, strict=True):
+        if kind == DEPART:
+            steps.append(_Step("depart", None, 0, t.start, 0.0, ends.b_out[0], leg.attrs[0], end, [
+                {"location": t.start, "bearings": [round(ends.b_out[0]) % 360], "entry": [True],
+                 "out": 0}, *leg.passed(0, end)]))
             continue
-        inter = leg.intersection(k)
-        if leg.roundabout[k] and not leg.roundabout[k - 1]:
-            steps.append(_Step("roundabout", turn, k, ends.first[k], ends.b_in[k - 1],
-                               ends.b_out[k], attrs, k + 1, [inter]))
-            continue
-        if step.kind == "roundabout":
-            kind = "exit roundabout"
-            step.exit = _exits_passed(ctx, leg, step) + 1
-            step.turn = modifier(step.before, ends.b_out[k])
-            step.attrs = (attrs[0], attrs[1], *step.attrs[2:])
-        elif turn == "uturn" or _same_road(attrs, step.attrs):
-            kind = "continue"
-        else:
-            kind = "new name" if turn == "straight" else "turn"
-        new = _Step(kind, turn, k, ends.first[k], ends.b_in[k - 1], ends.b_out[k], attrs,
-                    k + 1, [inter])
-        new.exit = step.exit if kind == "exit roundabout" else None
-        steps.append(new)
+        steps.append(_Step(KINDS[kind], MODIFIERS[turn], first, ends.first[first],
+                           ends.b_in[first - 1], ends.b_out[first], leg.attrs[first], end,
+                           [leg.intersection(first), *leg.passed(first, end)]))
+    for step, leaving in pairwise(steps):
+        if step.kind == "roundabout":  # ``leaving`` is its exit
+            step.exit = leaving.exit = _exits_passed(ctx, leg, step) + 1
+            step.turn = modifier(step.before, leaving.after)
+            step.attrs = (leaving.attrs[0], leaving.attrs[1], *step.attrs[2:])
     if steps[-1].kind == "roundabout":  # arriving on the roundabout
         steps[-1].exit = _exits_passed(ctx, leg, steps[-1]) + 1
         steps[-1].turn = modifier(steps[-1].before, ends.b_in[steps[-1].end - 1])

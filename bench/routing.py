@@ -135,16 +135,19 @@ def _timed(call: Callable[[tuple, tuple], Any], a: tuple, b: tuple) -> tuple[flo
 
 def time_pass(wire: Wire, conn: psycopg.Connection, name: str, edges: str,
               pairs: list) -> tuple[dict[str, list[float]], list[float]]:
-    """Time each pair through the three :func:`requests`, one after the other; compare the
-    answers: the relative difference of each route's cost (our ``weight``, the last
-    ``agg_cost`` of pgr_dijkstra), so every figure is of routes known to be equal."""
+    """Time each pair through the three :func:`requests`, each HTTP request right after a
+    pgr_dijkstra of the same pair (pgr_dijkstra, our URL, pgr_dijkstra, OSRM's URL), so both
+    of ours meet a server that sat idle the same while PostgreSQL worked (one right after the
+    other, the second found it warm: until 2026-11-27 OSRM's URL came right after ours);
+    compare the answers: the relative difference of each route's cost (our ``weight``, the
+    last ``agg_cost`` of pgr_dijkstra), so every figure is of routes known to be equal."""
     times: dict[str, list[float]] = {OURS: [], OSRM_URL: [], PGR: []}
     diffs = []
     calls = requests(wire, conn, name, edges)
     for a, b in pairs:
         answers = {}
-        for key, call in calls.items():
-            seconds, answers[key] = _timed(call, a, b)
+        for key in (PGR, OURS, PGR, OSRM_URL):
+            seconds, answers[key] = _timed(calls[key], a, b)
             times[key].append(seconds)
         expected = float(answers[PGR][-1][0])
         for key in (OURS, OSRM_URL):

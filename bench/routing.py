@@ -14,10 +14,11 @@ that reflects it, and what a split and a merge (arcs change) do to routes.
 Creates a throwaway database on the configured PostGIS (``DATABASE_URL`` or the embedded
 cluster), imports ``../shared/data/osm/andorra.osm.pbf`` with the network importer (if present)
 and synthesises a 224×224 grid (99,904 segments, like research/anchors-measured.md §3), then
-for each network: p50/p95 of warm HTTP route queries on a one-worker server (timed through the
-standard library's HTTP client, :class:`Wire`) vs warm
-``pgr_dijkstra`` queries on the same edges, costs and node pairs (median of passes), the
-ratio, and for the grid the graph build time, memory and the time an edit takes to reach it.
+for each network: p50/p95 of HTTP route queries on a one-worker server (timed through the
+standard library's HTTP client, :class:`Wire`) vs ``pgr_dijkstra`` queries on the same edges,
+costs and node pairs (median of passes), the ratio, each side in a row (its steady state) and
+cold (each HTTP request right after a ``pgr_dijkstra``), the CPU per request, and for the grid
+the graph build time, memory and the time an edit takes to reach it.
 """
 
 from __future__ import annotations
@@ -97,10 +98,19 @@ class Wire:
 
     def get(self, path: str, params: dict[str, str] | None = None) -> tuple[int, bytes]:
         """Status and body of a GET, asking for gzip as httpx and browsers do (the server's
-        compression and the client's decompression are part of what is timed)."""
-        self.conn.request("GET", f"{path}?{urlencode(params)}" if params else path,
-                          headers={"Accept-Encoding": "gzip"})
-        response = self.conn.getresponse()
+        compression and the client's decompression are part of what is timed). A connection
+        the server closed after its keep-alive timeout (5 s idle: the 1M network's
+        pgr_dijkstra calls in a row take longer) is opened again once, as clients do."""
+        target = f"{path}?{urlencode(params)}" if params else path
+        for retry in (False, True):
+            try:
+                self.conn.request("GET", target, headers={"Accept-Encoding": "gzip"})
+                response = self.conn.getresponse()
+                break
+            except (http.client.RemoteDisconnected, ConnectionResetError, BrokenPipeError):
+                self.conn.close()
+                if retry:
+                    raise
         body = response.read()
         if response.getheader("Content-Encoding") == "gzip":
             body = gzip.decompress(body)
@@ -133,28 +143,41 @@ def _timed(call: Callable[[tuple, tuple], Any], a: tuple, b: tuple) -> tuple[flo
     return time.perf_counter() - t, answer
 
 
-def time_pass(wire: Wire, conn: psycopg.Connection, name: str, edges: str,
-              pairs: list) -> tuple[dict[str, list[float]], list[float]]:
-    """Time each pair through the three :func:`requests`, each HTTP request right after a
-    pgr_dijkstra of the same pair (pgr_dijkstra, our URL, pgr_dijkstra, OSRM's URL), so both
-    of ours meet a server that sat idle the same while PostgreSQL worked (one right after the
-    other, the second found it warm: until 2026-11-27 OSRM's URL came right after ours);
-    compare the answers: the relative difference of each route's cost (our ``weight``, the
-    last ``agg_cost`` of pgr_dijkstra), so every figure is of routes known to be equal."""
-    times: dict[str, list[float]] = {OURS: [], OSRM_URL: [], PGR: []}
-    diffs = []
+MODES = {
+    False: "in a row (each side's requests back to back: its steady state, as a burst of "
+           "queries from a planner sees it)",
+    True: "cold (each HTTP request right after a pgr_dijkstra of the same pair: a server idle "
+          "for ~5 ms, as a planner's one route before departure finds it)",
+}
+
+
+def time_pass(wire: Wire, conn: psycopg.Connection, name: str, edges: str, pairs: list,
+              cold: bool) -> tuple[dict[str, list[float]], list[float]]:
+    """Time every pair through the three :func:`requests`, in one of two orders (``MODES``):
+    each side's in a row, or ``cold``, pgr_dijkstra, our URL, pgr_dijkstra, OSRM's URL for each
+    pair, so both HTTP requests meet a server PostgreSQL's work left idle. On this virtual
+    machine work after ~5 ms of idling runs up to twice as slowly (caches cold, CPUs woken at
+    each hop), which an HTTP request of several hops pays more than one SQL round trip; both
+    orders are printed. (Until 2026-11-27 one interleaved order, pgr_dijkstra, our URL, OSRM's
+    URL, was the headline: OSRM's URL found the server warm after ours.) Compare the answers:
+    the relative difference of each route's cost (our ``weight``, the last ``agg_cost`` of
+    pgr_dijkstra), so every figure is of routes known to be equal."""
     calls = requests(wire, conn, name, edges)
-    for a, b in pairs:
-        answers = {}
-        for key in (PGR, OURS, PGR, OSRM_URL):
-            seconds, answers[key] = _timed(calls[key], a, b)
-            times[key].append(seconds)
-        expected = float(answers[PGR][-1][0])
-        for key in (OURS, OSRM_URL):
-            status, body = answers[key]
+    schedule = ([(key, pair) for pair in pairs for key in (PGR, OURS, PGR, OSRM_URL)] if cold
+                else [(key, pair) for key in (OURS, OSRM_URL, PGR) for pair in pairs])
+    times: dict[str, list[float]] = {key: [] for key in calls}
+    answers: dict[str, list[Any]] = {key: [] for key in calls}
+    for key, (a, b) in schedule:
+        seconds, answer = _timed(calls[key], a, b)
+        times[key].append(seconds)
+        answers[key].append(answer)
+    expected = [float(rows[-1][0]) for rows in answers[PGR][::2 if cold else 1]]
+    diffs = []
+    for key in (OURS, OSRM_URL):
+        for (status, body), cost in zip(answers[key], expected, strict=True):
             assert status == 200, body
             got = json.loads(body)["routes"][0]["weight"]
-            diffs.append(abs(float(got) - expected) / max(expected, 1e-9))
+            diffs.append(abs(float(got) - cost) / max(cost, 1e-9))
     return times, diffs
 
 
@@ -170,60 +193,46 @@ def http_floor(wire: Wire, n: int = 200) -> float:
 
 def compare(http: httpx.Client, conn: psycopg.Connection, base: str, name: str, net: int,
             n_pairs: int, passes: int) -> list:
-    """Time both over several passes and print p50/p95 and their ratios; the pairs."""
+    """Time both over several passes in each of ``MODES`` and print p50/p95 and their
+    ratios, then the CPU per request; the pairs."""
     edges = pgrouting_edges_sql(net, Cost.TIME)
     pairs = node_pairs(conn, net, n_pairs, edges)
     # Warm both sides: every pair once through ours (the first request of a network loads its
     # graph), a few through pgr_dijkstra (each of its calls reads the whole edge table anyway,
     # cached after the first).
     wire = Wire(base)
-    time_pass(wire, conn, name, edges, pairs[:3])
+    time_pass(wire, conn, name, edges, pairs[:3], cold=False)
     for (_, ax, ay), (_, bx, by) in pairs:
         http.get(f"/networks/{name}/route",
                  params={"points": f"{ax!r},{ay!r};{bx!r},{by!r}", "cost": "time"})
-    stats: dict[str, dict[str, list[float]]] = {k: {"p50": [], "p95": []}
-                                                for k in (OURS, OSRM_URL, PGR)}
-    diffs: list[float] = []
-    for _ in range(passes):
-        times, pass_diffs = time_pass(wire, conn, name, edges, pairs)
-        diffs += pass_diffs
-        for key, xs in times.items():
-            stats[key]["p50"].append(percentile(xs, 0.5) * 1e3)
-            stats[key]["p95"].append(percentile(xs, 0.95) * 1e3)
-    med = {k: {q: statistics.median(v) for q, v in d.items()} for k, d in stats.items()}
     segs = conn.execute("SELECT count(*) FROM road_segments WHERE network_id = %s",
                         (net,)).fetchone()[0]
     print(f"\n{name}: {segs} segments, {len(pairs)} OD pairs, cost=time, "
           f"median of {passes} pass(es)")
-    for key in (OURS, OSRM_URL, PGR):
-        print(f"  {key:30s} p50 {med[key]['p50']:8.2f} ms   p95 {med[key]['p95']:8.2f} ms")
-    for key in (OURS, OSRM_URL):
-        print(f"  ratio {key:24s} p50 {med[key]['p50'] / med[PGR]['p50']:8.3f}      "
-              f"p95 {med[key]['p95'] / med[PGR]['p95']:8.3f}   (to pgr_dijkstra, same run)")
+    diffs: list[float] = []
+    for cold, mode in MODES.items():
+        stats: dict[str, dict[str, list[float]]] = {k: {"p50": [], "p95": []}
+                                                    for k in (OURS, OSRM_URL, PGR)}
+        for _ in range(passes):
+            times, pass_diffs = time_pass(wire, conn, name, edges, pairs, cold)
+            diffs += pass_diffs
+            for key, xs in times.items():
+                stats[key]["p50"].append(percentile(xs, 0.5) * 1e3)
+                stats[key]["p95"].append(percentile(xs, 0.95) * 1e3)
+        med = {k: {q: statistics.median(v) for q, v in d.items()} for k, d in stats.items()}
+        print(f"  {mode}")
+        for key in (OURS, OSRM_URL, PGR):
+            print(f"    {key:30s} p50 {med[key]['p50']:8.2f} ms   p95 {med[key]['p95']:8.2f} ms")
+        for key in (OURS, OSRM_URL):
+            print(f"    ratio {key:24s} p50 {med[key]['p50'] / med[PGR]['p50']:8.3f}      "
+                  f"p95 {med[key]['p95'] / med[PGR]['p95']:8.3f}   (to pgr_dijkstra, same run)")
     # The hierarchy rounds costs to whole units (a few 1e-5 s per segment): 1e-4 relative.
     equal = sum(d <= 1e-4 for d in diffs)
     print(f"  routes equal to pgr_dijkstra (cost within 1e-4): {equal}/{len(diffs)}, "
           f"max relative difference {max(diffs):.2e}")
     assert equal == len(diffs), "a route differs from pgr_dijkstra"
-    back_to_back(wire, conn, name, edges, pairs)
     cpu_per_request(http, conn, base, name, edges, pairs)
     return pairs
-
-
-def back_to_back(wire: Wire, conn: psycopg.Connection, name: str, edges: str,
-                 pairs: list) -> None:
-    """p50 of each side's requests in a row (every pair through our URL, then OSRM's, then
-    pgr_dijkstra), beside the interleaved figures above. Interleaved, each of our requests
-    arrives at a server idle for a pgr_dijkstra's ~5 ms: on a virtual machine its CPU caches
-    are cold and each hop (client, server, database, client) waits for a CPU to wake, which
-    an HTTP request of several hops pays more than one SQL round trip. In a row, each side is
-    measured in its own steady state, as a planner sending a burst of queries sees it."""
-    times = {key: [_timed(call, a, b)[0] for a, b in pairs]
-             for key, call in requests(wire, conn, name, edges).items()}
-    p50 = {key: percentile(xs, 0.5) * 1e3 for key, xs in times.items()}
-    for key in (OURS, OSRM_URL):
-        print(f"  back to back {key:27s} p50 {p50[key]:6.2f} ms vs {p50[PGR]:.2f} ms: "
-              f"ratio {p50[key] / p50[PGR]:.3f}")
 
 
 def _cpu_s(pids: list[int]) -> float:

@@ -79,7 +79,7 @@ def _maneuvers(b_in: np.ndarray, b_out: np.ndarray, same_attrs: np.ndarray,
 
     ``same_attrs[k]``: run k has the attributes of run k - 1 (name, ref, lanes, speed limit,
     speed, class), so it carries on that step when driven straight into; ``same_road[k]``:
-    it keeps run k - 1's name or ref (a new step there is a ``continue``). Comparing with the
+    it has a name or ref, and run k - 1's (a new step there is a ``continue``). Comparing with the
     run before is comparing with the step's first run, since a step's runs all share its
     attributes; a roundabout step gathers the roundabout's runs whatever they are."""
     n = len(b_in)
@@ -126,8 +126,8 @@ Attrs = tuple[str, str, int, float | None, float, str]
 
 @dataclass(frozen=True)
 class _Leg:
-    """A leg's runs as Python lists, and the roads at each joint: every lookup the grouping
-    makes, read for the whole leg at once (a grid route has ~300 runs)."""
+    """A leg's runs (their attributes as Python lists), and the roads at each joint: every
+    lookup the grouping makes, read for the whole leg at once (a grid route has ~300 runs)."""
 
     t: Trace
     attrs: list[Attrs]

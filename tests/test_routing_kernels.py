@@ -15,7 +15,7 @@ import shapely
 from app.routing.encoded_polyline import encode
 from app.routing.geometry import cut_with_fractions, point_at, vertex_fractions
 from app.routing.junctions import _crossings
-from app.routing.nearby import _nearest_on_lines, metres_per_degree
+from app.routing.nearby import LARGE_CELLS, Grid, _near, _nearest_on_line, _pairs, _scale
 from app.routing.overview import MERCATOR_R, PIXEL_M, fitted_zoom, simplify
 from app.routing.steps import modifier
 from app.routing.trace import _gathered
@@ -41,40 +41,103 @@ def _bbox(coords: np.ndarray, offsets: np.ndarray) -> np.ndarray:
                      for a, b in itertools.pairwise(offsets)])
 
 
-def test_nearest_on_lines_is_geos_distance_in_the_local_frame() -> None:
+def test_nearest_on_line_is_geos_distance_in_the_local_frame() -> None:
     rng = np.random.default_rng(7)
     coords, offsets = _lines(rng, 60)
     fracs = vertex_fractions(coords, offsets)
+    bbox = _bbox(coords, offsets)
     points = coords[rng.integers(0, len(coords), 25)] + rng.normal(0.0, 3e-4, (25, 2))
-    east, north = metres_per_degree(points[:, 1])
-    which = np.repeat(np.arange(25), 60).astype(np.int64)
-    rows = np.tile(np.arange(60), 25).astype(np.int64)
-    distance, fraction = _nearest_on_lines(points, east, north, which, rows, offsets, coords,
-                                           fracs, _bbox(coords, offsets))
-    for i, (p, r) in enumerate(zip(which, rows, strict=True)):
+    for p, r in itertools.product(points, range(60)):
+        east, north = _scale(p[1])
+        distance, fraction = _nearest_on_line(p[0], p[1], east, north, r, offsets, coords,
+                                              fracs, bbox)
         line = coords[offsets[r]:offsets[r + 1]]
-        local = (line - points[p]) * [east[p], north[p]]
+        local = (line - p) * [east, north]
         geom = shapely.LineString(local) if len(local) > 1 else shapely.Point(local[0])
-        assert distance[i] == pytest.approx(shapely.distance(geom, shapely.Point(0, 0)),
-                                            rel=1e-9, abs=1e-9)
+        assert distance == pytest.approx(shapely.distance(geom, shapely.Point(0, 0)),
+                                         rel=1e-9, abs=1e-9)
         # The fraction names the point measured: at that distance from the query point.
-        at = np.subtract(point_at(line, fracs[offsets[r]:offsets[r + 1]], fraction[i]),
-                         points[p]) * [east[p], north[p]]
-        assert np.hypot(*at) == pytest.approx(distance[i], abs=1e-6)
+        at = np.subtract(point_at(line, fracs[offsets[r]:offsets[r + 1]], fraction), p) * \
+            [east, north]
+        assert np.hypot(*at) == pytest.approx(distance, abs=1e-6)
 
 
 def test_nearest_on_lines_across_the_antimeridian_and_off_the_globe() -> None:
     coords = np.array([[179.9999, 10.0], [-179.9999, 10.0], [0.0, 95.0], [1.0, 95.0]])
     offsets = np.array([0, 2, 4], np.int64)
     fracs = np.array([0.0, 1.0, 0.0, 1.0])
-    points = np.array([[180.0, 10.0001]])
-    east, north = metres_per_degree(points[:, 1])
-    distance, fraction = _nearest_on_lines(points, east, north, np.zeros(2, np.int64),
-                                           np.arange(2, dtype=np.int64), offsets, coords,
-                                           fracs, _bbox(coords, offsets))
-    assert distance[0] == pytest.approx(0.0001 * north[0], rel=1e-9)  # the short way round
-    assert fraction[0] == pytest.approx(0.5)
-    assert np.isnan(distance[1]) and np.isnan(fraction[1])  # latitude 95: not on the globe
+    east, north = _scale(10.0001)
+    bbox = _bbox(coords, offsets)
+    distance, fraction = _nearest_on_line(180.0, 10.0001, east, north, 0, offsets, coords,
+                                          fracs, bbox)
+    assert distance == pytest.approx(0.0001 * north, rel=1e-9)  # the short way round
+    assert fraction == pytest.approx(0.5)
+    distance, fraction = _nearest_on_line(180.0, 10.0001, east, north, 1, offsets, coords,
+                                          fracs, bbox)
+    assert np.isnan(distance) and np.isnan(fraction)  # latitude 95: not on the globe
+
+
+def _meeting(boxes: np.ndarray, q: np.ndarray) -> set[int]:
+    """Indices of ``boxes`` meeting ``q``, edges included, read one by one."""
+    return {i for i, b in enumerate(boxes)
+            if b[0] <= q[2] and b[2] >= q[0] and b[1] <= q[3] and b[3] >= q[1]}
+
+
+def test_grid_finds_every_box_meeting_a_query_once() -> None:
+    rng = np.random.default_rng(11)
+    lo = rng.uniform(0.0, 10.0, (400, 2))
+    boxes = np.hstack([lo, lo + rng.exponential(0.2, (400, 2))])
+    boxes[:5] = [0.5, 0.5, 9.5, 9.5]  # over more than LARGE_CELLS cells of ~0.5
+    boxes[5, 2:] = boxes[5, :2]  # a point
+    boxes[6] = [np.nan, 1.0, 2.0, 2.0]  # in no cell, meets nothing
+    boxes[7] = [10.5, 10.5, 10.6, 10.6]  # beside the rest
+    grid = Grid.of(boxes)
+    assert len(grid.large) == 5 and (grid.dims[0] * grid.dims[1]) < 4 * len(boxes)
+    assert set(grid.large.tolist()) == set(range(5))
+    assert LARGE_CELLS < 18 * 18
+    lo = rng.uniform(-2.0, 12.0, (60, 2))
+    queries = np.vstack([np.hstack([lo, lo + rng.exponential(0.5, (60, 2))]),
+                         [[-50.0, -50.0, 50.0, 50.0], [3.0, 3.0, 3.0, 3.0],
+                          [30.0, 30.0, 31.0, 31.0], [np.nan, 0.0, 1.0, 1.0],
+                          [*boxes[5, :2], *boxes[5, :2]], [10.55, 10.55, 10.7, 10.7]]])
+    ids = np.arange(len(boxes), dtype=np.int64) * 10
+    stale = np.array([30, 40, 50], np.int64)  # edited since: their current boxes count
+    current = np.delete(ids, [4])  # id 40 deleted since the grid was built
+    bbox = np.delete(boxes, [4], axis=0).copy()
+    bbox[3] = [9.0, 9.0, 9.5, 9.5]  # id 30 moved (row 3 once id 40 is gone)
+    which, rows = _pairs(queries, grid.frame, grid.dims, grid.start, grid.items, grid.large,
+                         grid.boxes, ids, stale, current, bbox)
+    assert len(set(zip(which.tolist(), rows.tolist(), strict=True))) == len(rows)  # once each
+    for i, q in enumerate(queries):
+        assert set(rows[which == i].tolist()) == _meeting(bbox, q), q
+    assert 4 * len(boxes) > LARGE_CELLS
+
+
+def test_near_is_every_segment_measured_and_ordered_one_by_one() -> None:
+    rng = np.random.default_rng(5)
+    coords, offsets = _lines(rng, 300)
+    coords = coords + rng.uniform(-0.02, 0.02, (1, 2))
+    fracs = vertex_fractions(coords, offsets)
+    bbox = np.asfortranarray(_bbox(coords, offsets))  # as the graph holds it
+    points = np.vstack([coords[rng.integers(0, len(coords), 40)] +
+                        rng.normal(0.0, 2e-4, (40, 2)), coords[offsets[3]]])  # one at a vertex
+    reach = rng.uniform(10.0, 400.0, len(points))
+    grid = Grid.of(bbox)
+    ids = np.arange(len(bbox), dtype=np.int64) * 3 + 1
+    which, rows, distance, fraction = _near(
+        points, reach, grid.frame, grid.dims, grid.start, grid.items, grid.large, grid.boxes,
+        ids, np.zeros(0, np.int64), ids, bbox, offsets, coords, fracs)
+    for p, (x, y) in enumerate(points):
+        east, north = _scale(y)
+        measured = [(r, *_nearest_on_line(x, y, east, north, r, offsets, coords, fracs, bbox))
+                    for r in range(len(bbox))]
+        near = [(r, round(d, 6), f) for r, d, f in measured if d <= reach[p]]
+        near.sort(key=lambda h: (h[1], 0.0 < h[2] < 1.0, ids[h[0]]))
+        mine = which == p
+        assert rows[mine].tolist() == [h[0] for h in near]
+        assert distance[mine].tolist() == pytest.approx([h[1] for h in near], abs=1e-9)
+        assert fraction[mine].tolist() == [h[2] for h in near]
+    assert (which == len(points) - 1).sum() >= 2  # segments meeting at that vertex: a tie
 
 
 @pytest.mark.parametrize("n", [3, 10, 200, 3000])

@@ -10,7 +10,7 @@ projection it replaces). Fractions are read off the graph's metric vertex fracti
 the engine prices pieces with. Finding, measuring and ordering the candidates of every point
 is one compiled call (:func:`_near`): through shapely's STRtree and numpy it was ~20 array
 and geometry calls per request (36 us in a loop for a route's two points, ~90 us of a live
-route; 15 us compiled, most of it passing the call its arrays).
+route; 16 us compiled, most of it passing the call its arrays).
 
 Kept current under live edits without rebuilding the grid: a graph version's index is the
 grid of the version it was built on plus the ids of the segments added or changed since

@@ -106,7 +106,7 @@ def test_grid_finds_every_box_meeting_a_query_once() -> None:
     bbox = np.delete(boxes, [4], axis=0).copy()
     bbox[3] = [9.0, 9.0, 9.5, 9.5]  # id 30 moved (row 3 once id 40 is gone)
     which, rows = _pairs(queries, grid.frame, grid.dims, grid.start, grid.items, grid.large,
-                         grid.boxes, ids, stale, current, bbox)
+                         ids, stale, current, bbox)
     assert len(set(zip(which.tolist(), rows.tolist(), strict=True))) == len(rows)  # once each
     for i, q in enumerate(queries):
         assert set(rows[which == i].tolist()) == _meeting(bbox, q), q
@@ -124,8 +124,8 @@ def test_near_is_every_segment_measured_and_ordered_one_by_one() -> None:
     grid = Grid.of(bbox)
     ids = np.arange(len(bbox), dtype=np.int64) * 3 + 1
     which, rows, distance, fraction = _near(
-        points, reach, grid.frame, grid.dims, grid.start, grid.items, grid.large, grid.boxes,
-        ids, np.zeros(0, np.int64), ids, bbox, offsets, coords, fracs)
+        points, reach, grid.frame, grid.dims, grid.start, grid.items, grid.large, ids,
+        np.zeros(0, np.int64), ids, bbox, offsets, coords, fracs)
     for p, (x, y) in enumerate(points):
         east, north = _scale(y)
         measured = [(r, *_nearest_on_line(x, y, east, north, r, offsets, coords, fracs, bbox))

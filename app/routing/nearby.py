@@ -47,19 +47,19 @@ class Grid:
     once, from the cell holding the lower-left corner of the two boxes' overlap. Why not
     shapely's STRtree, which it replaced: a query from compiled code cannot reach it, and from
     Python it cost a city route ~20 us of geometry construction and call overhead for two
-    points. Boxes with a NaN or infinite bound are in no cell and meet nothing."""
+    points. Boxes with a NaN or infinite bound are in no cell and meet nothing. The grid keeps
+    no copy of the boxes: a query reads each item's box off the graph (:func:`_rows_meeting`)."""
 
     frame: np.ndarray  # x0, y0, cell width, cell height
     dims: np.ndarray  # cells across (x), cells up (y)
     start: np.ndarray  # (nx * ny + 1,) where each cell's items start in ``items``
     items: np.ndarray  # box indices, cell by cell
     large: np.ndarray  # indices of the boxes over more than LARGE_CELLS cells
-    boxes: np.ndarray  # (n, 4) min x, min y, max x, max y
 
     @classmethod
     def of(cls, boxes: np.ndarray) -> Grid:
         """The grid of ``boxes`` ((n, 4) min x, min y, max x, max y)."""
-        boxes = np.ascontiguousarray(boxes, np.float64).reshape(-1, 4)
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
         finite = np.isfinite(boxes).all(axis=1)
         n = max(int(finite.sum()), 1)
         lo = boxes[finite, :2].min(axis=0) if finite.any() else np.zeros(2)
@@ -75,7 +75,7 @@ class Grid:
                           height / ny if height > 0 else 1.0])
         dims = np.array([nx, ny], np.int64)
         start, items, large = _bucket(boxes, frame, dims)
-        return cls(frame, dims, start, items, large, boxes)
+        return cls(frame, dims, start, items, large)
 
 
 @kernel("i8(f8, f8, f8, i8)")
@@ -109,14 +109,12 @@ def _bucket(boxes: np.ndarray, frame: np.ndarray, dims: np.ndarray
     """(start, items, large) of :class:`Grid` for ``boxes``."""
     nx, ny = dims[0], dims[1]
     n = len(boxes)
-    span = np.zeros((n, 4), np.int64)  # first and last cell across and up
     kind = np.zeros(n, np.int8)  # 0 in no cell, 1 in its cells, 2 large
     count = np.zeros(nx * ny + 1, np.int64)
     for i in range(n):
         if not _finite(boxes[i]):
             continue
         x0, x1, y0, y1 = _span(boxes[i], frame, dims)
-        span[i, 0], span[i, 1], span[i, 2], span[i, 3] = x0, x1, y0, y1
         if (x1 - x0 + 1) * (y1 - y0 + 1) > LARGE_CELLS:
             kind[i] = 2
             continue
@@ -130,8 +128,9 @@ def _bucket(boxes: np.ndarray, frame: np.ndarray, dims: np.ndarray
     for i in range(n):
         if kind[i] != 1:
             continue
-        for y in range(span[i, 2], span[i, 3] + 1):
-            for x in range(span[i, 0], span[i, 1] + 1):
+        x0, x1, y0, y1 = _span(boxes[i], frame, dims)
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
                 items[fill[y * nx + x]] = i
                 fill[y * nx + x] += 1
     return start, items, np.flatnonzero(kind == 2).astype(np.int64)
@@ -150,11 +149,23 @@ def _find(sorted_ids: np.ndarray, value: int) -> int:
     return k if k < len(sorted_ids) and sorted_ids[k] == value else -1
 
 
-@kernel("i8[:](f8[:], f8[:], i8[:], i8[:], i8[:], i8[:], f8[:, :], i8[:], i8[:], i8[:], "
-        "f8[:, :])")
+@kernel("i8(i8, i8[:], i8[:], i8[:])")
+def _current_row(item: int, ids: np.ndarray, stale: np.ndarray, current: np.ndarray) -> int:
+    """The current graph's row of grid item ``item``, or -1 when its segment was edited since
+    the grid was built (``stale``: tested apart) or is gone. A row found holds the box the
+    item was bucketed by. Items are the rows of the graph the grid was built on, which most
+    later versions keep (only a split or a merge moves rows): looked up only when moved."""
+    if len(stale) and _find(stale, ids[item]) >= 0:
+        return -1
+    if item < len(current) and current[item] == ids[item]:
+        return item
+    return _find(current, ids[item])
+
+
+@kernel("i8[:](f8[:], f8[:], i8[:], i8[:], i8[:], i8[:], i8[:], i8[:], i8[:], f8[:, :])")
 def _rows_meeting(q: np.ndarray, frame: np.ndarray, dims: np.ndarray, start: np.ndarray,
-                  items: np.ndarray, large: np.ndarray, boxes: np.ndarray, ids: np.ndarray,
-                  stale: np.ndarray, current: np.ndarray, bbox: np.ndarray) -> np.ndarray:
+                  items: np.ndarray, large: np.ndarray, ids: np.ndarray, stale: np.ndarray,
+                  current: np.ndarray, bbox: np.ndarray) -> np.ndarray:
     """Rows of the current graph (segment ids ``current``, boxes ``bbox``) whose box meets
     ``q``: the grid's items (``ids`` their segment ids) not ``stale``, and the stale
     segments still present."""
@@ -168,18 +179,15 @@ def _rows_meeting(q: np.ndarray, frame: np.ndarray, dims: np.ndarray, start: np.
         for x in range(x0, x1 + 1):
             cell = y * nx + x
             for j in range(start[cell], start[cell + 1]):
-                item = items[j]
-                b = boxes[item]
+                row = _current_row(items[j], ids, stale, current)
+                if row < 0:
+                    continue
+                b = bbox[row]
                 if not _meets(b, q[0], q[1], q[2], q[3]):
                     continue
                 # Reported from one cell only: the one holding the overlap's lower-left corner.
                 if (_cell(max(b[0], q[0]), frame[0], frame[2], nx) != x
                         or _cell(max(b[1], q[1]), frame[1], frame[3], ny) != y):
-                    continue
-                if len(stale) and _find(stale, ids[item]) >= 0:
-                    continue
-                row = _find(current, ids[item])
-                if row < 0:
                     continue
                 if k == len(found):
                     found = np.concatenate((found, np.empty(k, np.int64)))
@@ -188,12 +196,10 @@ def _rows_meeting(q: np.ndarray, frame: np.ndarray, dims: np.ndarray, start: np.
     extra = np.empty(len(large) + len(stale), np.int64)
     m = 0
     for item in large:
-        if _meets(boxes[item], q[0], q[1], q[2], q[3]) and not (
-                len(stale) and _find(stale, ids[item]) >= 0):
-            row = _find(current, ids[item])
-            if row >= 0:
-                extra[m] = row
-                m += 1
+        row = _current_row(item, ids, stale, current)
+        if row >= 0 and _meets(bbox[row], q[0], q[1], q[2], q[3]):
+            extra[m] = row
+            m += 1
     for sid in stale:
         row = _find(current, sid)
         if row >= 0 and _meets(bbox[row], q[0], q[1], q[2], q[3]):
@@ -204,7 +210,7 @@ def _rows_meeting(q: np.ndarray, frame: np.ndarray, dims: np.ndarray, start: np.
 
 # What the compiled queries read of an index and the current graph (SegmentIndex.arrays).
 IndexArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                    np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+                    np.ndarray, np.ndarray, np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -232,7 +238,7 @@ class SegmentIndex:
     def arrays(self, graph: RoadGraph) -> IndexArrays:
         """What :func:`_rows_meeting` reads after the query box, for ``graph``."""
         g = self.grid
-        return (g.frame, g.dims, g.start, g.items, g.large, g.boxes, self.ids, self.stale,
+        return (g.frame, g.dims, g.start, g.items, g.large, self.ids, self.stale,
                 graph.segs.ids, graph.bbox)
 
     def pairs(self, graph: RoadGraph, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -242,18 +248,18 @@ class SegmentIndex:
                       *self.arrays(graph))
 
 
-@kernel("UniTuple(i8[:], 2)(f8[:, :], f8[:], i8[:], i8[:], i8[:], i8[:], f8[:, :], i8[:], "
-        "i8[:], i8[:], f8[:, :])")
+@kernel("UniTuple(i8[:], 2)(f8[:, :], f8[:], i8[:], i8[:], i8[:], i8[:], i8[:], i8[:], "
+        "i8[:], f8[:, :])")
 def _pairs(queries: np.ndarray, frame: np.ndarray, dims: np.ndarray, start: np.ndarray,
-           items: np.ndarray, large: np.ndarray, boxes: np.ndarray, ids: np.ndarray,
-           stale: np.ndarray, current: np.ndarray, bbox: np.ndarray
+           items: np.ndarray, large: np.ndarray, ids: np.ndarray, stale: np.ndarray,
+           current: np.ndarray, bbox: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray]:
     """(query index, row) of :meth:`SegmentIndex.pairs`, query by query."""
     which = np.empty(4 * len(queries) + 16, np.int64)
     rows = np.empty(len(which), np.int64)
     n = 0
     for i in range(len(queries)):
-        found = _rows_meeting(queries[i], frame, dims, start, items, large, boxes, ids, stale,
+        found = _rows_meeting(queries[i], frame, dims, start, items, large, ids, stale,
                               current, bbox)
         if n + len(found) > len(which):
             more = max(len(which), len(found))
@@ -350,9 +356,9 @@ def within(graph: RoadGraph, points: np.ndarray, radius_m: np.ndarray,
 
 
 @kernel("Tuple((i8[:], i8[:], f8[:], f8[:]))(f8[:, :], f8[:], f8[:], i8[:], i8[:], i8[:], "
-        "i8[:], f8[:, :], i8[:], i8[:], i8[:], f8[:, :], i8[:], f8[:, :], f8[:])")
+        "i8[:], i8[:], i8[:], i8[:], f8[:, :], i8[:], f8[:, :], f8[:])")
 def _near(points: np.ndarray, reach: np.ndarray, frame: np.ndarray, dims: np.ndarray,
-          start: np.ndarray, items: np.ndarray, large: np.ndarray, boxes: np.ndarray,
+          start: np.ndarray, items: np.ndarray, large: np.ndarray,
           ids: np.ndarray, stale: np.ndarray, current: np.ndarray, bbox: np.ndarray,
           offsets: np.ndarray, coords: np.ndarray, fracs: np.ndarray
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -370,8 +376,7 @@ def _near(points: np.ndarray, reach: np.ndarray, frame: np.ndarray, dims: np.nda
         dlon = min(reach[p] / max(east, 1e-3), 360.0)
         dlat = reach[p] / north
         q = np.array([ox - dlon, oy - dlat, ox + dlon, oy + dlat])
-        rows = _rows_meeting(q, frame, dims, start, items, large, boxes, ids, stale, current,
-                             bbox)
+        rows = _rows_meeting(q, frame, dims, start, items, large, ids, stale, current, bbox)
         distance = np.empty(len(rows))
         fraction = np.empty(len(rows))
         for i in range(len(rows)):

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 from pyproj import Geod, Transformer
 from rasterio.transform import from_origin
@@ -17,6 +19,7 @@ from app.network.settings import DEFAULT_SPEEDS_KPH
 from cli.main import main
 from ingest.queue import tasks
 from ingest.raster.job import ingest_raster
+from ingest.roads import layer as roads_layer
 from ingest.roads.attributes import lanes
 from ingest.roads.synthetic import Scene, grid_scene, render
 from testkit.raster_synth import UTM33, utm_origin, write_tif
@@ -26,18 +29,26 @@ RES = 0.5
 ROADS = [[(20, 150), (380, 150)], [(200, 20), (200, 280)], [(60, 150), (60, 280)]]
 
 
-def _layer(tmp_path: Path, slug: str, scene: Scene | None = None, res: float = RES
-           ) -> Transformer:
+def _scene_tif(path: Path, scene: Scene | None = None, res: float = RES,
+               at: tuple[float, float] = (15.3, 48.31)) -> Callable:
+    """Write the scene (default: the cross with a T arm) as a UTM 33N GeoTIFF whose corner is
+    at lon/lat ``at``; return its pixel -> lon/lat function."""
     rgb, _ = render(scene or Scene((300, 400), roads=ROADS, seed=3))
-    east, north = utm_origin(15.3, 48.31)
+    east, north = utm_origin(*at)
     transform = from_origin(round(east), round(north), res, res)
-    write_tif(tmp_path / "scene.tif", np.moveaxis(rgb, -1, 0), UTM33, transform)
-    ingest_raster([tmp_path / "scene.tif"], slug)
+    write_tif(path, np.moveaxis(rgb, -1, 0), UTM33, transform)
     to_lonlat = Transformer.from_crs(UTM33, "EPSG:4326", always_xy=True)
 
     def pixel_to_lonlat(x: float, y: float) -> tuple[float, float]:
         return to_lonlat.transform(*(transform @ (x, y)))
 
+    return pixel_to_lonlat
+
+
+def _layer(tmp_path: Path, slug: str, scene: Scene | None = None, res: float = RES
+           ) -> Callable:
+    pixel_to_lonlat = _scene_tif(tmp_path / "scene.tif", scene, res)
+    ingest_raster([tmp_path / "scene.tif"], slug)
     return pixel_to_lonlat
 
 
@@ -203,3 +214,39 @@ def test_ingest_roads_zero_shot_uses_the_road_model(database_url: str, tmp_path:
             "GROUP BY 1")).all()
     assert [r[0] for r in rows] == ["model"]
     assert rows[0][1] > 2000
+
+
+def test_a_layer_of_two_far_apart_sources_is_extracted_per_area(
+        database_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two 200 x 150 m scenes 1,000 km apart in one layer: their common bounding box would be
+    a mosaic of billions of pixels, each area alone is small."""
+    north = _scene_tif(tmp_path / "north.tif")
+    south = _scene_tif(tmp_path / "south.tif", at=(16.0, 39.5))
+    ingest_raster([tmp_path / "north.tif", tmp_path / "south.tif"], "two-areas")
+    runner = CliRunner()
+    roads = ["ingest", "roads", "--layer", "two-areas", "--classifier", "spectral"]
+    one_box = ["--train-box", _box(north, 100, 146, 140, 154)]
+    # A per-job classifier has nothing to learn from in an area the sample does not touch.
+    unsampled = runner.invoke(main, [*roads, "--network", "never", *one_box])
+    assert unsampled.exit_code == 1, unsampled.output
+    assert ("the training sample covers no road in the area of south.tif, one of the "
+            "layer's 2 separate areas") in unsampled.output
+    result = runner.invoke(main, [*roads, "--network", "two-areas", *one_box,
+                                  "--train-box", _box(south, 100, 146, 140, 154)])
+    assert result.exit_code == 0, result.output
+    assert "extracted from layer two-areas in 2 separate areas (spectral" in result.output
+    report = json.loads(runner.invoke(main, ["network", "validate", "two-areas",
+                                             "--json"]).output)
+    assert [p["segments"] for p in report["pieces"]] == [6, 6]
+    with session_scope() as session:
+        assert session.execute(text(
+            "SELECT count(*) FROM networks WHERE name = 'never'")).scalar() == 0
+
+    # One area beyond the limit says what the limit is.
+    monkeypatch.setattr(roads_layer, "MAX_MOSAIC_SIDE_PX", 100)
+    monkeypatch.setattr(roads_layer, "MAX_MOSAIC_PX", 100 * 100)
+    big = runner.invoke(main, [*roads, "--network", "never", *one_box])
+    assert big.exit_code == 1
+    assert "the area of south.tif would be one " in big.output
+    assert "mosaic at its finest source resolution, more than the 100 x 100 px one " \
+           "extraction holds in memory" in big.output

@@ -8,13 +8,16 @@ It is traced on a coarse overview of the mask and grown by one coarse pixel.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
+import shapely
 from rasterio.features import shapes
 from rasterio.io import DatasetReader
 from rasterio.transform import Affine
 from shapely.geometry import MultiPolygon, Polygon, shape
+from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
 
 #: Longest side of the mask the footprint is traced on.
@@ -36,3 +39,14 @@ def footprint_3857(ds: DatasetReader) -> MultiPolygon | None:
     outline = unary_union(polygons).simplify(pixel / 2)
     parts = [outline] if isinstance(outline, Polygon) else list(outline.geoms)
     return MultiPolygon([p for p in parts if isinstance(p, Polygon) and not p.is_empty])
+
+
+def connected_areas(geoms: Sequence[BaseGeometry]) -> list[int]:
+    """For each geometry, the number of the connected area it belongs to (geometries that
+    overlap or touch, directly or through others, share one), numbered in the order of each
+    area's first geometry: what a layer's sources cover as separate places."""
+    union = shapely.union_all(list(geoms))
+    parts = list(getattr(union, "geoms", [union]))
+    member = [next(i for i, part in enumerate(parts) if part.intersects(g)) for g in geoms]
+    order = {area: n for n, area in enumerate(dict.fromkeys(member))}
+    return [order[m] for m in member]

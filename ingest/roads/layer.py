@@ -3,7 +3,10 @@
 The layer's sources are merged (top source first, masks honoured) into one image in memory,
 so overlapping zones are extracted once rather than per file (which would store every road
 twice where zones overlap); its valid mask is the sources' own coverage, so nothing is drawn
-where no source has data. Training samples are given in map coordinates (lon/lat boxes,
+where no source has data. Only sources that overlap or touch are merged: a layer's connected
+areas (two surveys far apart) are extracted one after the other, each its own mosaic, since
+one mosaic over their common bounding box would be mostly empty and, for areas a continent
+apart, far beyond memory. Training samples are given in map coordinates (lon/lat boxes,
 or road centerlines from a vector file) because a layer has no pixel grid a user could point
 at; they are burnt into the label image on the mosaic's grid, on valid pixels only.
 
@@ -47,6 +50,7 @@ from app.tiles.store import open_store
 from ingest.ipm.trajectory import layer_trajectories
 from ingest.network import ImportSummary, RoadAttributes, RoadLine, write_network
 from ingest.network.osm_tags import BOTH_WAYS_TAG
+from ingest.raster.footprint import connected_areas
 from ingest.roads import RoadsInputError
 from ingest.roads.attributes import segment_attributes
 from ingest.roads.classify import NOT_ROAD, ROAD
@@ -55,8 +59,9 @@ from ingest.roads.pipeline import Extraction, ExtractParams, extract_roads
 from ingest.roads.rules import effective_rules
 
 LonLatBox = tuple[float, float, float, float]
-MAX_MOSAIC_PX = 40_000 * 40_000
-"""Refuse layers whose mosaic would not fit a 2-core / 24 GiB machine's memory."""
+MAX_MOSAIC_SIDE_PX = 40_000
+MAX_MOSAIC_PX = MAX_MOSAIC_SIDE_PX ** 2
+"""Refuse an area whose mosaic would not fit a 2-core / 24 GiB machine's memory."""
 OPEN_END_M = 50.0
 """How far ahead of an open line end nothing is labelled "not road" (beyond a drive's view)."""
 IPM_CLASSIFIER: Classifier = "spectral"
@@ -90,10 +95,11 @@ class GeoSample:
     """The lines go on past their ends (a drive's trajectory): no "not road" ahead of them."""
 
 
-def layer_mosaic(paths: Sequence[str]) -> Image:
+def layer_mosaic(paths: Sequence[str], names: Sequence[str] | None = None) -> Image:
     """The mosaic of ``paths`` (all EPSG:3857, the one drawn on top first) at the finest
     source resolution, merged in memory, valid where any source has data (their own masks,
-    whatever the pixel values: a black pixel of a JPEG COG is data)."""
+    whatever the pixel values: a black pixel of a JPEG COG is data). ``names`` (the sources'
+    names, for the error of a mosaic too large) default to the paths."""
     datasets = [rasterio.open(p) for p in paths]
     try:
         res = min(min(abs(d.res[0]), abs(d.res[1])) for d in datasets)
@@ -101,9 +107,13 @@ def layer_mosaic(paths: Sequence[str]) -> Image:
         right = max(d.bounds.right for d in datasets)
         bottom = min(d.bounds.bottom for d in datasets)
         top = max(d.bounds.top for d in datasets)
-        if (right - left) / res * (top - bottom) / res > MAX_MOSAIC_PX:
-            raise RoadsInputError("the layer is too large to extract in one go; extract its "
-                                  "source images one by one with `ugvmap extract-roads`")
+        width, height = round((right - left) / res), round((top - bottom) / res)
+        if width * height > MAX_MOSAIC_PX:
+            raise RoadsInputError(
+                f"the area of {', '.join(names or paths)} would be one {width:,} x {height:,} px "
+                f"mosaic at its finest source resolution, more than the {MAX_MOSAIC_SIDE_PX:,} x "
+                f"{MAX_MOSAIC_SIDE_PX:,} px one extraction holds in memory; extract its "
+                "source images one by one with `ugvmap extract-roads`")
         colour = [i for i, c in enumerate(datasets[0].colorinterp, 1)
                   if c != ColorInterp.alpha] or [1]
         pixels, transform = merge(datasets, res=res, indexes=colour, nodata=0)
@@ -115,6 +125,27 @@ def layer_mosaic(paths: Sequence[str]) -> Image:
             d.close()
     resolution = pixel_size_m(transform, crs, pixels.shape[1:])
     return as_image(pixels, count[0] > 0, transform, crs, resolution)
+
+
+@dataclass(frozen=True)
+class LayerSource:
+    """One of a layer's sources as extraction reads it: its name and its COG's local path."""
+
+    name: str
+    path: str
+
+
+def source_areas(sources: Sequence[LayerSource]) -> list[list[LayerSource]]:
+    """The sources grouped by the connected areas their bounds cover: overlapping or touching
+    sources in one group (kept in the sources' order, top first, as ``merge`` needs), the
+    groups in the order of their first source."""
+    bounds = []
+    for source in sources:
+        with rasterio.open(source.path) as dataset:
+            bounds.append(box(*dataset.bounds))
+    member = connected_areas(bounds)
+    return [[s for s, m in zip(sources, member, strict=True) if m == area]
+            for area in range(max(member) + 1)]
 
 
 def _extended(line: BaseGeometry, by: float) -> BaseGeometry:
@@ -131,6 +162,19 @@ def _extended(line: BaseGeometry, by: float) -> BaseGeometry:
 
 def sample_labels(shape: tuple[int, int], to_map: Affine, crs: CRS, sample: GeoSample,
                   valid: np.ndarray | None = None) -> np.ndarray:
+    """:func:`burn_sample`, refused when it labels no road pixel (nothing to learn from)."""
+    labels = burn_sample(shape, to_map, crs, sample, valid)
+    if not (labels == ROAD).any():
+        raise RoadsInputError(NO_SAMPLE_ROAD)
+    return labels
+
+
+NO_SAMPLE_ROAD = ("the training sample does not cover any road pixel of the layer that has "
+                  "data: check that the boxes / lines lie on the layer (lon/lat)")
+
+
+def burn_sample(shape: tuple[int, int], to_map: Affine, crs: CRS, sample: GeoSample,
+                valid: np.ndarray | None = None) -> np.ndarray:
     """Burn a lon/lat training sample into a 255 road / 128 not road / 0 label image; pixels
     without data (``valid`` False) stay unlabelled, since no-data is neither.
 
@@ -164,10 +208,6 @@ def sample_labels(shape: tuple[int, int], to_map: Affine, crs: CRS, sample: GeoS
     burn([g.buffer(sample.line_width_m / 2 * units_per_m) for g in lines], ROAD, labels)
     if valid is not None:
         labels[~valid] = 0
-    if not (labels == ROAD).any():
-        raise RoadsInputError("the training sample does not cover any road pixel of the layer "
-                              "that has data: check that the boxes / lines lie on the layer "
-                              "(lon/lat)")
     return labels
 
 
@@ -196,10 +236,12 @@ def road_lines(extraction: Extraction, rules: AttributeRules, attrs: dict) -> li
 
 @dataclass(frozen=True)
 class LayerExtraction:
-    """What ``ingest roads`` did: the extraction, what it stored, with which sample and rules."""
+    """What ``ingest roads`` did: what it stored, from how many areas, with which classifier
+    (one per area), sample and rules."""
 
     layer: str
-    extraction: Extraction
+    classifiers: list[str]
+    """The classifier each connected area of the layer was extracted with."""
     summary: ImportSummary
     sample: str
     """"none" (zero-shot), "given", or "drive trajectory" (an ipm-mosaic's stored drives)."""
@@ -213,25 +255,29 @@ class LayerExtraction:
         classes = Counter(a.road_class for a in self.stored).most_common()
         confidence = [a.confidence for a in self.stored if a.confidence is not None]
         junctions = sum(a.is_junction for a in self.stored)
+        areas = (f" in {len(self.classifiers)} separate areas"
+                 if len(self.classifiers) > 1 else "")
         return [
             f"network {s.network}: {s.segments} segments, {s.nodes} nodes, "
-            f"{s.total_length_m / 1000:.3f} km extracted from layer {self.layer} "
-            f"({self.extraction.classifier} classifier, sample: {self.sample})",
+            f"{s.total_length_m / 1000:.3f} km extracted from layer {self.layer}{areas} "
+            f"({'/'.join(dict.fromkeys(self.classifiers))} classifier, sample: {self.sample})",
             "classes: " + ", ".join(f"{n} {c}" for c, n in classes)
             + f"; {junctions} junction segments; confidence mean "
               f"{np.mean(confidence):.2f}, min {min(confidence):.2f}",
         ]
 
 
-def _layer_sources(session: Session, slug: str) -> tuple[str, list[str]]:
-    """(kind, COGs with the one drawn on top first: what ``merge`` keeps where they overlap)."""
+def _layer_sources(session: Session, slug: str) -> tuple[str, list[LayerSource]]:
+    """(kind, sources with the one drawn on top first: what ``merge`` keeps where they
+    overlap)."""
     layer = get_layer(session.connection(), slug)
     if layer is None:
         raise RoadsInputError(f"no raster layer {slug!r} (see `ugvmap layers list`)")
     if not layer["sources"]:
         raise RoadsInputError(f"layer {slug!r} has no sources")
     store = open_store()
-    return layer["kind"], [store.resolve(s["uri"]) for s in reversed(layer["sources"])]
+    return layer["kind"], [LayerSource(s["name"], store.resolve(s["uri"]))
+                           for s in reversed(layer["sources"])]
 
 
 def _no_road(slug: str, classifier: str, sample: str) -> str:
@@ -242,15 +288,37 @@ def _no_road(slug: str, classifier: str, sample: str) -> str:
     return f"no road found in layer {slug!r} with the {classifier} classifier; {advice}"
 
 
+def _area_labels(image: Image, sample: GeoSample, area: Sequence[LayerSource], areas: int,
+                 classifier: Classifier) -> np.ndarray | None:
+    """The sample's labels on one area's mosaic, or None where it labels no road there and
+    the road model may run zero-shot instead (``auto``); refused when it labels none in a
+    layer of one area, or in an area a per-job classifier would have nothing to learn from."""
+    assert image.crs is not None  # a layer's sources are all EPSG:3857
+    labels = burn_sample(image.pixels.shape[:2], image.transform, image.crs, sample,
+                         image.valid)
+    if (labels == ROAD).any():
+        return labels
+    if areas == 1:
+        raise RoadsInputError(NO_SAMPLE_ROAD)
+    if classifier not in ("auto", "model"):
+        raise RoadsInputError(
+            f"the training sample covers no road in the area of "
+            f"{', '.join(s.name for s in area)}, one of the layer's {areas} separate areas: "
+            f"give a sample there too, or use --classifier auto (the road model, zero-shot "
+            f"where there is no sample)")
+    return None
+
+
 def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSample | None,
                        params: ExtractParams, *, rules: AttributeRules | None = None,
                        replace: bool = False, progress: bool = False) -> LayerExtraction:
-    """Extract layer ``slug``'s roads into network ``network`` in the caller's transaction.
+    """Extract layer ``slug``'s roads into network ``network`` in the caller's transaction,
+    each connected area of its sources as one mosaic (:func:`source_areas`).
 
     ``sample`` None: an ipm-mosaic's stored drives are the sample, else the road model runs
     zero-shot. ``rules`` override the network's attribute rules for this job.
     """
-    kind, paths = _layer_sources(session, slug)
+    kind, sources = _layer_sources(session, slug)
     used = "none" if sample is None else "given"
     if kind == "ipm-mosaic" and params.classifier == "auto":
         params = dataclasses.replace(params, classifier=IPM_CLASSIFIER)
@@ -264,19 +332,26 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
         sample = GeoSample(road_lines=drives, line_width_m=TRAJECTORY_WIDTH_M,
                            open_ends=True)
         used = "drive trajectory"
-    image = layer_mosaic(paths)
-    assert image.crs is not None  # a layer's sources are all EPSG:3857
-    labels = (None if sample is None else
-              sample_labels(image.pixels.shape[:2], image.transform, image.crs, sample,
-                            image.valid))
-    extraction = extract_roads(image, labels, params, progress=progress)
-    if not extraction.graph.edges:
-        raise RoadsInputError(_no_road(slug, extraction.classifier, used))
     applied = effective_rules(session, network, rules)
-    lines = road_lines(extraction, applied, {"extracted_from": slug,
-                                             "classifier": extraction.classifier})
+    areas = source_areas(sources)
+    lines: list[RoadLine] = []
+    classifiers: list[str] = []
+    labelled = False
+    for area in areas:
+        image = layer_mosaic([s.path for s in area], [s.name for s in area])
+        labels = (None if sample is None else
+                  _area_labels(image, sample, area, len(areas), params.classifier))
+        labelled = labelled or labels is not None
+        extraction = extract_roads(image, labels, params, progress=progress)
+        classifiers.append(extraction.classifier)
+        lines += road_lines(extraction, applied, {"extracted_from": slug,
+                                                  "classifier": extraction.classifier})
+    if sample is not None and not labelled:
+        raise RoadsInputError(NO_SAMPLE_ROAD)
+    if not lines:
+        raise RoadsInputError(_no_road(slug, "/".join(dict.fromkeys(classifiers)), used))
     summary = write_network(session, network, lines, replace=replace, node_crossings=False)
-    return LayerExtraction(slug, extraction, summary, used, applied,
+    return LayerExtraction(slug, classifiers, summary, used, applied,
                            [line.attributes for line in lines])
 
 

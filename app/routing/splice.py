@@ -66,8 +66,13 @@ class Layout:
     def of(cls, old_ids: np.ndarray, rows: np.ndarray, fresh_ids: np.ndarray) -> Layout:
         """Old rows (ids ascending) without ``rows`` (ascending), plus the fresh rows (ids
         ascending, a replaced row's id included) each where its id belongs."""
-        before = np.searchsorted(old_ids, fresh_ids).tolist()  # fresh i goes before old row
-        bounds = np.unique(np.concatenate([[0, len(old_ids)], rows, rows + 1, before]))
+        places = np.searchsorted(old_ids, fresh_ids).astype(np.int64)  # fresh i before row
+        # Every part int64: an empty part of another type (no fresh rows, as when an isolated
+        # segment is deleted) would make the bounds floats, which cannot slice.
+        bounds = np.unique(np.concatenate([np.array([0, len(old_ids)], np.int64),
+                                           rows.astype(np.int64), rows.astype(np.int64) + 1,
+                                           places]))
+        before = places.tolist()
         gone = set(rows.tolist())
         runs: list[tuple[bool, int, int]] = []
         i = 0

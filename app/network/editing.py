@@ -146,17 +146,25 @@ def log_edit(session: Session, c: colls.Collection, fid: int, action: str,
          "new": None if new is None else json.dumps(new)})
 
 
-def history(session: Session, c: colls.Collection, fid: int) -> list[dict[str, Any]]:
-    """The feature's edits, oldest first; a deleted one's too (its last edit is the deletion,
-    with the whole feature as ``old``). 404 if the collection never had it."""
+def history(session: Session, c: colls.Collection, fid: int) -> str:
+    """The feature's edits, oldest first, as the JSON text of a list; a deleted one's too (its
+    last edit is the deletion, with the whole feature as ``old``). 404 if the collection never
+    had it.
+
+    Why PostgreSQL writes the JSON: every row ever stored must read back. A row written
+    before ``attrs`` had a depth limit may nest deeper than Python's serializers go (pydantic
+    stops at 255 levels, and a history that answered 500 stayed so for good); PostgreSQL
+    writes any ``jsonb`` it holds."""
     table, column = HISTORY[c.kind]
-    rows = session.execute(text(
-        "SELECT action, version_from, version_to, edited_by, edited_at, conditional, old, new "
-        f"FROM {table} WHERE network_id = :n AND {column} = :s ORDER BY id"),
-        {"n": c.network_id, "s": fid}).all()
-    if not rows:
+    edits: str | None = session.execute(text(
+        "SELECT json_agg(json_build_object('action', action, 'version_from', version_from, "
+        "'version_to', version_to, 'edited_by', edited_by, 'edited_at', edited_at, "
+        "'conditional', conditional, 'old', old, 'new', new) ORDER BY id)::text "
+        f"FROM {table} WHERE network_id = :n AND {column} = :s"),
+        {"n": c.network_id, "s": fid}).scalar_one()
+    if edits is None:
         colls.get_item(session, c, fid)
-    return [{**r._mapping, "edited_at": r.edited_at.isoformat()} for r in rows]
+    return edits or "[]"
 
 
 def revert_feature(session: Session, c: colls.Collection, fid: int, to_version: int,

@@ -263,12 +263,16 @@ async def delete_item(collection_id: str, fid: str, request: Request,
 
 
 @router.get(ITEM + "/history", dependencies=[Depends(read_access)],
-            responses=responses(*READ_ERRORS, errors.NotFoundError))
-def item_history(collection_id: str, fid: str, session: SessionDep) -> dict[str, Any]:
+            responses={200: {"content": {"application/json": {"schema": schemas.HISTORY}}},
+                       **responses(*READ_ERRORS, errors.NotFoundError)})
+def item_history(collection_id: str, fid: str, session: SessionDep) -> Response:
     """A feature's edit history, oldest first (``conditional: false``: written without
-    ``If-Match``, over whatever version was current)."""
+    ``If-Match``, over whatever version was current); the edits' JSON as PostgreSQL wrote
+    it (:func:`app.network.editing.history`)."""
     c = colls.resolve(session, collection_id)
-    return {"id": parse_fid(fid), "edits": editing.history(session, c, parse_fid(fid))}
+    feature_id = parse_fid(fid)
+    edits = editing.history(session, c, feature_id)
+    return Response(f'{{"id": {feature_id}, "edits": {edits}}}', media_type="application/json")
 
 
 @router.post(ITEM + "/revert", response_class=GeoJSONResponse,

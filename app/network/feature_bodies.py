@@ -22,7 +22,7 @@ from typing import Any
 from app.network import properties as props
 from app.network.collections import Kind
 from app.network.editing import unprocessable
-from app.network.validation import DEFAULTS, field_errors
+from app.network.validation import DEFAULTS, DEPTH_PROBLEM, field_errors
 
 FEATURE_KEYS = {"type", "id", "properties", "geometry", "links", "bbox"}
 
@@ -39,6 +39,8 @@ def _attrs_from_text(properties: dict[str, Any]) -> dict[str, Any]:
             parsed = json.loads(value)
         except ValueError:
             raise unprocessable({"attrs": "must be a JSON object (or its JSON text)"}) from None
+        except RecursionError:  # deeper than the parser goes, so far deeper than the limit
+            raise unprocessable({"attrs": DEPTH_PROBLEM}) from None
         return {**properties, "attrs": parsed}
     return properties
 

@@ -155,3 +155,15 @@ MERGE_BODY: dict[str, Any] = {
     "properties": {"segments": {"type": "array", "minItems": 2, "maxItems": 2,
                                 "items": {"type": "integer", "minimum": 1},
                                 "description": "The two segment ids; the first is kept"}}}
+HISTORY: dict[str, Any] = {
+    "type": "object", "required": ["id", "edits"],
+    "properties": {"id": {"type": "integer"}, "edits": {"type": "array", "items": {
+        "type": "object",
+        "properties": {"action": {"type": "string"},
+                       "version_from": {"type": "integer", "nullable": True},
+                       "version_to": {"type": "integer", "nullable": True},
+                       "edited_by": {"type": "string"},
+                       "edited_at": {"type": "string", "format": "date-time"},
+                       "conditional": {"type": "boolean"},
+                       "old": {"type": "object", "nullable": True},
+                       "new": {"type": "object", "nullable": True}}}}}}

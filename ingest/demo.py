@@ -24,8 +24,9 @@ from app.tiles.catalog import layer_row
 from ingest.network import import_network
 from ingest.raster.job import ingest_raster
 from ingest.raster.samples import ingest_sample_orthophotos
-from ingest.roads.layer import GeoSample, ingest_layer_roads
+from ingest.roads.layer import ingest_layer_roads
 from ingest.roads.pipeline import Classifier, ExtractParams
+from ingest.roads.sample import GeoSample
 from ingest.roads.synthetic import grid_scene, render
 
 Say = Callable[[str], None]

@@ -29,8 +29,9 @@ def ingest_network(job_id: int, params: NetworkParams) -> None:
 
 def ingest_roads(job_id: int, params: RoadsParams) -> None:
     """Extract a raster layer's roads into a network (``ugvmap ingest roads``)."""
-    from ingest.roads.layer import given_sample, ingest_layer_roads
+    from ingest.roads.layer import ingest_layer_roads
     from ingest.roads.pipeline import tuned_params
+    from ingest.roads.sample import given_sample
 
     sample = given_sample(params.train_boxes, params.not_road_boxes,
                           Path(params.train_lines) if params.train_lines else None,

@@ -25,26 +25,20 @@ file.
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import rasterio
-import shapely
 from pyproj import CRS, Transformer
 from rasterio.enums import ColorInterp
-from rasterio.features import rasterize
 from rasterio.merge import merge
-from rasterio.transform import Affine
-from shapely.geometry import box, shape
-from shapely.geometry.base import BaseGeometry
+from shapely.geometry import box
 from sqlalchemy.orm import Session
 
 from app.network.settings import AttributeRules
-from app.road_tuning import DEFAULT_SAMPLE_WIDTH, Classifier
+from app.road_tuning import Classifier
 from app.tiles.catalog import get_layer
 from app.tiles.store import open_store
 from ingest.ipm.trajectory import layer_trajectories
@@ -53,17 +47,15 @@ from ingest.network.osm_tags import BOTH_WAYS_TAG
 from ingest.raster.footprint import connected_areas
 from ingest.roads import RoadsInputError
 from ingest.roads.attributes import segment_attributes
-from ingest.roads.classify import NOT_ROAD, ROAD
+from ingest.roads.classify import ROAD
 from ingest.roads.georef import Image, as_image, pixel_size_m
 from ingest.roads.pipeline import Extraction, ExtractParams, extract_roads
 from ingest.roads.rules import effective_rules
+from ingest.roads.sample import NO_SAMPLE_ROAD, GeoSample, burn_sample
 
-LonLatBox = tuple[float, float, float, float]
 MAX_MOSAIC_SIDE_PX = 40_000
 MAX_MOSAIC_PX = MAX_MOSAIC_SIDE_PX ** 2
 """Refuse an area whose mosaic would not fit a 2-core / 24 GiB machine's memory."""
-OPEN_END_M = 50.0
-"""How far ahead of an open line end nothing is labelled "not road" (beyond a drive's view)."""
 IPM_CLASSIFIER: Classifier = "spectral"
 """What ``auto`` means on an ipm-mosaic layer. A drive's lane is a clean sample of the road
 surface's colour, and a mosaic seen from the road shows little else that is grey. Measured
@@ -78,21 +70,6 @@ as accurate or better, and 3x faster."""
 TRAJECTORY_WIDTH_M = 3.0
 """Road sample width around a drive's trajectory: one lane (the vehicle drove in a lane; a
 wider band would call the verge of a narrow road "road")."""
-
-
-@dataclass(frozen=True)
-class GeoSample:
-    """Training sample in lon/lat: road boxes, not-road boxes, road centerlines (+ width)."""
-
-    road_boxes: Sequence[LonLatBox] = ()
-    not_road_boxes: Sequence[LonLatBox] = ()
-    road_lines: Sequence[object] = ()
-    """Shapely geometries (lon/lat) of known road centerlines."""
-    line_width_m: float = DEFAULT_SAMPLE_WIDTH.line_width
-    not_road_beyond_m: float | None = None
-    """Farther than this from every line is "not road" (default: 3 x ``line_width_m``)."""
-    open_ends: bool = False
-    """The lines go on past their ends (a drive's trajectory): no "not road" ahead of them."""
 
 
 def layer_mosaic(paths: Sequence[str], names: Sequence[str] | None = None) -> Image:
@@ -146,69 +123,6 @@ def source_areas(sources: Sequence[LayerSource]) -> list[list[LayerSource]]:
     member = connected_areas(bounds)
     return [[s for s, m in zip(sources, member, strict=True) if m == area]
             for area in range(max(member) + 1)]
-
-
-def _extended(line: BaseGeometry, by: float) -> BaseGeometry:
-    """A line continued straight past both ends by ``by`` (map units); other shapes as they are."""
-    if not isinstance(line, shapely.LineString) or len(line.coords) < 2:
-        return line
-    xy = np.asarray(line.coords)
-    ends = []
-    for end, inner in ((xy[0], xy[1]), (xy[-1], xy[-2])):
-        direction = end - inner
-        ends.append(end + direction / max(float(np.hypot(*direction)), 1e-12) * by)
-    return shapely.LineString(np.vstack([ends[0], xy, ends[1]]))
-
-
-def sample_labels(shape: tuple[int, int], to_map: Affine, crs: CRS, sample: GeoSample,
-                  valid: np.ndarray | None = None) -> np.ndarray:
-    """:func:`burn_sample`, refused when it labels no road pixel (nothing to learn from)."""
-    labels = burn_sample(shape, to_map, crs, sample, valid)
-    if not (labels == ROAD).any():
-        raise RoadsInputError(NO_SAMPLE_ROAD)
-    return labels
-
-
-NO_SAMPLE_ROAD = ("the training sample does not cover any road pixel of the layer that has "
-                  "data: check that the boxes / lines lie on the layer (lon/lat)")
-
-
-def burn_sample(shape: tuple[int, int], to_map: Affine, crs: CRS, sample: GeoSample,
-                valid: np.ndarray | None = None) -> np.ndarray:
-    """Burn a lon/lat training sample into a 255 road / 128 not road / 0 label image; pixels
-    without data (``valid`` False) stay unlabelled, since no-data is neither.
-
-    Widths are ground metres, turned into map units at the image (a web-mercator metre is
-    1/cos(latitude) ground metres). With ``open_ends`` the lines are known to go on past their
-    ends (a drive saw road ahead of its first and behind its last pose), so nothing straight
-    ahead of an end is called "not road".
-    """
-    transformer = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
-    units_per_m = abs(to_map.a) / pixel_size_m(to_map, crs, shape)
-
-    def reproject_geometry(geom: BaseGeometry) -> BaseGeometry:
-        return shapely.transform(geom, lambda xy: np.column_stack(
-            transformer.transform(xy[:, 0], xy[:, 1])))
-
-    def burn(geoms: list, value: int, labels: np.ndarray) -> None:
-        if geoms:
-            rasterize([(g, value) for g in geoms], out=labels, transform=to_map)
-
-    labels = np.zeros(shape, np.uint8)
-    burn([reproject_geometry(box(*b)) for b in sample.not_road_boxes], NOT_ROAD, labels)
-    lines = [reproject_geometry(g) for g in sample.road_lines]
-    if lines:
-        # Far from every known road is "not road"; near the centerline is road.
-        beyond = (sample.not_road_beyond_m or sample.line_width_m * 3) * units_per_m
-        near = np.zeros(shape, np.uint8)
-        burn([(_extended(g, OPEN_END_M * units_per_m) if sample.open_ends else g).buffer(beyond)
-              for g in lines], 1, near)
-        labels[(near == 0) & (labels == 0)] = NOT_ROAD
-    burn([reproject_geometry(box(*b)) for b in sample.road_boxes], ROAD, labels)
-    burn([g.buffer(sample.line_width_m / 2 * units_per_m) for g in lines], ROAD, labels)
-    if valid is not None:
-        labels[~valid] = 0
-    return labels
 
 
 def road_lines(extraction: Extraction, rules: AttributeRules, attrs: dict) -> list[RoadLine]:
@@ -330,7 +244,7 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
                 "ingest raster`, or before drives were kept): give a training sample "
                 "(--train-lines / --train-box), or ingest the drive with `ugvmap ingest ipm`")
         sample = GeoSample(road_lines=drives, line_width_m=TRAJECTORY_WIDTH_M,
-                           open_ends=True)
+                           not_road_beyond_m=3 * TRAJECTORY_WIDTH_M, open_ends=True)
         used = "drive trajectory"
     applied = effective_rules(session, network, rules)
     areas = source_areas(sources)
@@ -353,23 +267,3 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
     summary = write_network(session, network, lines, replace=replace, node_crossings=False)
     return LayerExtraction(slug, classifiers, summary, used, applied,
                            [line.attributes for line in lines])
-
-
-def given_sample(road_boxes: Sequence[LonLatBox], not_road_boxes: Sequence[LonLatBox],
-                 lines_file: Path | None, line_width_m: float) -> GeoSample | None:
-    """The sample a user gave ``ingest roads`` (on the command line or in a queued job), or
-    None when they gave none (the road model then runs zero-shot). One place, so the command
-    and the job cannot read the same options differently."""
-    lines = _read_sample_lines(lines_file) if lines_file else []
-    if not (road_boxes or not_road_boxes or lines):
-        return None
-    return GeoSample(road_boxes, not_road_boxes, lines, line_width_m)
-
-
-def _read_sample_lines(path: Path) -> list[object]:
-    """Road centerlines (lon/lat) from a GeoJSON file, as shapely geometries."""
-    try:
-        features = json.loads(path.read_text())["features"]
-        return [shape(f["geometry"]) for f in features if f.get("geometry")]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise RoadsInputError(f"{path}: not a GeoJSON FeatureCollection of lines ({exc})") from exc

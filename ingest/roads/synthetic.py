@@ -20,9 +20,10 @@ from rasterio.crs import CRS
 from rasterio.features import rasterize
 from rasterio.transform import Affine
 
+from app.road_tuning import DEFAULT_SAMPLE_WIDTH
 from ingest.ipm.synthetic import Drive
 from ingest.roads.georef import Image
-from ingest.roads.layer import GeoSample, sample_labels
+from ingest.roads.sample import GeoSample, sample_labels
 
 Polyline = Sequence[tuple[int, int]]
 ROAD_RGB = (118, 118, 122)
@@ -123,7 +124,8 @@ def ipm_scene(resolution_m: float = 0.06, sweep_deg: float = 320.0,
     crs = CRS.from_proj4(f"+proj=aeqd +lat_0={drive.lat0} +lon_0={drive.lon0} +ellps=WGS84 "
                          "+units=m")
     lon, lat = drive.to_lonlat(east, north)
-    sample = GeoSample(road_lines=[shapely.LineString(np.column_stack([lon, lat]))])
+    sample = GeoSample(road_lines=[shapely.LineString(np.column_stack([lon, lat]))],
+                       not_road_beyond_m=3 * DEFAULT_SAMPLE_WIDTH.line_width)
     labels = sample_labels((rows, cols), transform, crs, sample)
     image = Image(rgb / 255, coverage, transform, crs, resolution_m)
     return IpmScene(image, labels, coverage, transform, drive.radius_m + drive.road_offset_m)

@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import psycopg
 import pytest
+from click.testing import CliRunner
 from sqlalchemy import text
 
 from app.db.session import session_scope
 from app.network.validation import MAX_ATTRS_DEPTH
 from app.routing.graph import RoadGraph
 from app.routing.live import read_segments
+from cli.main import main
+from ingest.network import RoadAttributes, RoadLine, write_network
 from testkit import synthetic
 from testkit.network_helpers import bearer, grid_network
 from tests.routing_support import dsn, unique, xy
@@ -124,3 +127,67 @@ def test_a_history_row_stored_before_the_limit_is_still_readable(client, grid) -
     assert edits[0]["new"] == {"attrs": nested(260)} and edits[0]["old"] == {"attrs": {}}
     assert edits[0]["edited_by"] == "probe" and edits[0]["conditional"] is False
     assert (edits[0]["version_from"], edits[0]["version_to"]) == (1, 2)
+
+
+def validate(network: str) -> str:
+    """``ugvmap network validate``, which must find the network clean."""
+    result = CliRunner().invoke(main, ["network", "validate", network])
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+@pytest.fixture()
+def cross(client):
+    """Two streets crossing at a junction (1.642, 42.414) in Andorra, where 15 decimals of
+    a longitude (1.6...) are 16 significant digits: one short of every double."""
+    name = unique("cross")
+    with session_scope() as s:
+        write_network(s, name, [
+            RoadLine([(1.640, 42.414), (1.642, 42.414), (1.644, 42.414)], RoadAttributes()),
+            RoadLine([(1.642, 42.412), (1.642, 42.414), (1.642, 42.416)], RoadAttributes())])
+    return name
+
+
+def test_a_created_segment_ends_on_its_nodes_to_the_last_bit(client, cross) -> None:
+    """Item 2: the nodes kept the exact doubles, the line's ends were the nodes read back as
+    text with 15 decimals, one ULP away: ``validate`` then said "segment ends away from its
+    nodes"."""
+    r = client.post(f"/collections/{cross}-segments/items", headers=bearer("editor"), json={
+        "type": "Feature", "properties": {}, "geometry": {
+            "type": "LineString",
+            "coordinates": [[1.6500000000000001, 42.43], [1.651, 42.4300000000000001]]}})
+    assert r.status_code == 201, r.text
+    validate(cross)
+
+
+@pytest.mark.parametrize("then", ["geometry", "split", "merge"])
+def test_edits_after_moving_a_node_to_an_odd_double_keep_the_ends_on_it(client, cross,
+                                                                        then) -> None:
+    """Item 2: a node PATCHed to a position 15 decimals cannot write, then a geometry PATCH
+    or a split of one of its segments (or a merge through another node) put a line end
+    one ULP off the node."""
+    nodes, segments = (f"/collections/{cross}-{k}/items" for k in ("nodes", "segments"))
+    junction = next(f for f in client.get(nodes).json()["features"]
+                    if f["properties"]["kind"] == "junction")
+    admin = bearer("admin")
+    r = client.patch(f"{nodes}/{junction['id']}", headers=admin, json={
+        "geometry": {"type": "Point", "coordinates": [1.6420000000000001, 42.414000000000004]}})
+    assert r.status_code == 200, r.text
+    validate(cross)
+    west = next(f for f in client.get(segments).json()["features"]
+                if f["geometry"]["coordinates"][0] == [1.64, 42.414])
+    coords = west["geometry"]["coordinates"]
+    if then == "geometry":
+        bent = [coords[0], [1.641, 42.4141], coords[-1]]
+        r = client.patch(f"{segments}/{west['id']}", headers=admin,
+                         json={"geometry": {"type": "LineString", "coordinates": bent}})
+    elif then == "split":
+        r = client.post(f"{segments}/{west['id']}/split", headers=admin, json={"fraction": 0.3})
+    else:
+        split = client.post(f"{segments}/{west['id']}/split", headers=admin,
+                            json={"fraction": 0.3})
+        assert split.status_code == 200, split.text
+        r = client.post(f"/collections/{cross}-segments/merge", headers=admin, json={
+            "segments": [f["id"] for f in split.json()["features"]]})
+    assert r.status_code == 200, r.text
+    validate(cross)

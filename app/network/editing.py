@@ -25,7 +25,7 @@ from sqlalchemy.orm import Session
 
 from app.errors import InvalidValueError, PreconditionFailedError, PreconditionRequiredError
 from app.network import collections as colls
-from app.network.segment_rows import geodesic_length
+from app.network.segment_rows import geodesic_length, on_nodes
 from app.network.tokens import Principal
 from app.settings import get_settings
 
@@ -100,7 +100,8 @@ def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
                  new: dict[str, Any], principal: Principal, action: str, *,
                  conditional: bool = True) -> dict[str, Any]:
     """Apply full new values of changed columns (``geometry`` as lon/lat GeoJSON; a segment's
-    length follows it) as one new version, and log it."""
+    ends are set onto its nodes' geometries as stored, and its length follows) as one new
+    version, and log it."""
     props = feature["properties"]
     old = {k: (feature["geometry"] if k == "geometry" else props[k]) for k in new}
     changed = {k: v for k, v in new.items() if old[k] != v}
@@ -114,9 +115,11 @@ def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
         params["attrs"] = json.dumps(changed["attrs"])
     if "geometry" in changed:
         geom = "ST_SetSRID(ST_GeomFromGeoJSON(:geometry), 4326)"
-        assignments.append(f"geom = {geom}")
-        if c.kind == "segments":
+        if c.kind == "segments":  # its ends its nodes' (new) geometries, to the last bit
+            geom = on_nodes(geom, *(f":{k}" if k in changed else f"road_segments.{k}"
+                                    for k in ("source_node", "target_node")))
             assignments.append(f"length_m = {geodesic_length(geom)}")
+        assignments.append(f"geom = {geom}")
         params["geometry"] = json.dumps(changed["geometry"])
     version: int | None = session.execute(text(
         f"UPDATE {c.table} SET {', '.join(assignments)}, version = version + 1, "

@@ -57,9 +57,8 @@ def _point(session: Session, raw: Any, crs: crs_.Crs) -> list[float]:
     return coordinates
 
 
-def _move_segment_ends(session: Session, c: colls.Collection, node: int,
-                       position: list[float], principal: Principal, conditional: bool) -> None:
-    """Put every end of the node's segments at ``position``; refuse a spot another node has."""
+def _vacant(session: Session, c: colls.Collection, node: int, position: list[float]) -> None:
+    """Refuse a move onto a spot another node has (nodes are not merged)."""
     lock_topology(session, c)
     other = session.execute(text(
         "SELECT id FROM road_nodes WHERE network_id = :n AND id <> :id AND "
@@ -69,6 +68,13 @@ def _move_segment_ends(session: Session, c: colls.Collection, node: int,
     if other is not None:
         raise unprocessable({"geometry": f"node {other} is already there (nodes are not "
                                          "merged; delete or move one of them first)"})
+
+
+def _move_segment_ends(session: Session, c: colls.Collection, node: int,
+                       position: list[float], principal: Principal, conditional: bool) -> None:
+    """Put every end of the node's segments at ``position``, where the node now is (the
+    segment writes copy the node's stored geometry onto the line ends, so they are its very
+    doubles)."""
     segments = _segments_of(c)
     for sid in _segment_ids(session, node):
         feature = lock_feature(session, segments, sid, None)
@@ -85,13 +91,19 @@ def _move_segment_ends(session: Session, c: colls.Collection, node: int,
 def _write(session: Session, c: colls.Collection, feature: dict[str, Any],
            new: dict[str, Any], raw_geometry: Any, crs: crs_.Crs, principal: Principal,
            action: str, conditional: bool) -> dict[str, Any]:
+    """Write the node, then (when it moved) its segments' ends onto its new position."""
+    moved = False
     if raw_geometry is not None:
         position = _point(session, raw_geometry, crs)
         if position != feature["geometry"]["coordinates"]:
-            _move_segment_ends(session, c, feature["id"], position, principal, conditional)
+            _vacant(session, c, feature["id"], position)
             new["geometry"] = {"type": "Point", "coordinates": position}
-            action = "move"
-    return write_change(session, c, feature, new, principal, action, conditional=conditional)
+            action, moved = "move", True
+    written = write_change(session, c, feature, new, principal, action,
+                           conditional=conditional)
+    if moved:
+        _move_segment_ends(session, c, feature["id"], position, principal, conditional)
+    return written
 
 
 def patch_node(session: Session, c: colls.Collection, fid: int, expected: int | None,

@@ -35,7 +35,7 @@ from app.network.editing import (
 )
 from app.network.feature_bodies import patch_parts, whole_parts
 from app.network.geometry_input import parse_geometry
-from app.network.segment_rows import insert_segments
+from app.network.segment_rows import insert_segments, on_nodes
 from app.network.tokens import Principal
 from app.network.topology_edits import split_at
 from app.network.validation import lanes_consistent, merge_patch
@@ -182,25 +182,27 @@ def create_segment(session: Session, c: colls.Collection, body: Any, crs: crs_.C
     if source == target:
         raise unprocessable({"geometry": "must join two different nodes (both ends are at "
                                          f"node {source}; draw a closed road as two segments)"})
-    line = {"type": "LineString", "coordinates": [_node_coords(session, source), *coords[1:-1],
-                                                  _node_coords(session, target)]}
+    stored = on_nodes("ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326)", ":source", ":target")
     duplicate = session.execute(text(
         "SELECT id FROM road_segments WHERE network_id = :n "
-        "AND LEAST(source_node, target_node) = LEAST(:a, :b) "
-        "AND GREATEST(source_node, target_node) = GREATEST(:a, :b) "
-        "AND ST_Equals(geom, ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326)) LIMIT 1"),
-        {"n": c.network_id, "a": source, "b": target, "g": json.dumps(line)}).scalar()
+        "AND LEAST(source_node, target_node) = LEAST(:source, :target) "
+        "AND GREATEST(source_node, target_node) = GREATEST(:source, :target) "
+        f"AND ST_Equals(geom, {stored}) LIMIT 1"),
+        {"n": c.network_id, "source": source, "target": target, "g": json.dumps(line)}
+    ).scalar()
     if duplicate is not None:
         raise unprocessable({"geometry": f"duplicates segment {duplicate}"})
     attributes = {k: v for k, v in values.items() if k != "attrs"}
     fid: int = session.execute(text(insert_segments({
         "network_id": ":n", "source_node": ":source", "target_node": ":target",
-        "geom": "ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326)", "updated_by": ":who",
+        "geom": stored, "updated_by": ":who",
         "attrs": "CAST(:attrs AS jsonb)", **{k: f":{k}" for k in attributes}},
         returning=True)),
         {**attributes, "n": c.network_id, "source": source, "target": target,
          "g": json.dumps(line), "who": principal.name,
          "attrs": json.dumps(values["attrs"])}).scalar_one()
     colls.settle_nodes(session, [source, target])
-    log_edit(session, c, fid, "create", None, 1, principal, None, {**values, "geometry": line})
-    return colls.get_item(session, c, fid)
+    created = colls.get_item(session, c, fid)
+    log_edit(session, c, fid, "create", None, 1, principal, None,
+             {**values, "geometry": created["geometry"]})
+    return created

@@ -19,6 +19,19 @@ def geodesic_length(geom: str) -> str:
     return f"ST_Length(({geom})::geography)"
 
 
+def on_nodes(geom: str, source: str, target: str) -> str:
+    """The SQL of a line (``geom``) whose first and last points are replaced by the geometries
+    of nodes ``source`` and ``target`` (SQL of their ids).
+
+    Why in SQL: a segment's ends must be its nodes' very doubles (``ugvmap network validate``
+    compares them exactly). Read back as GeoJSON text (15 decimals) a longitude such as
+    1.6500000000000001 comes back one unit in the last place off; copied inside PostgreSQL
+    it cannot."""
+    node = "(SELECT geom FROM road_nodes WHERE id = {})"
+    return (f"ST_SetPoint(ST_SetPoint({geom}, 0, {node.format(source)}), -1, "
+            f"{node.format(target)})")
+
+
 def insert_segments(columns: Mapping[str, str], rows: str | None = None, *,
                     returning: bool = False) -> str:
     """``INSERT INTO road_segments``: one row per row of ``rows`` (a ``FROM`` clause; None:

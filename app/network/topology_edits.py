@@ -19,7 +19,7 @@ from app.network.editing import (
     unprocessable,
     write_change,
 )
-from app.network.segment_rows import insert_segments
+from app.network.segment_rows import insert_segments, on_nodes
 from app.network.tokens import Principal
 from app.params import parse_number, parse_position
 
@@ -93,7 +93,8 @@ def split_at(session: Session, c: colls.Collection, feature: dict[str, Any], fra
     same = {c: c for c in (*colls.SEGMENT_ATTRIBUTES, "confidence")}  # both parts as sure
     new_id: int = session.execute(text(insert_segments({
         "network_id": "network_id", "source_node": ":node", "target_node": ":target",
-        "geom": "ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326)", "updated_by": ":who", **same},
+        "geom": on_nodes("ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326)", ":node", ":target"),
+        "updated_by": ":who", **same},
         "road_segments WHERE id = :id", returning=True)),
         {"node": node, "target": old_target, "g": json.dumps(second), "who": principal.name,
          "id": fid}).scalar_one()

@@ -73,6 +73,12 @@ class PreconditionRequiredError(UgvmapError):
     """A write without ``If-Match``: refused so edits cannot silently overwrite each other."""
 
 
+class ConflictError(UgvmapError):
+    """A write that met concurrent writes it could not be ordered with (a deadlock or a
+    serialization failure) even when tried again: rolled back, nothing changed. Not an
+    outage: the database is up, and the same request sent again normally succeeds."""
+
+
 class DatabaseUnavailableError(UgvmapError):
     """The database cannot be reached: a fault the client may retry, never a traceback."""
 

@@ -6,12 +6,18 @@ crashing on a deleted isolated segment."""
 
 from __future__ import annotations
 
+import threading
+
+import httpx
 import psycopg
 import pytest
 from click.testing import CliRunner
 from sqlalchemy import text
+from sqlalchemy.exc import OperationalError
 
-from app.db.session import session_scope
+from app.api.errors import database_unavailable
+from app.db.session import TRIES, retried, session_scope
+from app.errors import ConflictError
 from app.network.validation import MAX_ATTRS_DEPTH
 from app.routing.graph import RoadGraph
 from app.routing.live import read_segments
@@ -191,3 +197,133 @@ def test_edits_after_moving_a_node_to_an_odd_double_keep_the_ends_on_it(client, 
             "segments": [f["id"] for f in split.json()["features"]]})
     assert r.status_code == 200, r.text
     validate(cross)
+
+
+def node_and_segments(network_id: int, lon: float, lat: float) -> tuple[int, list[int]]:
+    """The node at (lon, lat) and its segments' ids, ascending."""
+    with session_scope() as s:
+        node = s.execute(text("SELECT id FROM road_nodes WHERE network_id = :n AND "
+                              "geom ~= ST_SetSRID(ST_MakePoint(:x, :y), 4326)"),
+                         {"n": network_id, "x": lon, "y": lat}).scalar_one()
+        ids = s.execute(text("SELECT id FROM road_segments WHERE source_node = :v OR "
+                             "target_node = :v ORDER BY id"), {"v": node}).scalars().all()
+    return node, list(ids)
+
+
+def wait_for_waiters(watcher: psycopg.Connection, count: int) -> None:
+    """Block until ``count`` sessions of this database wait on a lock (the server's requests
+    got as far as the interleaving needs); a bounded wait that fails loudly, no sleeping."""
+    for _ in range(3000):
+        waiting = watcher.execute(
+            "SELECT count(*) FROM pg_stat_activity WHERE datname = current_database() "
+            "AND wait_event_type = 'Lock'").fetchone()
+        if waiting is not None and waiting[0] >= count:
+            return
+        watcher.execute("SELECT pg_sleep(0.01)")
+    raise AssertionError(f"{count} requests never reached their lock waits")
+
+
+def in_thread(send) -> tuple[threading.Thread, list]:
+    answers: list = []
+    thread = threading.Thread(target=lambda: answers.append(send()))
+    thread.start()
+    return thread, answers
+
+
+def test_a_node_move_racing_a_deletion_of_its_segment_does_not_deadlock(
+        live_server, database_url) -> None:
+    """Item 3: the move locked the node, then the network's topology lock, then the node's
+    segments; the deletion locked its segment, then its nodes. Held apart at the topology
+    lock (a third session holds it) until both are in flight, the two deadlocked and the
+    loser was told 503 ``DatabaseUnavailable: deadlock detected``. Every edit now takes the
+    network's edit lock first, so they run one after the other."""
+    net = grid_network()
+    centre, segments = node_and_segments(net.network_id, 10.001, 50.001)
+    nodes = f"{live_server}/collections/{net.network}-nodes/items"
+    items = f"{live_server}/collections/{net.network}-segments/items"
+    admin = bearer("admin")
+    with psycopg.connect(dsn(database_url)) as blocker, \
+            psycopg.connect(dsn(database_url), autocommit=True) as watcher:
+        blocker.execute("SELECT pg_advisory_xact_lock(hashtext('ugvmap.topology'), %s)",
+                        (net.network_id,))
+        move, moved = in_thread(lambda: httpx.patch(f"{nodes}/{centre}", json={
+            "geometry": {"type": "Point", "coordinates": [10.00101, 50.00102]}},
+            headers=admin, timeout=60))
+        wait_for_waiters(watcher, 1)
+        delete, deleted = in_thread(lambda: httpx.delete(f"{items}/{segments[0]}",
+                                                         headers=admin, timeout=60))
+        wait_for_waiters(watcher, 2)
+        blocker.commit()
+        move.join(60)
+        delete.join(60)
+    assert (moved[0].status_code, deleted[0].status_code) == (200, 204), \
+        (moved[0].text, deleted[0].text)
+    validate(net.network)
+
+
+def test_a_node_deletion_after_its_segment_went_says_what_changed(live_server,
+                                                                  database_url) -> None:
+    """Item 13: a node DELETE that waited for a DELETE of one of its two segments answered
+    "node joins 2 segment ends: only a node between two segments can be deleted", its degree
+    read before the wait. It now says what it found once it holds the locks."""
+    net = grid_network()
+    corner, (row0, _) = node_and_segments(net.network_id, 10.0, 50.0)
+    nodes = f"{live_server}/collections/{net.network}-nodes/items"
+    items = f"{live_server}/collections/{net.network}-segments/items"
+    admin = bearer("admin")
+    with psycopg.connect(dsn(database_url)) as blocker, \
+            psycopg.connect(dsn(database_url), autocommit=True) as watcher:
+        blocker.execute("SELECT id FROM road_nodes WHERE id = %s FOR UPDATE", (corner,))
+        delete_segment, segment_answer = in_thread(
+            lambda: httpx.delete(f"{items}/{row0}", headers=admin, timeout=60))
+        wait_for_waiters(watcher, 1)
+        delete_node, node_answer = in_thread(
+            lambda: httpx.delete(f"{nodes}/{corner}", headers=admin, timeout=60))
+        wait_for_waiters(watcher, 2)
+        blocker.commit()
+        delete_segment.join(60)
+        delete_node.join(60)
+    assert segment_answer[0].status_code == 204, segment_answer[0].text
+    refused = node_answer[0]
+    assert refused.status_code == 422, refused.text
+    message = refused.json()["errors"]["id"]
+    assert f"node {corner} joins 1 segment end" in message, message
+    assert "2 segment" not in message
+    validate(net.network)
+
+
+RAISE_DEADLOCK = ("DO $$ BEGIN RAISE EXCEPTION 'deadlock detected' USING ERRCODE = '40P01'; "
+                  "END $$")
+
+
+def test_a_write_that_lost_a_deadlock_is_tried_again() -> None:
+    """Item 3's safety net: PostgreSQL's deadlock_detected (raised for real by the server)
+    rolls the transaction back, which then runs again from the start."""
+    tries: list[int] = []
+
+    def work(session) -> int:
+        tries.append(1)
+        session.execute(text("CREATE TEMP TABLE IF NOT EXISTS probe_retry (x int)"))
+        if len(tries) == 1:
+            session.execute(text(RAISE_DEADLOCK))
+        return int(session.execute(text("SELECT 7")).scalar_one())
+
+    assert retried(work) == 7 and len(tries) == 2
+
+
+def test_a_write_that_keeps_losing_is_a_conflict_not_an_outage() -> None:
+    """After :data:`TRIES` lost races the write is a 409 ``Conflict`` saying nothing was
+    changed; a deadlock met anywhere else is a 409 too, never 503 ``DatabaseUnavailable``."""
+    tries: list[int] = []
+
+    def work(session) -> None:
+        tries.append(1)
+        session.execute(text(RAISE_DEADLOCK))
+
+    with pytest.raises(ConflictError, match="nothing was changed"):
+        retried(work)
+    assert len(tries) == TRIES
+    with pytest.raises(OperationalError) as lost, session_scope() as s:
+        s.execute(text(RAISE_DEADLOCK))
+    answer = database_unavailable(None, lost.value)
+    assert answer.status_code == 409 and b'"code":"Conflict"' in answer.body

@@ -27,6 +27,7 @@ from starlette.middleware.body_limit import MAX_BODY_SIZE_SCOPE_KEY
 from starlette.routing import Match, Mount
 
 from app import errors as e
+from app.db.session import CONFLICT_MESSAGE, conflict
 
 
 # -- faults only the HTTP layer meets ---------------------------------------------------------
@@ -73,6 +74,7 @@ STATUS_CODES: Table = {
     e.LayerNotFoundError: Answer(404, "LayerNotFound"),
     e.TileOutOfRangeError: Answer(404, "TileOutOfRange"),
     MethodNotAllowedError: Answer(405, "MethodNotAllowed"),
+    e.ConflictError: Answer(409, "Conflict"),
     e.PreconditionFailedError: Answer(412, "PreconditionFailed"),
     PayloadTooLargeError: Answer(413, "PayloadTooLarge"),
     UnsupportedMediaTypeError: Answer(415, "UnsupportedMediaType"),
@@ -219,7 +221,11 @@ log = logging.getLogger(__name__)
 def database_unavailable(request: Request, exc: Exception) -> JSONResponse:
     """A connection error from SQLAlchemy anywhere becomes 503. The client learns the kind of
     failure (the driver's last words, e.g. "Connection refused"); where the database lives
-    (host, port, user, database name) goes to the log, for the operator only."""
+    (host, port, user, database name) goes to the log, for the operator only. A deadlock or
+    serialization failure is no outage but a conflict between transactions (409), for any
+    request that met one outside the writes' own retry (:func:`app.db.session.retried`)."""
+    if conflict(exc):
+        return fault_response(e.ConflictError(CONFLICT_MESSAGE))
     detail = str(getattr(exc, "orig", None) or exc).strip().splitlines()[0]
     log.warning("database unavailable: %s", detail)
     reason = detail.rpartition(": ")[2].strip() or "no connection"

@@ -76,9 +76,16 @@ def expected_version(header: str | None) -> int | None:
 
 
 def lock_topology(session: Session, c: colls.Collection) -> None:
-    """Serialise the edits that place nodes in this network (creating a segment or a node,
-    splitting, moving a node) until the transaction ends: two of them looking for a node at
-    the same spot at once would each create one, two nodes at one location."""
+    """The network's edit lock, held until the transaction ends: every edit takes it before
+    any row lock (:func:`lock_feature` does), so the edits of a network run one at a time
+    and take their row locks in one order.
+
+    Why before everything: edits lock rows in different orders (a node move: the node, then
+    its segments; a segment deletion: the segment, then its nodes; a created segment: the
+    nodes near its ends), and two of them interleaved deadlocked. Nothing is lost by it:
+    each edit's first write bumps the network's version row, which serialised them from
+    there on anyway. It also keeps two edits looking for a node at one spot from each
+    creating one."""
     session.execute(text("SELECT pg_advisory_xact_lock(hashtext('ugvmap.topology'), :n)"),
                     {"n": c.network_id})
 
@@ -86,7 +93,8 @@ def lock_topology(session: Session, c: colls.Collection) -> None:
 def lock_feature(session: Session, c: colls.Collection, fid: int,
                  expected: int | None) -> dict[str, Any]:
     """Lock the feature's row; 404 if absent, 412 if ``expected`` is not its version (None:
-    any version, an unconditional write)."""
+    any version, an unconditional write). The network's edit lock first (:func:`lock_topology`)."""
+    lock_topology(session, c)
     feature = colls.get_item(session, c, fid, for_update=True)
     current = feature["properties"]["version"]
     if expected is not None and current != expected:

@@ -33,7 +33,7 @@ from app.api.errors import (
     allowed_methods,
     responses,
 )
-from app.db.session import session_scope
+from app.db.session import retried
 from app.errors import ForbiddenError, InvalidParameterValueError
 from app.network import collections as colls
 from app.network import crs as crs_
@@ -56,10 +56,11 @@ from app.network.features_router import (
 from app.network.tokens import Principal
 from app.params import Int
 
-# Every write: token checks, unknown collection or feature, a rule broken (422), a lost
-# database.
+# Every write: token checks, unknown collection or feature, a rule broken (422), a race lost
+# even when tried again (409), a lost database.
 WRITE_ERRORS = (errors.UnauthorizedError, errors.ForbiddenError, errors.NotFoundError,
-                errors.InvalidValueError, errors.DatabaseUnavailableError)
+                errors.InvalidValueError, errors.ConflictError,
+                errors.DatabaseUnavailableError)
 router = APIRouter(tags=["Editing"])
 
 EditorDep = Annotated[Principal, Depends(require_role("editor", "admin"))]
@@ -145,13 +146,10 @@ SEGMENTS_ONLY = (MethodNotAllowedError,)
 
 
 async def _in_session(work: Callable[[Session], Any]) -> Any:
-    """Run blocking DB work in the thread pool, in one transaction."""
-
-    def run() -> Any:
-        with session_scope() as session:
-            return work(session)
-
-    return await run_in_threadpool(run)
+    """Run blocking DB work in the thread pool, in one transaction, tried again when it lost
+    a deadlock or serialization failure (:func:`app.db.session.retried`: 409 if it keeps
+    losing)."""
+    return await run_in_threadpool(retried, work)
 
 
 def _by_kind(c: colls.Collection, segments: Callable[..., Any],

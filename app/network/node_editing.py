@@ -59,7 +59,6 @@ def _point(session: Session, raw: Any, crs: crs_.Crs) -> list[float]:
 
 def _vacant(session: Session, c: colls.Collection, node: int, position: list[float]) -> None:
     """Refuse a move onto a spot another node has (nodes are not merged)."""
-    lock_topology(session, c)
     other = session.execute(text(
         "SELECT id FROM road_nodes WHERE network_id = :n AND id <> :id AND "
         "ST_DWithin(geom, ST_SetSRID(ST_MakePoint(:x, :y), 4326), :grid) LIMIT 1"),
@@ -154,11 +153,15 @@ def delete_node(session: Session, c: colls.Collection, fid: int, expected: int |
     """DELETE: a node between two segments, which are merged through it."""
     feature = lock_feature(session, c, fid, expected)
     ids = _segment_ids(session, fid)
-    if feature["properties"]["degree"] != 2 or len(ids) != 2:
-        raise unprocessable({"id": f"node {fid} joins {feature['properties']['degree']} "
-                                   "segment ends: only a node between two segments can be "
-                                   "deleted (they are merged); an endpoint goes with its "
-                                   "segment"})
+    # Read once the network's edit lock is held (lock_feature), so after any edit this
+    # request waited for: it says what is there now (it once said "joins 2 segment ends"
+    # of a node whose other segment a concurrent deletion had just removed).
+    degree = feature["properties"]["degree"]
+    if degree != 2 or len(ids) != 2:
+        ends = "1 segment end" if degree == 1 else f"{degree} segment ends"
+        raise unprocessable({"id": f"node {fid} joins {ends}: only a node between two "
+                                   "segments can be deleted (they are merged); an endpoint "
+                                   "goes with its segment"})
     merge_segments(session, _segments_of(c), {"segments": ids}, None, principal)
     log_edit(session, c, fid, "delete", feature["properties"]["version"], None, principal,
              {**feature["properties"], "geometry": feature["geometry"]}, None,

@@ -32,8 +32,8 @@ def delete_segment(session: Session, c: colls.Collection, fid: int, expected: in
     ends = {"ids": sorted({props["source_node"], props["target_node"]})}
     # Lock the end nodes before counting their segments: two deletions of the two segments
     # at a node must not each see the other still there and leave the node orphaned. (The
-    # change trigger's version bump of the network row serialises them today as well; the
-    # lock keeps this correct without relying on a trigger's side effect.)
+    # network's edit lock, taken by lock_feature, serialises them as well; the row locks
+    # keep this correct on their own.)
     session.execute(text("SELECT id FROM road_nodes WHERE id = ANY(:ids) ORDER BY id "
                          "FOR UPDATE"), ends)
     session.execute(text("DELETE FROM road_segments WHERE id = :id"), {"id": fid})

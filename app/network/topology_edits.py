@@ -14,7 +14,6 @@ from sqlalchemy.orm import Session
 from app.network import collections as colls
 from app.network.editing import (
     lock_feature,
-    lock_topology,
     log_edit,
     unprocessable,
     write_change,
@@ -72,7 +71,6 @@ def split_at(session: Session, c: colls.Collection, feature: dict[str, Any], fra
     gaining a version; second part, a new segment with the same attributes). Also how a
     created segment or node joins a road in its middle."""
     fid = feature["id"]
-    lock_topology(session, c)
     halves = session.execute(text(
         "SELECT ST_AsGeoJSON(ST_LineSubstring(geom, 0, :f), 15), "
         "ST_AsGeoJSON(ST_LineSubstring(geom, :f, 1), 15) FROM road_segments WHERE id = :id"),

@@ -74,7 +74,7 @@ def refuse(error: Error, what: str, reason: str) -> UgvmapError:
 def _check_range(number: float, what: str, low: Bound, high: Bound, error: Error) -> None:
     lo, hi = _bound(low), _bound(high)
     if (lo is not None and number < lo) or (hi is not None and number > hi):
-        span = f"{'-inf' if lo is None else lo:g}..{'inf' if hi is None else hi:g}"
+        span = f"{-math.inf if lo is None else lo:g}..{math.inf if hi is None else hi:g}"
         raise refuse(error, what, f"must be within {span}, not {shown(number)}")
 
 

@@ -160,8 +160,9 @@ def test_huge_avoid_is_refused_early(client, net) -> None:
     r = client.post(f"/networks/{net['name']}/route",
                     json={"points": [[1.5, 42.5], [1.51, 42.5]], "avoid": ["a"] * 100_000})
     problem(r, 400, "InvalidQuery")
+    # More points than allowed, however long the text: TooBig, as 101 points are (issue 33)
     r = client.get(f"/networks/{net['name']}/route", params={"points": "1.5,42.5;" * 3000})
-    problem(r, 400, "InvalidQuery")
+    problem(r, 400, "TooBig")
 
 
 def test_unknown_options_are_refused_not_ignored(client, net) -> None:

@@ -6,7 +6,9 @@ framework-free parsers of :mod:`app.params`.
 
 from __future__ import annotations
 
-from fastapi import Request
+from typing import Any
+
+from fastapi import Depends, Request
 
 from app.errors import InvalidParameterValueError
 from app.params import shown
@@ -26,3 +28,18 @@ async def single_valued_query(request: Request) -> None:
             raise InvalidParameterValueError(
                 f"query parameter {shown(key)} is given more than once; give it once")
         seen.add(key)
+
+
+def only_query(*names: str) -> Any:
+    """Route dependency: a query parameter the endpoint does not take is a 400 naming it,
+    as items and routing answer, not silently ignored (a typo such as ``bboxx=`` for a
+    Lanelet2 map would hand back the whole network)."""
+    takes = ", ".join(names) if names else "no query parameters"
+
+    async def known_query(request: Request) -> None:
+        unknown = sorted(set(request.query_params) - set(names))
+        if unknown:
+            raise InvalidParameterValueError(
+                f"unknown query parameter {shown(unknown[0])}; this URL takes {takes}")
+
+    return Depends(known_query)

@@ -27,12 +27,23 @@ from typing import Any
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol, RequestResponseCycle
 
 from app.api.errors import STATUS_CODES
-from app.errors import InvalidParameterValueError
+from app.errors import InvalidParameterValueError, TooBigError, UgvmapError
 
 # Names whose conventional spelling is not plain Title-Case.
 SPELLING = {b"etag": b"ETag", b"www-authenticate": b"WWW-Authenticate",
             b"content-crs": b"Content-Crs"}
 INTERIM = b"HTTP/1.1 100 "  # "100 Continue", written before the head of the response
+MAX_URL_BYTES = 65_535
+"""The longest request target read. httptools' URL parser keeps offsets in 16 bits, so a
+longer one (10,000 coordinates in an OSRM URL) failed as "not valid HTTP/1.1"; and nothing
+else bounded how much of a URL the protocol would gather in memory."""
+
+LINGER_S = 5.0  # how long a refused request's connection waits for the client to stop sending
+
+
+class UrlTooLongError(Exception):
+    """Raised from the parser's URL callback: httptools stops parsing and uvicorn answers
+    through :meth:`ServiceHttpProtocol.send_400_response`."""
 
 
 def canonical(name: bytes) -> bytes:
@@ -99,6 +110,8 @@ class ServiceHttpProtocol(HttpToolsProtocol):
     """uvicorn's httptools protocol, writing header names in their conventional case and
     answering malformed HTTP with ``{"code", "message"}`` JSON."""
 
+    _lingering = False  # set once a refusal is written: what the client still sends is dropped
+
     def _start_asgi_task(self, cycle: RequestResponseCycle, app: Any) -> None:
         # Every request's cycle starts here, pipelined ones included, before it writes.
         head = RespelledHead(cycle.transport)
@@ -113,11 +126,37 @@ class ServiceHttpProtocol(HttpToolsProtocol):
         cycle.send = sent  # type: ignore[method-assign]
         super()._start_asgi_task(cycle, app)
 
+    def on_url(self, url: bytes) -> None:
+        """Gather the request target, up to :data:`MAX_URL_BYTES`."""
+        super().on_url(url)
+        if len(self.url) > MAX_URL_BYTES:
+            raise UrlTooLongError
+
     def send_400_response(self, msg: str) -> None:
-        """The 400 uvicorn sends for bytes it cannot parse as HTTP/1.1, in our error shape."""
-        body = json.dumps({"code": STATUS_CODES[InvalidParameterValueError].code,
-                           "message": f"the request is not valid HTTP/1.1 ({msg})"}).encode()
+        """The 400 uvicorn sends for bytes it cannot parse as HTTP/1.1, in our error shape;
+        a URL over :data:`MAX_URL_BYTES` is OSRM's ``TooBig``, as too many points are."""
+        fault: type[UgvmapError] = InvalidParameterValueError
+        message = f"the request is not valid HTTP/1.1 ({msg})"
+        if len(getattr(self, "url", b"")) > MAX_URL_BYTES:
+            fault, message = TooBigError, (
+                f"the URL is over {MAX_URL_BYTES:,} bytes long, the most this service reads; "
+                "send long point lists as a JSON body (POST)")
+        body = json.dumps({"code": STATUS_CODES[fault].code, "message": message}).encode()
         self.transport.write(b"HTTP/1.1 400 Bad Request\r\nContent-Type: application/json\r\n"
                              b"Content-Length: %d\r\nConnection: close\r\n\r\n%s"
                              % (len(body), body))
-        self.transport.close()
+        self._linger()
+
+    def _linger(self) -> None:
+        """Close once the client has stopped sending (its EOF closes the transport), or after
+        :data:`LINGER_S`: closing while the rest of its request is still arriving resets the
+        connection, and the client's system then drops the answer it had received."""
+        self._lingering = True
+        if self.transport.can_write_eof():
+            self.transport.write_eof()
+        self.loop.call_later(LINGER_S, self.transport.close)
+
+    def data_received(self, data: bytes) -> None:
+        """Parse ``data``, or drop it once the connection is being closed."""
+        if not self._lingering:
+            super().data_received(data)

@@ -22,6 +22,7 @@ from starlette.background import BackgroundTask
 
 from app.api.dependencies import read_access
 from app.api.errors import responses
+from app.api.query import only_query
 from app.errors import InvalidParameterValueError, NotFoundError, ResponseTooLargeError, UserError
 from app.lanelet2.export import parse_area, parse_origin, write_lanelet2
 from app.lanelet2.roads import AREA_WHERE, read_selection, snapshot
@@ -53,6 +54,7 @@ SELECT n.id, (SELECT count(*) FROM road_segments s
 
 
 @router.get("/networks/{name}/lanelet2.osm", response_class=FileResponse,
+            dependencies=[only_query("bbox", "origin")],
             responses={200: {"content": {OSM_XML: {}},
                              "description": "Lanelet2 map (OSM XML); its origin in "
                                             "X-Lanelet2-Origin"},

@@ -15,13 +15,14 @@ from sqlalchemy.orm import Session
 from app import errors
 from app.api.dependencies import SessionDep, read_access
 from app.api.errors import responses
+from app.api.query import only_query
 from app.network import tilejson as tj
 from app.network.features_router import READ_ERRORS, base_url
 from app.network.summary import NETWORKS_SQL, integer_ranges
 from app.network.tiles import network_token
 from app.network.tiles_router import network_tile
 from app.params import NetworkName
-from app.tiles.versioned import versioned
+from app.tiles.versioned import VERSION_PARAM, versioned
 
 router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)],
                    responses=responses(*READ_ERRORS))
@@ -118,7 +119,7 @@ def network(name: NetworkName, request: Request, session: SessionDep) -> dict[st
     return _entry(request, _one(session, name))
 
 
-@router.get("/networks/{name}/tilejson.json", response_model=None,
+@router.get("/networks/{name}/tilejson.json", response_model=None, dependencies=[only_query()],
             responses={200: {"content": {"application/json": {"schema": {"type": "object"}}}},
                        **NOT_FOUND})
 def network_tilejson(name: NetworkName, request: Request, session: SessionDep) -> JSONResponse:
@@ -128,7 +129,7 @@ def network_tilejson(name: NetworkName, request: Request, session: SessionDep) -
                         headers=NO_CACHE)
 
 
-@router.get("/networks/{name}/style.json", response_model=None,
+@router.get("/networks/{name}/style.json", response_model=None, dependencies=[only_query()],
             responses={200: {"content": {"application/json": {"schema": {"type": "object"}}}},
                        **NOT_FOUND})
 def network_style(name: NetworkName, request: Request, session: SessionDep) -> JSONResponse:
@@ -139,6 +140,7 @@ def network_style(name: NetworkName, request: Request, session: SessionDep) -> J
 
 
 @router.get("/networks/{name}/tiles/metadata.json", response_model=None,
+            dependencies=[only_query()],
             responses={200: {"content": {"application/json": {"schema": {"type": "object"}}}},
                        **NOT_FOUND})
 def network_tiles_metadata(name: NetworkName, session: SessionDep) -> JSONResponse:
@@ -149,7 +151,8 @@ def network_tiles_metadata(name: NetworkName, session: SessionDep) -> JSONRespon
                         headers=NO_CACHE)
 
 
-@router.get("/networks/{name}/tiles/{z}/{x}/{y}.pbf", include_in_schema=False)
+@router.get("/networks/{name}/tiles/{z}/{x}/{y}.pbf", include_in_schema=False,
+            dependencies=[only_query(VERSION_PARAM)])
 def network_tile_pbf(name: NetworkName, z: str, x: str, y: str, session: SessionDep,
                      request: Request) -> Response:
     """The ``.mvt`` tile under the ``.pbf`` name GDAL's MVT driver asks for by default."""

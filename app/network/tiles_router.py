@@ -15,6 +15,7 @@ from app import errors
 from app.api.conditional import cache_headers, not_modified
 from app.api.dependencies import SessionDep, read_access
 from app.api.errors import responses
+from app.api.query import only_query
 from app.errors import NotFoundError
 from app.grid import parse_tile
 from app.network.collections import network_row
@@ -22,6 +23,7 @@ from app.network.tile_cache import shared_cache
 from app.network.tiles import MVT, network_token, render_tile, tile_bounds
 from app.params import NetworkName, TileXY, TileZ
 from app.settings import get_settings
+from app.tiles.versioned import VERSION_PARAM
 
 router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)],
                    responses=responses(
@@ -31,6 +33,7 @@ router = APIRouter(tags=["Vector tiles"], dependencies=[Depends(read_access)],
 
 
 @router.get("/networks/{name}/tiles/{z}/{x}/{y}.mvt", response_class=Response,
+            dependencies=[only_query(VERSION_PARAM)],
             responses={200: {"content": {MVT: {}}}})
 def network_tile(name: NetworkName, z: TileZ, x: TileXY, y: TileXY, session: SessionDep,
                  request: Request) -> Response:

@@ -211,6 +211,9 @@ def parse_points(raw: str, most: int | None = None) -> list[tuple[float, float]]
     """``lon,lat;lon,lat;...`` (or OSRM's ``polyline(...)``/``polyline6(...)``) -> points; the
     text is bounded by what ``most`` points (``max_points`` by default) can need."""
     most = routing_settings().max_points if most is None else most
+    if len(raw) > POINT_CHARS * (most + 1):  # more text than the points allowed can take
+        raise TooBigError(f"points is {len(raw):,} characters long: more than {most} points "
+                          f"can be; at most {most} points")
     params.bounded("points", raw, POINT_CHARS * (most + 1))
     for precision, prefix in ((6, "polyline6("), (5, "polyline(")):
         if raw.startswith(prefix) and raw.endswith(")"):

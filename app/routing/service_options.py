@@ -28,6 +28,11 @@ from app.routing.settings import routing_settings
 
 TABLE_ANNOTATIONS = ("duration", "distance")
 MAX_INDEX_CHARS = 12  # per element of sources=, destinations=, waypoints=, timestamps=
+MAX_SCALE_FACTOR = 1e6
+"""table's ``scale_factor`` at most: any route's duration (under 1e9 s even across a continent)
+times it stays far inside a double, where 1e308 overflowed to infinity."""
+FALLBACK_SPEED = (1e-3, 1e6)
+"""table's ``fallback_speed``, m/s: a crow-flies estimate (at most 2e7 m) over it stays finite."""
 
 
 def _indices(name: str, raw: str, n: int) -> list[int]:
@@ -52,11 +57,14 @@ def _count(service: str, n: int, least: int, most: int) -> None:
         raise TooBigError(f"{n} points; {service} takes at most {most}")
 
 
-def _positive(name: str, raw: str) -> float:
+def _positive(name: str, raw: str, low: float, high: float) -> float:
+    """A number above 0 (else OSRM's ``InvalidOptions``) within ``[low, high]`` (else
+    ``InvalidValue``): the bounds keep every scaled duration finite, since a factor of 1e308
+    (or a fallback speed of 1e-308 m/s) made reachable cells ``null``, OSRM's "no route"."""
     value = params.finite(name, raw)
     if value <= 0:
         raise InvalidOptionsError(f"{name} must be above 0, not {value:g}")
-    return value
+    return params.number_in(name, raw, low, high)
 
 
 @dataclass(frozen=True)
@@ -111,10 +119,10 @@ def parse_table(raw: Mapping[str, str], n_points: int) -> TableOptions:
     speed = raw.get("fallback_speed")
     return TableOptions(
         sides[0], sides[1], frozenset(names),
-        _positive("fallback_speed", speed) if speed is not None else None,
+        _positive("fallback_speed", speed, *FALLBACK_SPEED) if speed is not None else None,
         params.choice("fallback_coordinate", raw.get("fallback_coordinate", "input"),
                       ("input", "snapped")),
-        _positive("scale_factor", raw.get("scale_factor", "1")))
+        _positive("scale_factor", raw.get("scale_factor", "1"), 0.0, MAX_SCALE_FACTOR))
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ from fastapi.responses import FileResponse, RedirectResponse
 from app import errors
 from app.api.conditional import cache_headers, not_modified
 from app.api.errors import responses
+from app.api.query import only_query
 from app.db.session import get_engine
 from app.errors import InvalidParameterValueError, LayerNotFoundError, NotFoundError
 from app.grid import parse_tile, tile_bounds
@@ -28,7 +29,7 @@ from app.tiles.cache import tile_cache
 from app.tiles.encode import MEDIA_TYPES
 from app.tiles.mosaic import compose_tile
 from app.tiles.store import open_store
-from app.tiles.versioned import versioned
+from app.tiles.versioned import VERSION_PARAM, versioned
 
 # Raster layers are public; any request may still carry a malformed slug or find the
 # database gone, and every layer-addressed one may name an unknown layer.
@@ -133,7 +134,8 @@ def source_cog(slug: LayerSlug, source_id: SourceId) -> Response:
                         headers={"Cache-Control": "no-cache"})
 
 
-@router.get("/layers/{slug}/tilejson.json", name="tilejson", responses=LAYER_ERRORS)
+@router.get("/layers/{slug}/tilejson.json", name="tilejson", responses=LAYER_ERRORS,
+            dependencies=[only_query("format")])
 def tilejson(slug: LayerSlug, request: Request, response: Response,
              format: Format = "png") -> dict[str, Any]:
     """TileJSON 3.0.0 for the layer's XYZ tiles, whose URLs name the layer's current version
@@ -162,6 +164,7 @@ def tilejson(slug: LayerSlug, request: Request, response: Response,
 
 
 @router.get("/tiles/{slug}/{z}/{x}/{tile}", response_model=None,
+            dependencies=[only_query(VERSION_PARAM)],
             responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}},
                        304: {"description": "Not modified: If-None-Match holds the ETag"},
                        **responses(errors.LayerNotFoundError, errors.TileOutOfRangeError,

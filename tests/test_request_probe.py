@@ -11,6 +11,7 @@ import psycopg
 import pytest
 
 from testkit import synthetic
+from testkit.network_helpers import grid_network
 from testkit.server import raw_exchange
 from tests.routing_support import dsn, unique, xy
 
@@ -129,3 +130,21 @@ def test_unknown_query_parameters_are_refused_everywhere(client, street) -> None
     assert r.status_code == 200, r.text
     r = client.get("/layers/nolayer/tilejson.json?format=png")
     assert (r.status_code, r.json()["code"]) == (404, "LayerNotFound")
+
+
+@pytest.mark.parametrize("epsg", [3857, 32631, 4326])
+def test_geometries_in_another_crs_carry_no_crs_member(client, epsg: int) -> None:
+    """``?crs=...EPSG/0/32631`` put a ``crs`` member inside every geometry (PostGIS's
+    ``ST_AsGeoJSON`` adds one for SRIDs other than 4326; RFC 7946 dropped it): the
+    ``Content-Crs`` header says the CRS, the geometries hold type and coordinates only."""
+    net = grid_network()
+    crs = f"http://www.opengis.net/def/crs/EPSG/0/{epsg}"
+    for kind in ("segments", "nodes"):
+        items = f"/collections/{net.network}-{kind}/items"
+        page = client.get(items, params={"crs": crs, "limit": 5})
+        assert page.headers["content-crs"] == f"<{crs}>"
+        features = page.json()["features"]
+        one = client.get(f"{items}/{features[0]['id']}", params={"crs": crs})
+        assert one.headers["content-crs"] == f"<{crs}>"
+        for geometry in [f["geometry"] for f in features] + [one.json()["geometry"]]:
+            assert set(geometry) == {"type", "coordinates"}, geometry

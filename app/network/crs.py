@@ -60,13 +60,15 @@ class Crs:
         return 6 if self.projected else 15
 
     def output_sql(self, column: str = "geom") -> str:
-        """SQL of the stored geometry ``column`` as GeoJSON text in this CRS."""
+        """SQL of the stored geometry ``column`` as GeoJSON text in this CRS, without the
+        ``crs`` member PostGIS adds by default for SRIDs other than 4326 (options 0): RFC 7946
+        has none, and the ``Content-Crs`` header names the CRS."""
         geometry = column
         if self.projected:
             geometry = f"ST_Transform({column}, {self.srid})"
         elif self.lat_first:
             geometry = f"ST_FlipCoordinates({column})"
-        return f"ST_AsGeoJSON({geometry}, {self.digits})"
+        return f"ST_AsGeoJSON({geometry}, {self.digits}, 0)"
 
     def storage_sql(self, param: str) -> str:
         """SQL of GeoJSON text in bound parameter ``param`` (in this CRS) as stored lon/lat

@@ -148,3 +148,24 @@ def test_geometries_in_another_crs_carry_no_crs_member(client, epsg: int) -> Non
         assert one.headers["content-crs"] == f"<{crs}>"
         for geometry in [f["geometry"] for f in features] + [one.json()["geometry"]]:
             assert set(geometry) == {"type", "coordinates"}, geometry
+
+
+def test_a_segment_south_of_80s_is_reported_and_skipped_by_the_lanelet2_export(
+        client, database_url: str) -> None:
+    """One segment south of 80°S (an edit in EPSG:32701 puts it there) made the export of the
+    whole network a 400 for everyone; it is left out and reported, as degenerate segments are."""
+    with psycopg.connect(dsn(database_url), autocommit=True) as conn:
+        name = unique("antarctic")
+        nid = synthetic.create_network(conn, name)
+        kept = synthetic.add_line(conn, nid, [xy(0, 0), xy(300, 0)])
+        south = synthetic.add_line(conn, nid, [(1.5, -85.0), (1.51, -85.0)])
+        alone = unique("antarctic")
+        synthetic.add_line(conn, synthetic.create_network(conn, alone),
+                           [(1.5, -85.0), (1.51, -85.0)])
+    r = client.get(f"/networks/{name}/lanelet2.osm")
+    assert r.status_code == 200, r.text
+    assert f"segment {south}: outside-utm" in r.text
+    assert f'k="segment_id" v="{kept}"' in r.text and f'k="segment_id" v="{south}"' not in r.text
+    r = client.get(f"/networks/{alone}/lanelet2.osm")
+    assert (r.status_code, r.json()["code"]) == (400, "InvalidParameterValue"), r.text
+    assert "outside UTM" in r.json()["message"]

@@ -10,7 +10,7 @@ comment, and implicitly in every node's ``local_x``/``local_y``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,8 @@ from app.lanelet2.build import MapSummary, Progress, write_map
 from app.lanelet2.frame import Frame
 from app.lanelet2.geometry import standard_utm_zone
 from app.lanelet2.osm_xml import OsmXmlWriter
-from app.lanelet2.roads import NetworkSelection, read_selection
+from app.lanelet2.roads import NetworkSelection, NodeTable, read_selection
+from app.lanelet2.topology import Defect
 from app.network.ogc_params import parse_bbox
 
 Bbox = tuple[float, float, float, float]
@@ -62,6 +63,25 @@ def _check_latitude(lat: float, what: str) -> None:
     if not UTM_LATITUDES[0] <= lat <= UTM_LATITUDES[1]:
         raise UserError(f"{what} latitude {lat:.4f} is outside UTM's 80°S..84°N: a Lanelet2 "
                         "export is built in the UTM zone of its origin")
+
+
+def within_utm(sel: NetworkSelection) -> tuple[NetworkSelection, list[Defect]]:
+    """``sel`` without the segments UTM cannot hold (a vertex south of 80°S or north of
+    84°N), each reported as a defect: one such segment (an edit sent in EPSG:32701 reaches
+    there) made the whole network's export fail for everyone."""
+    roads = sel.roads
+    lat = roads.lonlat[:, 1]
+    outside = (lat < UTM_LATITUDES[0]) | (lat > UTM_LATITUDES[1])
+    if not outside.any():
+        return sel, []
+    bad = np.zeros(len(roads), bool)
+    bad[np.repeat(np.arange(len(roads)), np.diff(roads.offsets))[outside]] = True
+    defects = [Defect(int(i), "outside-utm", "a vertex lies outside UTM's 80°S..84°N: "
+                      "not mapped") for i in roads.ids[bad]]
+    kept, _ = roads.take(np.flatnonzero(~bad))
+    ends = np.isin(sel.nodes.ids, np.concatenate([kept.source, kept.target]))
+    nodes = NodeTable(sel.nodes.ids[ends], sel.nodes.lonlat[ends], sel.nodes.traffic_light[ends])
+    return replace(sel, roads=kept, nodes=nodes), defects
 
 
 def default_origin(lonlat: np.ndarray) -> tuple[float, float]:
@@ -122,9 +142,11 @@ def write_lanelet2(sel: NetworkSelection, out: Path, origin: tuple[float, float]
     if not len(sel.roads):
         where = f" within bbox {','.join(map(str, sel.bbox))}" if sel.bbox else ""
         raise UserError(f"network {sel.name!r} has no segments{where}: nothing to map")
+    sel, outside = within_utm(sel)
+    if not len(sel.roads):
+        raise UserError(f"every segment of network {sel.name!r} to map has a vertex outside "
+                        "UTM's 80°S..84°N: nothing a Lanelet2 map can hold")
     origin = origin or default_origin(sel.roads.lonlat)
-    _check_latitude(float(sel.roads.lonlat[:, 1].min()), "southernmost")
-    _check_latitude(float(sel.roads.lonlat[:, 1].max()), "northernmost")
     zone = standard_utm_zone(origin[1], origin[0])
     epsg = (32600 if origin[0] >= 0 else 32700) + zone
     frame = Frame(epsg, (origin[1], origin[0]))
@@ -135,6 +157,7 @@ def write_lanelet2(sel: NetworkSelection, out: Path, origin: tuple[float, float]
     writer = OsmXmlWriter(out, comment="", meta=meta, bounds=(lo[0], lo[1], hi[0], hi[1]))
     try:
         summary = write_map(sel, frame, writer, progress)
+        summary.defects = outside + summary.defects
         writer.set_comment(_comment(sel, origin, zone, summary))
         writer.close()
     except BaseException:

@@ -29,7 +29,6 @@ from app.lanelet2.geometry import (
 )
 from app.lanelet2.roads import NetworkSelection, RoadTable
 from app.routing.costs import effective_speed_kph
-from app.routing.splice import ragged_take
 
 JOINT_PASSES = 3
 MIN_CHORD_M = 0.01
@@ -40,11 +39,7 @@ STRAIGHT_BELOW_WIDTHS = 2.0  # a folded line shorter than twice its road's width
 def _subset(roads: RoadTable, rows: np.ndarray, xy: np.ndarray
             ) -> tuple[RoadTable, np.ndarray]:
     """The rows ``rows`` of ``roads`` and of its map-frame vertices ``xy``."""
-    offsets, gather = ragged_take(roads.offsets, rows)
-    table = RoadTable(**{name: getattr(roads, name)[rows] for name in (
-        "ids", "source", "target", "length_m", "lanes_forward", "lanes_backward", "oneway",
-        "speed_limit_kph", "road_class", "name", "width_m")},
-        lonlat=roads.lonlat[gather], offsets=offsets)
+    table, gather = roads.take(rows)
     return table, xy[gather]
 
 

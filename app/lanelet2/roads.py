@@ -17,6 +17,7 @@ from sqlalchemy import Connection, text
 
 from app.db.session import get_engine
 from app.errors import UserError
+from app.routing.splice import ragged_take
 
 SEGMENT_SQL = """
 SELECT s.id, s.source_node, s.target_node, s.length_m, s.lanes_forward, s.lanes_backward,
@@ -36,6 +37,9 @@ SELECT n.id, ST_X(n.geom), ST_Y(n.geom), n.traffic_light
 """
 NODE_IDS_WHERE = "AND n.id = ANY(CAST(:ids AS bigint[]))"
 CHUNK = 50_000
+COLUMNS = ("ids", "source", "target", "length_m", "lanes_forward", "lanes_backward", "oneway",
+           "speed_limit_kph", "road_class", "name", "width_m")
+"""The per-segment columns of a :class:`RoadTable` (besides its ragged vertices)."""
 
 
 @dataclass
@@ -58,6 +62,13 @@ class RoadTable:
 
     def __len__(self) -> int:
         return len(self.ids)
+
+    def take(self, rows: np.ndarray) -> tuple[RoadTable, np.ndarray]:
+        """The segments ``rows``, in that order, and where their vertices were in ``lonlat``
+        (to take any per-vertex array along with them)."""
+        offsets, gather = ragged_take(self.offsets, rows)
+        return RoadTable(**{name: getattr(self, name)[rows] for name in COLUMNS},
+                         lonlat=self.lonlat[gather], offsets=offsets), gather
 
 
 @dataclass
@@ -110,10 +121,7 @@ def concat(tables: list[RoadTable]) -> RoadTable:
     offsets = np.concatenate([[0]] + [t.offsets[1:] + s for t, s in zip(tables, shift,
                                                                         strict=True)])
     return RoadTable(
-        **{name: np.concatenate([getattr(t, name) for t in tables])
-           for name in ("ids", "source", "target", "length_m", "lanes_forward",
-                        "lanes_backward", "oneway", "speed_limit_kph", "road_class", "name",
-                        "width_m")},
+        **{name: np.concatenate([getattr(t, name) for t in tables]) for name in COLUMNS},
         lonlat=np.concatenate([t.lonlat for t in tables]), offsets=offsets)
 
 

@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from app.errors import UserError
 from app.network.settings import DEFAULT_SPEEDS_KPH, AttributeRules
+from app.routing.profiles import usage_report
 from cli.jobs import absolute, enqueue_job, queue_option
 from cli.rules import given_rules, rule_options
 
@@ -48,10 +49,14 @@ def ingest_network(file: Path, network: str, replace: bool, queued: bool) -> Non
             throttle(fraction, message)
 
         summary = import_network(session, file, network, replace=replace, progress=progress)
+        classes: dict[str, int] = dict(session.execute(text(
+            "SELECT road_class, count(*) FROM road_segments WHERE network_id = :id "
+            "GROUP BY road_class"), {"id": summary.network_id}).all())
     click.echo(f"network {summary.network}: {summary.segments} segments, {summary.nodes} nodes, "
                f"{summary.total_length_m / 1000:.3f} km from {summary.lines_read} lines "
                f"({summary.crossings_noded} crossings noded, "
                f"{summary.duplicates_dropped} duplicates dropped)")
+    click.echo(usage_report(classes))  # every way is kept; which vehicle may drive which
 
 
 @click.group("export")

@@ -12,31 +12,40 @@ import orjson
 from app.errors import DatabaseUnavailableError
 from app.routing.costs import Cost
 from app.routing.options import FORMATS, GEOMETRIES, parse, parse_points
+from app.routing.profiles import ALIASES, DEFAULT, PROFILES
 from app.routing.reads import read_connection
 
 
 @click.command("route")
 @click.argument("network")
-@click.option("--points", required=True, help="lon,lat;lon,lat[;...] visited in order")
+@click.option("--points", required=True, metavar="LON,LAT;LON,LAT[;...]",
+              help="the points, visited in order")
+@click.option("--profile", type=click.Choice([*PROFILES, *ALIASES]), default=DEFAULT.name,
+              show_default=True,
+              help="the vehicle: car (or driving) never drives footways, cycleways, paths, "
+                   "steps...; sidewalk (or robot) may")
 @click.option("--cost", type=click.Choice([c.value for c in Cost]), default="time",
               show_default=True)
-@click.option("--avoid", default="", help="road classes to avoid, comma-separated")
+@click.option("--avoid", default="", metavar="CLASSES",
+              help="road classes to avoid, comma-separated")
 @click.option("--optimize", is_flag=True, help="best order of the intermediate points")
 @click.option("--geometries", type=click.Choice(GEOMETRIES), default="geojson",
               show_default=True)
 @click.option("--format", "fmt", type=click.Choice([*FORMATS, "summary"]), default="summary",
               show_default=True, help="summary: one line per leg")
-@click.option("--spacing", default=None,
+@click.option("--spacing", default=None, metavar="METRES",
               help="metres between points for --format waypoints (default 1)")
-@click.option("--radius", default=None, help="snap radius in metres")
-def route(network: str, points: str, cost: str, avoid: str, optimize: bool, geometries: str,
-          fmt: str, spacing: str | None, radius: str | None) -> None:
+@click.option("--radius", default=None, metavar="METRES|unlimited",
+              help="snap radius in metres (default 50)")
+def route(network: str, points: str, profile: str, cost: str, avoid: str, optimize: bool,
+          geometries: str, fmt: str, spacing: str | None, radius: str | None) -> None:
     """Plan a route on NETWORK through the given points."""
     # Here, not at the top: the planner loads routing's compiled kernels (numba), which every
     # other command (`ugvmap --help`, `db start`...) would pay for at start-up.
     from app.routing.planner import plan_route
 
-    raw = {"cost": cost, "avoid": avoid, "optimize": "true" if optimize else "false"}
+    raw = {"profile": profile, "cost": cost, "avoid": avoid,
+           "optimize": "true" if optimize else "false"}
     if fmt == "waypoints":
         raw.update(format="waypoints", **({"spacing": spacing} if spacing is not None else {}))
     else:

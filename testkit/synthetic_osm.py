@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -173,6 +174,18 @@ def _write_pbf(out: Path, ids: np.ndarray, lon: np.ndarray, lat: np.ndarray, sig
             writer.add_way(osmium.osm.mutable.Way(id=number, nodes=refs, tags=tags))
     finally:
         writer.close()
+
+
+def write_ways(out: Path, ways: Sequence[tuple[dict[str, str], Sequence[tuple[float, float]]]]
+               ) -> None:
+    """A small hand-drawn OSM file (``.osm`` or ``.osm.pbf`` by ``out``'s suffix): each way
+    is its tags and its lon/lat vertices; ways meet where they share a vertex (one OSM node
+    per distinct coordinate), as mapped ways do."""
+    node_of: dict[tuple[float, float], int] = {}
+    refs = [([node_of.setdefault(p, len(node_of) + 1) for p in points], tags)
+            for tags, points in ways]
+    lon, lat = (np.array([p[k] for p in node_of]) for k in (0, 1))
+    _write_pbf(out, np.array(list(node_of.values())), lon, lat, set(), [], refs)
 
 
 def main() -> None:

@@ -124,3 +124,32 @@ def test_gdal_mvt_driver_reads_a_zoom_level(live_server: str, network) -> None:
     counts = [int(line.split(":")[1]) for line in out.splitlines()
               if line.startswith("Feature Count")]
     assert counts[0] >= 3 and counts[1] >= 4
+
+
+def _match(expression: list, road_class: str):
+    """What a style's ``["match", ["get", "road_class"], labels, value, ..., fallback]`` gives
+    for one class."""
+    pairs = expression[2:-1]
+    for labels, value in zip(pairs[::2], pairs[1::2], strict=True):
+        if road_class in (labels if isinstance(labels, list) else [labels]):
+            return value
+    return expression[-1]
+
+
+def test_style_keeps_a_city_readable_at_z15(client, network) -> None:
+    """Helsinki at z15 was hard to read (issue 34): footways drawn like roads, a junction dot
+    every few pixels. Ways for people are thin, sand-coloured, with a faint rim; junction dots
+    start at z16 with the plain nodes; traffic lights still show from z12."""
+    layers = {layer["id"]: layer for layer in
+              client.get(f"/networks/{network}/style.json").json()["layers"]}
+    width = layers["segments"]["paint"]["line-width"]
+    assert width[:3] == ["interpolate", ["linear"], ["zoom"]]
+    for zoom, by_class in zip(width[3::2], width[4::2], strict=True):
+        for path in ("footway", "cycleway", "path", "steps", "pedestrian"):
+            assert _match(by_class, path) < 0.5 * _match(by_class, "residential"), zoom
+    colour = layers["segments"]["paint"]["line-color"]
+    assert _match(colour, "footway") == _match(colour, "cycleway") != _match(colour, "service")
+    rim = layers["segments-casing"]["paint"]["line-opacity"]
+    assert _match(rim, "footway") < _match(rim, "residential")
+    assert layers["nodes-junctions"]["minzoom"] == 16 and layers["nodes"]["minzoom"] == 16
+    assert layers["nodes-traffic-lights"]["minzoom"] == 12

@@ -48,7 +48,8 @@ def test_qgis_keeps_the_node_colours(client) -> None:
     assert light[0][0] == "#e02020" and junction[0][0] == "#ff9800"
     assert len({light[0], junction[0], plain[0]}) == 3 and light[0][1] > junction[0][1]
     assert _drawn(styles, by_kind["node"], 15) == []  # plain nodes from z16 only
-    assert _drawn(styles, by_kind["junction"], 15) == junction
+    assert _drawn(styles, by_kind["junction"], 15) == []  # junctions too (a city at z15)
+    assert _drawn(styles, by_kind["light"], 15) == light  # traffic lights from z12
 
     # The old style: QGIS skips both expressions and draws every node alike.
     old = circle_styles(BEFORE)

@@ -220,8 +220,8 @@ def test_points_on_different_pieces_are_named_with_the_pieces(client, islands) -
                    params={**_points(xy(10, 49), xy(1600, 401)), "avoid": "motorway"})
     assert r.json()["message"] == (
         "no route from point 1 to point 2: point 1 is on a piece of the network of 3 segments "
-        "(1.5 km) and point 2 on another of 1 segment (250 m) once roads of the avoided "
-        "classes (motorway) are left out: no road joins them")
+        "(1.5 km) and point 2 on another of 1 segment (250 m) once roads of the classes "
+        "not driven (motorway) are left out: no road joins them")
     # OSRM's URLs keep OSRM's code and status, with the same words.
     (ax, ay), (bx, by) = xy(10, 1), xy(10, 49)
     osrm = client.get(f"/networks/{islands}/route/v1/driving/{ax},{ay};{bx},{by}")

@@ -118,3 +118,15 @@ def test_cli_route_summary_and_errors(street) -> None:
     missing = runner.invoke(main, ["route", "no-such-net", "--points", pts])
     assert missing.exit_code == 1 and "NotFound" in missing.output
     assert "Traceback" not in missing.output
+
+
+def test_cli_route_help_says_what_each_option_takes() -> None:
+    """``--spacing`` and ``--radius`` read as metres, not TEXT (issue 34); the vehicle is a
+    choice of the profiles."""
+    out = CliRunner().invoke(main, ["route", "--help"], terminal_width=200).output
+    options = {line.split()[0]: line.split()[1] for line in out.splitlines()
+               if line.strip().startswith("--") and len(line.split()) > 1}
+    assert options["--spacing"] == "METRES" and options["--radius"] == "METRES|unlimited"
+    assert options["--points"] == "LON,LAT;LON,LAT[;...]" and options["--avoid"] == "CLASSES"
+    assert options["--profile"] == "[car|sidewalk|driving|robot]"
+    assert "TEXT" not in out

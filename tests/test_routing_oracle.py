@@ -15,6 +15,7 @@ import pytest
 
 from app.db.session import session_scope
 from app.routing.costs import Cost, pgrouting_edges_sql
+from app.routing.profiles import DEFAULT
 from testkit import synthetic
 from tests.routing_support import dsn, segment_walk, unique
 
@@ -22,10 +23,12 @@ REL_TOL = 1e-9
 
 
 def random_pairs(conn: psycopg.Connection, network_id: int, n: int, seed: int) -> list:
+    """Nodes on roads the default vehicle drives (a route snaps there, never to a footway)."""
     nodes = conn.execute(
         "SELECT n.id, ST_X(n.geom), ST_Y(n.geom) FROM road_nodes n WHERE n.network_id = %s "
-        "AND EXISTS (SELECT 1 FROM road_segments s WHERE s.source_node = n.id "
-        "OR s.target_node = n.id) ORDER BY n.id", (network_id,)).fetchall()
+        "AND EXISTS (SELECT 1 FROM road_segments s WHERE (s.source_node = n.id "
+        "OR s.target_node = n.id) AND s.road_class <> ALL(%s)) ORDER BY n.id",
+        (network_id, sorted(DEFAULT.forbidden))).fetchall()
     rng = random.Random(seed)
     pairs = []
     while len(pairs) < n:

@@ -94,6 +94,22 @@ def test_steps_only_when_asked(client, town_net) -> None:
     assert route(client, town_net["name"], pts)["routes"][0]["legs"][0]["steps"]  # ours: on
 
 
+def test_unnamed_roads_straight_on_are_continue_not_new_name(client, writer) -> None:
+    """Straight from one unnamed road onto another (class and lanes change, so a new step):
+    ``continue``, since OSRM's ``new name`` announces a road name and there is none; a turn
+    between them stays a ``turn``, and a name after them is a ``new name`` again."""
+    name = unique("unnamed")
+    net = synthetic.create_network(writer, name)
+    synthetic.add_line(writer, net, [xy(0, 0), xy(200, 0)], road_class="service")
+    synthetic.add_line(writer, net, [xy(200, 0), xy(400, 0)], road_class="tertiary",
+                       lanes_forward=2)
+    synthetic.add_line(writer, net, [xy(400, 0), xy(400, 200)], road_class="tertiary")
+    synthetic.add_line(writer, net, [xy(400, 200), xy(400, 400)], name="Named Road")
+    steps = route(client, name, [xy(10, 0), xy(400, 390)])["routes"][0]["legs"][0]["steps"]
+    assert [(s["maneuver"]["type"], s["maneuver"].get("modifier")) for s in steps[:-1]] == [
+        ("depart", None), ("continue", "straight"), ("turn", "left"), ("new name", "straight")]
+
+
 def test_step_fields(client, town_net) -> None:
     body = ok(osrm(client, town_net["name"], [xy(20, -4), xy(405, 450)], steps="true",
                    geometries="geojson"))

@@ -247,12 +247,27 @@ def test_raster_layer_is_drawn_and_toggles(browser, world, request, tmp_path) ->
     entry.locator("input.opacity").fill("0")
     wait_idle(page)
     assert colour_pixels(page, MAGENTA) == 0
-    # Scale bar and cursor coordinates are there too.
+    # The scale bar is there too.
     assert re.search(r"\d+\s*(m|km)", page.locator(".maplibregl-ctrl-scale").inner_text())
-    page.mouse.move(canvas["x"] + canvas["width"] / 2, canvas["y"] + canvas["height"] / 2)
-    shown_at = page.locator("#coords").inner_text()
-    lat, lon = (float(v) for v in re.findall(r"-?\d+\.\d+", shown_at)[:2])
-    assert np.allclose((lon, lat), at(0.001, 0.0006), atol=0.002)
+
+
+def test_coordinate_readout_is_lon_lat_and_pastes_into_the_api(browser, world, request,
+                                                               tmp_path) -> None:
+    """The readout says lon,lat in that order, as the API, the CLI's --points and the error
+    messages do: pasted into a route request it finds the road under the cursor (it read
+    "lat, lon" once, which gave "no road within 10000 m")."""
+    page = open_map(browser, world, request, tmp_path)
+    target = at(0.0011, 0)  # on the Direct road
+    page.mouse.move(*screen(page, *target))
+    shown = page.locator("#coords").inner_text()
+    found = re.fullmatch(r"lon,lat (-?\d+\.\d{6}),(-?\d+\.\d{6})\s+z\d+\.\d", shown.strip())
+    assert found, shown
+    pair = f"{found.group(1)},{found.group(2)}"
+    assert np.allclose([float(v) for v in pair.split(",")], target, atol=2e-6)
+    near = httpx.get(f"{world['base']}/networks/webnet/route",
+                     params={"points": f"{pair};{B[0]},{B[1]}"}, timeout=30)
+    assert near.status_code == 200, near.text
+    assert near.json()["waypoints"][0]["distance"] < 1.0  # snapped right under the cursor
 
 
 def test_segment_click_shows_attributes_and_history(browser, world, request, tmp_path) -> None:
@@ -729,3 +744,65 @@ def test_route_follows_the_network_on_screen_and_names_the_pieces(browser, revie
                         r"network of 4 segments \(\d+ m\) and point 2 on another of 1 segment "
                         r"\(\d+ m\): no road joins them\.", error.inner_text()), \
         error.inner_text()
+
+
+def test_route_names_its_network_and_vehicle_and_zoom_picks_the_network(browser, review, request,
+                                                                        tmp_path) -> None:
+    """The route tool says which network it routes on, why, and for which vehicle; *Zoom* on a
+    network picks it, and the pick holds when the map moves over another network (it used to
+    follow the map centre and route on whatever lay there)."""
+    page = open_map(browser, review, request, tmp_path)
+    on = page.locator("#route-on")
+    assert on.inner_text() == ("Routing on webnet (the network under the map centre; pick "
+                               "another above) for a car.")
+    assert page.locator("#route-profile").input_value() == "car"
+    options = page.locator("#route-profile option").all_inner_texts()
+    assert options == ["car", "sidewalk"]
+    page.locator('#networks li[data-network="webrev"] button.zoom').click()
+    wait_idle(page)
+    assert page.locator("#route-network").input_value() == "webrev"
+    assert on.inner_text() == "Routing on webrev (picked) for a car."
+    page.evaluate("(b) => window.ugvmap.map.fitBounds(b, {padding: 30, duration: 0})",
+                  list(RASTER_BOUNDS))
+    wait_idle(page)
+    assert page.locator("#route-network").input_value() == "webrev"
+    page.select_option("#route-profile", "sidewalk")
+    assert on.inner_text() == "Routing on webrev (picked) for a sidewalk."
+    # The route request carries the vehicle.
+    page.select_option("#route-network", "webnet")
+    page.check("#route-active")
+    with page.expect_request(lambda r: "/networks/webnet/route?" in r.url) as sent:
+        click_lonlat(page, *at(0.0002, 0))
+        click_lonlat(page, *at(0.0018, 0))
+    assert "profile=sidewalk" in sent.value.url
+    page.locator("#route-result .distance").wait_for()
+
+
+def test_one_point_off_the_road_keeps_the_legs_that_work(browser, world, request,
+                                                         tmp_path) -> None:
+    """Five points, the third far from every road: the legs 1→2 and 4→5 are drawn, point 3 is
+    marked and named, instead of the whole route vanishing behind one error."""
+    page = open_map(browser, world, request, tmp_path)
+    plan_route(page)
+    points = [at(0.0002, 0), at(0.0018, 0), at(0.0024, 0.0017), at(0.001, 0.0015),
+              at(0.0005, 0.001)]
+    for point in points:
+        click_lonlat(page, *point)
+    partial = page.locator("#route-result .route-partial")
+    partial.wait_for()
+    assert partial.inner_text() == "Showing the legs that work: 1→2, 4→5."
+    errors = page.locator("#route-result .route-error").all_inner_texts()
+    assert len(errors) == 1 and errors[0].startswith("No route: point 3 ("), errors
+    assert "farther than 50 m from any road" in errors[0]
+    marked = page.evaluate("() => [...document.querySelectorAll('.task-point')]"
+                           ".map((el) => el.classList.contains('off-road'))")
+    assert marked == [False, False, True, False, False]
+    lines = page.evaluate("() => window.ugvmap.map.getSource('route').serialize().data"
+                          ".features.length")
+    assert lines == 2
+    assert route_distance_m(page) > 100
+    # Move the bad point onto a road: the whole route is back, nothing marked.
+    page.locator(".task-point").nth(2).click()
+    page.wait_for_function("() => !document.querySelector('.task-point.off-road')")
+    page.locator("#route-result .distance").wait_for()
+    page.wait_for_function("() => !document.querySelector('#route-result .route-partial')")

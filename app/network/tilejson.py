@@ -29,6 +29,12 @@ ROAD_CLASS_COLOURS = (
     ("service", "#9b8fd1"), ("track", "#a0764a"), ("unclassified", "#ffffff"),
 )
 CASING_COLOUR = "#1d2329"
+# Ways for people, not vehicles (the classes the car profile never drives that carry no
+# traffic at all): drawn thin and sand-coloured with a faint rim, so a city's footway mesh
+# (Helsinki at z15) does not look like a grid of streets.
+PATH_CLASSES = ("footway", "cycleway", "path", "pedestrian", "steps", "bridleway", "corridor")
+PATH_COLOUR = "#e0cfa6"
+PATH_WIDTH_SHARE = 0.35  # of a road's width at the same zoom
 
 
 @dataclass(frozen=True)
@@ -103,27 +109,34 @@ def _class_colour() -> list[Any]:
     expression: list[Any] = ["match", ["get", "road_class"]]
     for cls, colour in ROAD_CLASS_COLOURS:
         expression += [[cls, f"{cls}_link"], colour]
-    return [*expression, OTHER_COLOUR]
+    return [*expression, list(PATH_CLASSES), PATH_COLOUR, OTHER_COLOUR]
 
 
 # Nodes by what they are: (style layer id, filter, colour, radius, stroke width, min zoom).
 # One style layer per kind with fixed paint values, not one layer with data-driven ``case``
 # expressions: QGIS's MapLibre style converter (QgsMapBoxGlStyleConverter) understands a
 # layer ``filter`` and fixed values but drops ``case``/``step`` paint expressions, which drew
-# junctions and traffic lights alike in QGIS. Plain nodes only from z16.
+# junctions and traffic lights alike in QGIS. Plain nodes and junctions only from z16: at z15
+# a city's footways made a junction dot every few pixels (issue 34); traffic lights from z12.
 NODE_STYLES: tuple[tuple[str, list[Any], str, float, float, int], ...] = (
     ("nodes", ["all", ["!=", ["get", "traffic_light"], True],
                ["!=", ["get", "kind"], "junction"]], "#607080", 2.5, 1, 16),
     ("nodes-junctions", ["all", ["!=", ["get", "traffic_light"], True],
-                         ["==", ["get", "kind"], "junction"]], "#ff9800", 4, 1, NODES_MINZOOM),
+                         ["==", ["get", "kind"], "junction"]], "#ff9800", 4, 1, 16),
     ("nodes-traffic-lights", ["==", ["get", "traffic_light"], True], "#e02020", 6, 2,
      NODES_MINZOOM),
 )
 
 
 def _line_width(extra: float) -> list[Any]:
-    """Road line width by zoom, ``extra`` pixels wider (a casing is the line plus a rim)."""
-    return ["interpolate", ["linear"], ["zoom"], 10, 1.5 + extra, 16, 5 + extra, 19, 10 + extra]
+    """Line width by zoom, ``extra`` pixels wider (a casing is the line plus a rim); ways of
+    :data:`PATH_CLASSES` a fraction of a road's width (with a one-pixel rim)."""
+    stops: list[Any] = []
+    for zoom, road in ((10, 1.5), (16, 5.0), (19, 10.0)):
+        path = round(road * PATH_WIDTH_SHARE, 2) + min(extra, 1.0)
+        stops += [zoom, ["match", ["get", "road_class"], list(PATH_CLASSES), path,
+                         road + extra]]
+    return ["interpolate", ["linear"], ["zoom"], *stops]
 
 
 def style(network: NetworkInfo, tilejson_url: str) -> dict[str, Any]:
@@ -142,7 +155,9 @@ def style(network: NetworkInfo, tilejson_url: str) -> dict[str, Any]:
         "layers": [
             {"id": "segments-casing", "type": "line", "source": source,
              "source-layer": "segments", "layout": line,
-             "paint": {"line-color": CASING_COLOUR, "line-opacity": 0.85,
+             "paint": {"line-color": CASING_COLOUR,
+                       "line-opacity": ["match", ["get", "road_class"], list(PATH_CLASSES),
+                                        0.4, 0.85],
                        "line-width": _line_width(2.5)}},
             {"id": "segments", "type": "line", "source": source, "source-layer": "segments",
              "layout": line, "paint": {"line-color": _class_colour(),

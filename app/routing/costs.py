@@ -6,9 +6,12 @@ price edges exactly like the in-memory graph does; two copies of the table would
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from enum import StrEnum
 
 import numpy as np
+
+from app.routing.profiles import DEFAULT
 
 
 class Cost(StrEnum):
@@ -58,13 +61,17 @@ def cost_sql(cost: Cost, table: str = "road_segments") -> str:
     return f"{table}.length_m / ({speed_sql(table)} / 3.6)"
 
 
-def pgrouting_edges_sql(network_id: int, cost: Cost) -> str:
-    """pgRouting edge query pricing segments like the graph does (-1 against a one-way).
+def pgrouting_edges_sql(network_id: int, cost: Cost,
+                        avoid: Collection[str] = DEFAULT.forbidden) -> str:
+    """pgRouting edge query pricing segments like the graph does (-1 against a one-way, and
+    both ways on the ``avoid`` classes: by default those the default vehicle never drives).
 
     The oracle test and the benchmark hand this to ``pgr_dijkstra``.
     """
     c = cost_sql(cost)
+    banned = (f"road_class IN ({', '.join(repr(str(a)) for a in sorted(avoid))}) OR "
+              if avoid else "")
     return (f"SELECT id, source_node AS source, target_node AS target, "
-            f"CASE WHEN oneway = 'backward' THEN -1 ELSE {c} END AS cost, "
-            f"CASE WHEN oneway = 'forward' THEN -1 ELSE {c} END AS reverse_cost "
+            f"CASE WHEN {banned}oneway = 'backward' THEN -1 ELSE {c} END AS cost, "
+            f"CASE WHEN {banned}oneway = 'forward' THEN -1 ELSE {c} END AS reverse_cost "
             f"FROM road_segments WHERE network_id = {int(network_id)}")

@@ -31,6 +31,7 @@ from app.routing.costs import Cost, effective_speed_kph, segment_costs
 from app.routing.geometry import bearings, vertex_fractions
 from app.routing.hierarchy import Hierarchy, Metric
 from app.routing.nearby import SegmentIndex
+from app.routing.profiles import DEFAULT
 from app.routing.settings import routing_settings
 from app.routing.splice import Layout, ragged_take, replaced, spliced
 
@@ -474,8 +475,9 @@ class RoadGraph:
         graph._index = index.after(changed, len(graph.segs)) if index is not None else None
         return graph
 
-    def costs(self, cost: Cost, avoid: frozenset[str] = frozenset()) -> CostGraph:
-        """The cost graph for a cost model and avoided road classes (a few kept, LRU)."""
+    def costs(self, cost: Cost, avoid: frozenset[str] = DEFAULT.forbidden) -> CostGraph:
+        """The cost graph for a cost model and avoided road classes (a few kept, LRU); by
+        default the one a request naming no profile and no avoid= routes on."""
         key = (cost, avoid)
         with self._lock:
             cg = self._costs.pop(key, None) or CostGraph.build(self, cost, avoid)

@@ -26,6 +26,7 @@ from app.errors import (
 )
 from app.routing import params
 from app.routing.costs import Cost
+from app.routing.profiles import DEFAULT, VehicleProfile, profile_named
 from app.routing.settings import routing_settings
 
 GEOMETRIES = ("geojson", "polyline", "polyline6")
@@ -55,7 +56,7 @@ MAX_OPTION_CHARS = 2048  # any one option's value, before it is split
 MATCH_SIGMA_M = 5.0  # match's default GPS precision (OSRM's DEFAULT_GPS_PRECISION)
 POINT_CHARS = 64  # per point in points= / radiuses= / bearings= ...; hints get HINT's 512
 
-Profile = Literal["ugvmap", "osrm"]
+UrlFamily = Literal["ugvmap", "osrm"]
 # Options that shape an OSRM answer, which format=waypoints does not give.
 OSRM_SHAPE = frozenset({"geometries", "overview", "steps", "annotations", "alternatives",
                         "generate_hints", "skip_waypoints"})
@@ -75,7 +76,9 @@ class RouteOptions:
     """A route request's options, shared by the query string, the POST body and the CLI."""
 
     cost: Cost = Cost.TIME
-    avoid: frozenset[str] = field(default_factory=frozenset)  # road classes, exclude= mapped
+    # road classes never driven: avoid=, exclude= mapped, and the vehicle profile's
+    avoid: frozenset[str] = field(default_factory=frozenset)
+    vehicle: VehicleProfile = DEFAULT
     optimize: bool = False
     geometries: str = "geojson"
     overview: str = "full"
@@ -109,7 +112,7 @@ class RouteOptions:
                               f"{limits.max_optimize_points}")
 
 
-DEFAULTS: dict[Profile, dict[str, str]] = {
+DEFAULTS: dict[UrlFamily, dict[str, str]] = {
     "ugvmap": {"geometries": "geojson", "overview": "full", "steps": "true"},
     "osrm": {"geometries": "polyline", "overview": "simplified", "steps": "false"},
 }
@@ -130,19 +133,23 @@ SERVICE_OPTIONS: dict[Service, tuple[str, ...]] = {
     "trip": (*_COMMON, *_SHAPE, "roundtrip", "source", "destination"),
 }
 # Ours only: the points (the path on OSRM's URLs), and dense waypoints instead of OSRM's answer.
+# The vehicle profile is OSRM's path segment on its URLs, ``profile=`` on ours.
 OWN_URL_OPTIONS: dict[Service, tuple[str, ...]] = {
-    "route": ("points", "format", "spacing"), "nearest": ("point",), "table": ("points",),
-    "match": ("points",), "trip": ("points",)}
+    "route": ("points", "profile", "format", "spacing"), "nearest": ("point", "profile"),
+    "table": ("points", "profile"), "match": ("points", "profile"),
+    "trip": ("points", "profile")}
 
 
-def option_names(service: Service, profile: Profile) -> tuple[str, ...]:
-    """Every option a service takes on URL family ``profile``."""
-    return (*(OWN_URL_OPTIONS[service] if profile == "ugvmap" else ()),
+def option_names(service: Service, family: UrlFamily) -> tuple[str, ...]:
+    """Every option a service takes on URL family ``family``."""
+    return (*(OWN_URL_OPTIONS[service] if family == "ugvmap" else ()),
             *SERVICE_OPTIONS[service])
 
 
 DOCS: dict[str, str] = {
     "points": "lon,lat;lon,lat[;...] visited in order (or polyline(...) / polyline6(...))",
+    "profile": "the vehicle: car (default; or driving) never drives footways, cycleways, "
+               "paths, steps...; sidewalk (or robot) may",
     "cost": "time (default) | distance: what the route minimises",
     "avoid": "road classes never driven, comma-separated (road_class values)",
     "exclude": f"OSRM classes never driven, comma-separated: {', '.join(EXCLUDE_CLASSES)}",
@@ -197,10 +204,10 @@ def service_docs(service: Service) -> dict[str, str]:
     return {**DOCS, **SERVICE_DOCS[service]}
 
 
-def check_names(raw: Mapping[str, object], profile: Profile, service: Service = "route"
+def check_names(raw: Mapping[str, object], family: UrlFamily, service: Service = "route"
                 ) -> None:
     """400 ``InvalidQuery`` for an option this URL does not take (OSRM refuses them too)."""
-    names = option_names(service, profile)
+    names = option_names(service, family)
     unknown = sorted(k for k in raw if k not in names)
     if unknown:
         raise InvalidQueryError(f"unknown option {unknown[0][:40]!r}; this URL takes "
@@ -324,13 +331,14 @@ PER_POINT = ("points", "hints", "radiuses", "bearings", "approaches", "timestamp
              "destinations", "waypoints")
 
 
-def parse(raw: Mapping[str, str], profile: Profile, n_points: int,
-          service: Service = "route") -> RouteOptions:
+def parse(raw: Mapping[str, str], family: UrlFamily, n_points: int,
+          service: Service = "route", vehicle: str | None = None) -> RouteOptions:
     """Options from raw strings (query string, or a JSON body rendered as strings) for a request
-    of ``n_points`` points to ``service`` on URL family ``profile``: the ones every service
-    shares (snapping, costs) and those that shape routes (route, match, trip). The services'
-    own options are read by :mod:`app.routing.service_options`."""
-    check_names(raw, profile, service)
+    of ``n_points`` points to ``service`` on URL family ``family``: the ones every service
+    shares (snapping, costs, the vehicle: ``vehicle``, OSRM's path segment, or ``profile=``)
+    and those that shape routes (route, match, trip). The services' own options are read by
+    :mod:`app.routing.service_options`."""
+    check_names(raw, family, service)
     for name, value in raw.items():
         if name not in PER_POINT:
             params.bounded(name, value, MAX_OPTION_CHARS)
@@ -339,20 +347,22 @@ def parse(raw: Mapping[str, str], profile: Profile, n_points: int,
                                         "implemented; every point ends a leg")
     if raw.get("snapping") is not None:  # we never restrict snaps to the largest component
         params.choice("snapping", raw["snapping"], ("default", "any"))
-    get = {**DEFAULTS[profile], **raw}.get
+    get = {**DEFAULTS[family], **raw}.get
     if service == "table":  # its own annotations (service_options); nothing shapes a route
-        get = {**DEFAULTS[profile], **{k: v for k, v in raw.items()
+        get = {**DEFAULTS[family], **{k: v for k, v in raw.items()
                                        if k != "annotations"}}.get
     limits = routing_settings()
     radius = (_radius("radius", get("radius") or "")
               if get("radius") is not None else None)
+    driver = profile_named(vehicle if vehicle is not None else get("profile"))
     avoid = set(_classes("avoid", get("avoid") or ""))
-    avoid |= _exclude(get("exclude") or "")
+    avoid |= _exclude(get("exclude") or "") | driver.forbidden
     continue_straight = params.choice("continue_straight", get("continue_straight", "default"),
                                       ("default", "true", "false"))
     opts = RouteOptions(
         cost=Cost(params.choice("cost", get("cost", "time"), tuple(c.value for c in Cost))),
         avoid=frozenset(avoid),
+        vehicle=driver,
         optimize=params.boolean("optimize", get("optimize", "false")),
         geometries=params.choice("geometries", get("geometries", ""), GEOMETRIES),
         overview=params.choice("overview", get("overview", ""), OVERVIEWS),
@@ -380,7 +390,7 @@ def parse(raw: Mapping[str, str], profile: Profile, n_points: int,
     return opts
 
 
-ISOCHRONE_OPTIONS = ("point", "seconds", "meters", "avoid", "exclude", "radius")
+ISOCHRONE_OPTIONS = ("point", "profile", "seconds", "meters", "avoid", "exclude", "radius")
 
 
 @dataclass(frozen=True)
@@ -419,6 +429,7 @@ def parse_isochrone(raw: Mapping[str, str]) -> IsochroneOptions:
     else:
         cost, budget = Cost.DISTANCE, params.number_in("meters", raw["meters"], 0.0,
                                                        limits.max_isochrone_meters, open_low=True)
-    avoid = set(_classes("avoid", raw.get("avoid", ""))) | _exclude(raw.get("exclude", ""))
+    avoid = (set(_classes("avoid", raw.get("avoid", ""))) | _exclude(raw.get("exclude", ""))
+             | profile_named(raw.get("profile")).forbidden)
     radius = (_radius("radius", raw["radius"]) if "radius" in raw else limits.snap_radius_m)
     return IsochroneOptions(points[0], budget, cost, frozenset(avoid), PointOptions(radius))

@@ -34,7 +34,7 @@ class Pieces:
     of_row: np.ndarray
     segments: np.ndarray
     length_m: np.ndarray
-    avoid: frozenset[str]
+    avoid: frozenset[str]  # the left-out classes (avoided, or not for this vehicle) it holds
 
     @classmethod
     def of(cls, graph: RoadGraph, cg: CostGraph) -> Pieces:
@@ -51,9 +51,13 @@ class Pieces:
         drivable = np.zeros(len(graph.segs), bool)
         drivable[arcs.row[allowed]] = True
         of_row = of_node[graph.u]
+        # Only the left-out classes this network has: the vehicle profile's list (footway,
+        # steps, ...) means nothing to the reader of a network that holds none of them.
+        classes = graph.segs.road_class.astype(str)
+        held = np.unique(classes[np.isin(classes, list(cg.avoid))]) if cg.avoid else ()
         return cls(of_row, np.bincount(of_row[drivable], minlength=count),
                    np.bincount(of_row[drivable], weights=graph.segs.length_m[drivable],
-                               minlength=count), cg.avoid)
+                               minlength=count), frozenset(str(c) for c in held))
 
     def size(self, piece: int) -> str:
         """A piece's size in words: "12 segments (0.8 km)"."""
@@ -72,7 +76,7 @@ class Pieces:
         on one piece and kept apart by direction."""
         a, b = int(self.of_row[row_i]), int(self.of_row[row_j])
         head = f"no route from {point(i)} to {point(j)}: "
-        left_out = (f" once roads of the avoided classes ({', '.join(sorted(self.avoid))}) "
+        left_out = (f" once roads of the classes not driven ({', '.join(sorted(self.avoid))}) "
                     "are left out" if self.avoid else "")
         if a != b:
             return NoRouteError(

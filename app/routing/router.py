@@ -40,8 +40,8 @@ from app.routing.graph import RoadGraph
 from app.routing.options import (
     ISOCHRONE_OPTIONS,
     SERVICES,
-    Profile,
     Service,
+    UrlFamily,
     option_names,
     parse,
     parse_isochrone,
@@ -49,6 +49,7 @@ from app.routing.options import (
     service_docs,
 )
 from app.routing.planner import current_graph, plan_isochrone, plan_route, quick_route
+from app.routing.profiles import ALIASES, DEFAULT, PROFILES
 from app.routing.reads import ReadAhead, version_reader
 from app.routing.service_options import parse_match, parse_nearest, parse_table, parse_trip
 from app.routing.services import plan_match, plan_nearest, plan_table, plan_trip
@@ -87,7 +88,7 @@ router = APIRouter(prefix="/networks", tags=["routing"],
 PROFILE = re.compile(r"[A-Za-z0-9_.-]{1,64}", re.ASCII)
 NOT_SERVED = ("tile",)  # OSRM's vector tiles of its graph: /networks/{name}/tiles/... has ours
 ISOCHRONE_DOCS = {
-    **{n: service_docs("route")[n] for n in ("avoid", "exclude", "radius")},
+    **{n: service_docs("route")[n] for n in ("profile", "avoid", "exclude", "radius")},
     "point": "lon,lat", "seconds": "time budget, s", "meters": "distance budget, m"}
 # OSRM's URL family: OSRM's own server answers every error with 400, so on the OSRM-shaped URLs
 # the faults that are a 422 on ours take that status (and OSRM's names for two codes), so OSRM
@@ -107,6 +108,21 @@ OSRM_STATUS_CODES: Table = {
 def include_routing(app: FastAPI) -> None:
     """Mount the routing endpoints on the app."""
     app.include_router(router)
+    app.include_router(profiles_router)
+
+
+# The vehicle profiles are not network data: listed publicly, for clients such as the web
+# map's route tool, which names the one it routes with and offers the others.
+profiles_router = APIRouter(tags=["routing"])
+
+
+@profiles_router.get("/routing/profiles")
+async def vehicle_profiles() -> Response:
+    """The vehicle profiles a route may name (``profile=`` or OSRM's profile path segment):
+    each one's name, other names, what it is and the road classes it never drives."""
+    return _json({"default": DEFAULT.name, "profiles": [
+        {"name": p.name, "aliases": [a for a, n in ALIASES.items() if n == p.name],
+         "title": p.title, "never": sorted(p.forbidden)} for p in PROFILES.values()]})
 
 
 def _query_doc(names: list[str], docs: dict[str, str]) -> dict[str, Any]:
@@ -116,8 +132,8 @@ def _query_doc(names: list[str], docs: dict[str, str]) -> dict[str, Any]:
                            for n in names]}
 
 
-def _service_doc(service: Service, profile: Profile) -> dict[str, Any]:
-    return _query_doc(list(option_names(service, profile)), service_docs(service))
+def _service_doc(service: Service, family: UrlFamily) -> dict[str, Any]:
+    return _query_doc(list(option_names(service, family)), service_docs(service))
 
 
 def _json(body: dict[str, Any]) -> Response:
@@ -214,10 +230,10 @@ def _most_points(service: Service) -> int:
             "match": limits.max_match_points, "trip": limits.max_trip_points}[service]
 
 
-def _request(service: Service, raw: dict[str, str], profile: Profile,
-             points: list[tuple[float, float]]) -> Call:
-    """The planner call answering a request."""
-    opts = parse(raw, profile, len(points), service)
+def _request(service: Service, raw: dict[str, str], family: UrlFamily,
+             points: list[tuple[float, float]], vehicle: str | None = None) -> Call:
+    """The planner call answering a request (``vehicle``: OSRM's profile path segment)."""
+    opts = parse(raw, family, len(points), service, vehicle)
     n = len(points)
     if service == "nearest":
         return Call(plan_nearest, (points[0], opts, parse_nearest(raw, n)))
@@ -314,7 +330,7 @@ async def answer_osrm(service: Service, name: str, request: Request, version: st
         if coordinates.endswith(".flatbuffers"):
             raise errors.NotImplementedOptionError("only the json format is served")
         points = parse_points(coordinates.removesuffix(".json"), _most_points(service))
-        return await _answer(name, _request(service, _raw(request), "osrm", points))
+        return await _answer(name, _request(service, _raw(request), "osrm", points, profile))
     except errors.UgvmapError as exc:
         return fault_response(exc, OSRM_STATUS_CODES)
 
@@ -323,7 +339,8 @@ def _osrm_endpoint(service: Service) -> Callable[..., Any]:
     async def endpoint(
         name: str, request: Request,
         version: Annotated[str, Path(description="OSRM protocol version: v1")],
-        profile: Annotated[str, Path(description="any profile name (one vehicle per network)")],
+        profile: Annotated[str, Path(description="the vehicle: car (or driving), sidewalk (or "
+                                                 "robot)")],
         coordinates: Annotated[str, Path(description="lon,lat;lon,lat[;...][.json] or "
                                                       "polyline(...) / polyline6(...)")],
     ) -> Response:

@@ -71,15 +71,18 @@ def modifier(before: float, after: float) -> str:
     return MODIFIERS[_turn(before, after)]
 
 
-@kernel("UniTuple(i8[:], 2)(f8[:], f8[:], b1[:], b1[:], b1[:])")
+@kernel("UniTuple(i8[:], 2)(f8[:], f8[:], b1[:], b1[:], b1[:], b1[:])")
 def _maneuvers(b_in: np.ndarray, b_out: np.ndarray, same_attrs: np.ndarray,
-               same_road: np.ndarray, roundabout: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+               same_road: np.ndarray, unnamed: np.ndarray, roundabout: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Per run of a leg, the maneuver (:data:`KINDS`) that starts a step there, 0 where the
     run carries on the step before, and the turn (:data:`MODIFIERS`) from the run before.
 
     ``same_attrs[k]``: run k has the attributes of run k - 1 (name, ref, lanes, speed limit,
     speed, class), so it carries on that step when driven straight into; ``same_road[k]``:
-    it has a name or ref, and run k - 1's (a new step there is a ``continue``). Comparing with the
+    it has a name or ref, and run k - 1's (a new step there is a ``continue``); ``unnamed[k]``:
+    neither run k nor run k - 1 has a name or ref (straight on, a ``continue``: OSRM's
+    ``new name`` would announce a name that is not there). Comparing with the
     run before is comparing with the step's first run, since a step's runs all share its
     attributes; a roundabout step gathers the roundabout's runs whatever they are."""
     n = len(b_in)
@@ -102,7 +105,7 @@ def _maneuvers(b_in: np.ndarray, b_out: np.ndarray, same_attrs: np.ndarray,
         elif turn[k] == UTURN or same_road[k]:
             kind[k] = CONTINUE
         else:
-            kind[k] = NEW_NAME if turn[k] == STRAIGHT else TURN
+            kind[k] = TURN if turn[k] != STRAIGHT else CONTINUE if unnamed[k] else NEW_NAME
         current = kind[k]
     return kind, turn
 
@@ -160,8 +163,10 @@ class _Leg:
         pairs = list(pairwise(attrs))
         same_attrs = [False, *(a == b for a, b in pairs)]
         same_road = [False, *(bool(b[0] or b[1]) and a[:2] == b[:2] for a, b in pairs)]
+        unnamed = [False, *(not (a[0] or a[1] or b[0] or b[1]) for a, b in pairs)]
         kind, turn = _maneuvers(np.array(ends.b_in), np.array(ends.b_out),
-                                np.array(same_attrs), np.array(same_road), self.roundabout)
+                                np.array(same_attrs), np.array(same_road), np.array(unnamed),
+                                self.roundabout)
         firsts = np.flatnonzero(kind)
         return firsts.tolist(), kind[firsts].tolist(), turn[firsts].tolist()
 

@@ -69,7 +69,9 @@ function setupReviewFilter(networks) {
 function setupCoordinates(map) {
   const box = document.getElementById('coords');
   map.on('mousemove', (ev) => {
-    box.textContent = `${ev.lngLat.lat.toFixed(6)}, ${ev.lngLat.lng.toFixed(6)}  z${map.getZoom().toFixed(1)}`;
+    // lon,lat: the order of the API, `ugvmap route --points` and every error message, so the
+    // readout pastes into any of them (it once read lat, lon; issue 34).
+    box.textContent = `lon,lat ${ev.lngLat.lng.toFixed(6)},${ev.lngLat.lat.toFixed(6)}  z${map.getZoom().toFixed(1)}`;
   });
 }
 
@@ -102,6 +104,7 @@ async function start() {
   await networks.load();
   setupReviewFilter(networks);
   const route = new RouteTool(map, maplibregl, networks);
+  await route.loadProfiles();
   const changed = (names) => {
     for (const name of names) networks.refresh(name);
     route.update(); // the next route must see the edit

@@ -198,7 +198,12 @@ export class Networks {
       for (const id of this.layerIds(name)) this.map.setLayoutProperty(id, 'visibility', visibility);
     });
     const zoom = li.querySelector('.zoom');
-    if (bbox) zoom.addEventListener('click', () => this.map.fitBounds(bbox, { padding: 20, maxZoom: 18 }));
+    // Zooming to a network picks it for routing too: the map centre may then lie in a smaller
+    // network's bounds, which the route tool would otherwise follow (issue 34).
+    if (bbox) zoom.addEventListener('click', () => {
+      this.map.fire('ugvmap.networkzoom', { network: name });
+      this.map.fitBounds(bbox, { padding: 20, maxZoom: 18 });
+    });
     else zoom.disabled = true;
     return li;
   }

@@ -80,6 +80,12 @@ def test_a_sidewalk_robot_takes_the_footway(client, block) -> None:
     (ax, ay), (dx, dy) = A, D
     osrm = client.get(f"/networks/{name}/route/v1/sidewalk/{ax},{ay};{dx},{dy}")
     assert osrm.json()["routes"][0]["distance"] == pytest.approx(ACROSS, abs=0.5)
+    posted = client.post(f"/networks/{name}/route", json={"points": [A, D], "profile": "robot"})
+    assert posted.json()["routes"][0]["distance"] == pytest.approx(ACROSS, abs=0.5)
+    listed = client.get("/routing/profiles").json()
+    assert listed["default"] == "car"
+    assert [(p["name"], p["aliases"], "footway" in p["never"]) for p in listed["profiles"]] == [
+        ("car", ["driving"], True), ("sidewalk", ["robot"], False)]
 
 
 def test_a_point_on_the_footway_alone_is_no_place_for_a_car(client, block) -> None:
@@ -88,6 +94,9 @@ def test_a_point_on_the_footway_alone_is_no_place_for_a_car(client, block) -> No
     r = client.get(f"/networks/{block['name']}/route",
                    params={"points": f"{mid[0]},{mid[1]};{D[0]},{D[1]}"})
     assert r.status_code == 422 and r.json()["code"] == "NoSegment"
+    assert r.json()["message"].endswith(
+        "from any road: the nearest road is 200.0 m away; the footway 5.0 m away is not "
+        "driven (the vehicle profile or avoid= leaves it out)"), r.json()["message"]
     assert route(client, block["name"], [mid, D], profile="sidewalk")["routes"][0][
         "distance"] == pytest.approx(200, abs=0.5)
 

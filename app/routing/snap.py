@@ -110,7 +110,22 @@ def no_segment(graph: RoadGraph, i: int, point: tuple[float, float], near: Hits,
     nearest = (f"the nearest road is {found[0]:.1f} m away" if len(found)
                else f"no road within {most:g} m")
     return NoSegmentError(f"{where} is farther than {opts.radius_m:g} m from any road: "
-                          f"{nearest}")
+                          f"{nearest}{_left_out_nearby(graph, point, opts.radius_m, avoid)}")
+
+
+def _left_out_nearby(graph: RoadGraph, point: tuple[float, float], radius_m: float,
+                     avoid: frozenset[str]) -> str:
+    """Why a point on a footway is "farther than any road" for a car: the nearest way within
+    the radius whose class the request leaves out, said so ("" when there is none)."""
+    if not avoid:
+        return ""
+    near = within(graph, np.array([point]), np.array([radius_m]))
+    hit = np.flatnonzero(np.isfinite(near.distance_m))
+    if not len(hit):
+        return ""
+    row, metres = int(near.row[hit[0]]), float(near.distance_m[hit[0]])
+    return (f"; the {graph.segs.road_class[row]} {metres:.1f} m away is not driven (the vehicle "
+            "profile or avoid= leaves it out)")
 
 
 def network_graph(reads: Reads, network: str, graph_at: Callable[[int, int], RoadGraph]

@@ -82,6 +82,7 @@ def test_a_sidewalk_robot_takes_the_footway(client, block) -> None:
     assert osrm.json()["routes"][0]["distance"] == pytest.approx(ACROSS, abs=0.5)
     posted = client.post(f"/networks/{name}/route", json={"points": [A, D], "profile": "robot"})
     assert posted.json()["routes"][0]["distance"] == pytest.approx(ACROSS, abs=0.5)
+    assert client.get("/routing/profiles", params={"name": "car"}).status_code == 400
     listed = client.get("/routing/profiles").json()
     assert listed["default"] == "car"
     assert [(p["name"], p["aliases"], "footway" in p["never"]) for p in listed["profiles"]] == [

@@ -33,6 +33,7 @@ from app.api.errors import (
     fault_response,
     responses,
 )
+from app.api.query import only_query
 from app.db.session import session_scope
 from app.routing import params
 from app.routing.bodies import ServiceBody, body_model
@@ -116,7 +117,7 @@ def include_routing(app: FastAPI) -> None:
 profiles_router = APIRouter(tags=["routing"])
 
 
-@profiles_router.get("/routing/profiles")
+@profiles_router.get("/routing/profiles", dependencies=[only_query()])
 async def vehicle_profiles() -> Response:
     """The vehicle profiles a route may name (``profile=`` or OSRM's profile path segment):
     each one's name, other names, what it is and the road classes it never drives."""

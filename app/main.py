@@ -25,6 +25,7 @@ from app.api.query import single_valued_query
 from app.api.request_log import RequestLogMiddleware
 from app.health.router import router as health_router
 from app.jobs.router import router as jobs_router
+from app.labels.router import router as labels_router
 from app.network.router import include_network
 from app.routing.lane_router import install_lane
 from app.routing.router import include_routing
@@ -76,7 +77,8 @@ def create_app() -> FastAPI:
     )
     # Every endpoint refuses a repeated query parameter; routing does it with OSRM's code.
     single = [Depends(single_valued_query)]
-    for router in (landing.router, document.router, health_router, jobs_router, tiles_router):
+    for router in (landing.router, document.router, health_router, jobs_router, tiles_router,
+                   labels_router):
         app.include_router(router, dependencies=single)
     include_network(app, single)
     include_routing(app)

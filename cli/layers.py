@@ -145,3 +145,48 @@ def layers_export(slug: str, out: Path) -> None:
         raise UserError(f"--out {out}: no such directory {out.parent}")
     zoom = export_layer(slug, out)
     click.echo(f"layer {slug} -> {out} (z{zoom}, {out.stat().st_size / 1e6:.1f} MB)")
+
+
+@layers.command("labels")
+@click.argument("slug")
+@click.option("--add", "add_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Add the features of this GeoJSON file (lon/lat) as labels, all or none.")
+@click.option("--label", type=click.Choice(["road", "not_road"]),
+              help="With --add: the label of features without a 'label' property.")
+@click.option("--delete", "delete_id", type=click.IntRange(1), metavar="ID",
+              help="Delete the label ID.")
+@click.option("--clear", is_flag=True, help="Delete all the layer's labels.")
+def layers_labels(slug: str, add_file: Path | None, label: str | None, delete_id: int | None,
+                  clear: bool) -> None:
+    """List the labels of layer SLUG (road / not-road lines and areas road extraction learns
+    from), or add, delete or clear them."""
+    import getpass
+    import json
+
+    from app.db.session import session_scope
+    from app.labels import store
+
+    if sum(x is not None and x is not False for x in (add_file, delete_id, clear)) > 1:
+        raise UserError("give one of --add, --delete and --clear")
+    if label is not None and add_file is None:
+        raise UserError("--label goes with --add")
+    with session_scope() as session:
+        if add_file is not None:
+            try:
+                body = json.loads(add_file.read_text())
+            except (OSError, UnicodeDecodeError, ValueError) as exc:
+                raise UserError(f"{add_file}: not a GeoJSON file ({exc})") from exc
+            added = store.add_labels(session, slug, store.parse_labels(body, label),
+                                     f"cli:{getpass.getuser()}")
+            click.echo(f"added {len(added)} labels to layer {slug} "
+                       f"(ids {added[0]['id']}..{added[-1]['id']})")
+        elif delete_id is not None:
+            store.delete_label(session, slug, delete_id)
+            click.echo(f"deleted label {delete_id} of layer {slug}")
+        elif clear:
+            click.echo(f"deleted {store.clear_labels(session, slug)} labels of layer {slug}")
+        else:
+            for feature in store.list_labels(session.connection(), slug):
+                props = feature["properties"]
+                click.echo(f"{feature['id']}\t{props['label']}\t{feature['geometry']['type']}"
+                           f"\t{props['created_by']}\t{props['created_at'][:19]}")

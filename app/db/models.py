@@ -34,6 +34,7 @@ NODE_KINDS = ("junction", "endpoint", "node")
 ONEWAY_VALUES = ("none", "forward", "backward")
 JOB_STATUSES = ("queued", "running", "succeeded", "failed")  # of jobs and of their parts
 TOKEN_ROLES = ("viewer", "editor", "admin")
+LABEL_KINDS = ("road", "not_road")  # of a layer's labels
 
 
 class Base(DeclarativeBase):
@@ -90,6 +91,29 @@ class LayerTrajectory(Base):
         Geometry("LINESTRING", srid=4326, spatial_index=True), nullable=False
     )
     meta: Mapped[dict[str, Any]] = mapped_column(JSONB, nullable=False, server_default="{}")
+    created_at: Mapped[datetime] = _now()
+
+
+class LayerLabel(Base):
+    """A person's label on a raster layer (migration 0010): a road line, a not-road line or a
+    not-road area, which every later road extraction of the layer learns from."""
+    __tablename__ = "layer_labels"
+    __table_args__ = (
+        CheckConstraint(f"label IN {LABEL_KINDS}", name="layer_labels_label_known"),
+        CheckConstraint("GeometryType(geom) = 'LINESTRING' OR "
+                        "(label = 'not_road' AND GeometryType(geom) = 'POLYGON')",
+                        name="layer_labels_geometry_type"),
+    )
+
+    id: Mapped[int] = mapped_column(BigInteger, primary_key=True)
+    layer_id: Mapped[int] = mapped_column(
+        ForeignKey("layers.id", ondelete="CASCADE"), nullable=False, index=True
+    )
+    label: Mapped[str] = mapped_column(Text, nullable=False)
+    geom: Mapped[Any] = mapped_column(
+        Geometry("GEOMETRY", srid=4326, spatial_index=True), nullable=False
+    )
+    created_by: Mapped[str] = mapped_column(Text, nullable=False)
     created_at: Mapped[datetime] = _now()
 
 

@@ -109,6 +109,9 @@ def test_editors_write_labels_everyone_reads_them(client, lonlat: Lonlat,
     assert gone.status_code == 404 and gone.json()["code"] == "NotFound"
     assert len(stored()) == 3
     assert client.delete(url, headers=bearer("viewer")).status_code == 403
+    typo = client.delete(f"{url}?label=road", headers=editor)  # not a filter: refused
+    assert typo.status_code == 400 and "unknown query parameter" in typo.json()["message"]
+    assert len(stored()) == 3
     cleared = client.delete(url, headers=editor)
     assert cleared.status_code == 200 and cleared.json() == {"deleted": 3}
     assert stored() == [] and client.get(url).json()["features"] == []

@@ -17,13 +17,16 @@ from sqlalchemy.orm import Session
 from app import errors
 from app.api.dependencies import SessionDep, require_role
 from app.api.errors import PayloadTooLargeError, UnsupportedMediaTypeError, responses
+from app.api.query import only_query
 from app.labels import store
 from app.network.editing_router import FEATURE_TYPES, _body_doc, _in_session, json_body
 from app.network.features_router import GEOJSON, GeoJSONResponse
 from app.network.tokens import Principal
 from app.params import Int, LayerSlug
 
-router = APIRouter(tags=["raster layers"], responses=responses(
+# No label URL takes a query parameter: a typo (``?label=road`` on a DELETE of all) is a 400,
+# never silently ignored.
+router = APIRouter(tags=["raster layers"], dependencies=[only_query()], responses=responses(
     errors.InvalidParameterValueError, errors.LayerNotFoundError,
     errors.DatabaseUnavailableError))
 EditorDep = Annotated[Principal, Depends(require_role("editor", "admin"))]

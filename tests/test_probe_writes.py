@@ -327,3 +327,30 @@ def test_a_write_that_keeps_losing_is_a_conflict_not_an_outage() -> None:
         s.execute(text(RAISE_DEADLOCK))
     answer = database_unavailable(None, lost.value)
     assert answer.status_code == 409 and b'"code":"Conflict"' in answer.body
+
+
+@pytest.mark.parametrize("method", ["PATCH", "PUT"])
+def test_numbers_sent_as_text_by_qgis_are_read_as_numbers(client, grid, method) -> None:
+    """Item 14: QGIS 3.40 typed ``width_m`` String (the first page's values were all null)
+    and sent ``"3.5"``, refused with 422 "must be a number". Number text in JSON's own
+    syntax now reads as that number; anything else is still refused, with nothing stored."""
+    _, items = grid
+    feature = first_segment(client, items)
+    url = f"{items}/{feature['id']}"
+
+    def send(properties: dict) -> httpx.Response:
+        body = {"properties": properties} if method == "PATCH" else {
+            "type": "Feature", "geometry": feature["geometry"],
+            "properties": {**feature["properties"], **properties}}
+        return client.request(method, url, json=body, headers=bearer("editor"))
+
+    r = send({"width_m": "3.5", "speed_limit_kph": "42", "lanes_forward": "3"})
+    assert r.status_code == 200, r.text
+    props = client.get(url).json()["properties"]
+    assert (props["width_m"], props["speed_limit_kph"], props["lanes_forward"]) == (3.5, 42, 3)
+    assert isinstance(props["lanes_forward"], int)
+    for bad in ({"width_m": "3,5"}, {"width_m": " 3.5"}, {"width_m": "1e400"},
+                {"width_m": "0x10"}, {"lanes_forward": "2.0"}, {"width_m": "\u0663"}):
+        refused = send(bad)
+        assert (refused.status_code, refused.json()["code"]) == (422, "InvalidValue"), bad
+    assert client.get(url).json()["properties"]["version"] == 2

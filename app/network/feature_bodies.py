@@ -11,7 +11,9 @@ creates, PUT replaces), read the same way for segments and nodes.
   property takes the column's default (PUT replaces the whole feature, RFC 9110), unknown
   properties are a 422, and the geometry is required.
 - ``attrs`` (an object) may come as JSON text: OGR-based clients (QGIS, GDAL) hold object
-  properties as a JSON string field and send them back that way.
+  properties as a JSON string field and send them back that way. Numbers may come as number
+  text (``"3.5"``) for the same reason: QGIS types a field String when the first page of
+  items it typed the layer from had only nulls there (``width_m`` often does).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from typing import Any
 from app.network import properties as props
 from app.network.collections import Kind
 from app.network.editing import unprocessable
-from app.network.validation import DEFAULTS, DEPTH_PROBLEM, field_errors
+from app.network.validation import DEFAULTS, DEPTH_PROBLEM, field_errors, numbers_from_text
 
 FEATURE_KEYS = {"type", "id", "properties", "geometry", "links", "bbox"}
 
@@ -32,7 +34,11 @@ def read_only(kind: Kind) -> frozenset[str]:
     return frozenset({p.name for p in props.PROPERTIES[kind] if p.read_only} | {"id"})
 
 
-def _attrs_from_text(properties: dict[str, Any]) -> dict[str, Any]:
+def _from_text(properties: dict[str, Any], kind: Kind) -> dict[str, Any]:
+    """What OGR-based clients send as text read as its value: ``attrs`` as JSON text, a
+    segment's numbers as number text (:func:`~app.network.validation.numbers_from_text`)."""
+    if kind == "segments":
+        properties = numbers_from_text(properties)
     value = properties.get("attrs")
     if isinstance(value, str):
         try:
@@ -69,7 +75,7 @@ def patch_parts(body: Any, kind: Kind) -> tuple[dict[str, Any], Any]:
         properties, geometry = _members(body, whole=False)
         if "geometry" in body and geometry is None:
             raise unprocessable({"geometry": "cannot be removed"})
-    properties = _attrs_from_text(properties)
+    properties = _from_text(properties, kind)
     errors = field_errors(properties, kind, read_only(kind))
     if errors:
         raise unprocessable(errors)
@@ -79,7 +85,7 @@ def patch_parts(body: Any, kind: Kind) -> tuple[dict[str, Any], Any]:
 def whole_parts(body: Any, kind: Kind) -> tuple[dict[str, Any], Any]:
     """A whole feature -> (every editable property, defaults filled in; the raw geometry)."""
     properties, geometry = _members(body, whole=True)
-    given = {k: v for k, v in _attrs_from_text(properties).items()
+    given = {k: v for k, v in _from_text(properties, kind).items()
              if k not in read_only(kind) and v is not None}
     errors = field_errors(given, kind)
     if errors:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -153,6 +154,28 @@ NODE_RULES: dict[str, Callable[[Any], str | None]] = {
 }
 assert set(RULES) == set(SEGMENT_ATTRIBUTES) == set(DEFAULTS["segments"])
 assert set(NODE_RULES) == set(NODE_ATTRIBUTES) == set(DEFAULTS["nodes"])
+
+
+# Numbers QGIS may send as text: a field typed String by OGR (its first page of items had
+# only nulls there) is sent back as "3.5". A plain decimal in JSON's own number syntax means
+# one number and nothing else; "3,5", " 3.5", "0x10" or "1e400" stay refused.
+INTEGER_TEXT = re.compile(r"-?(0|[1-9][0-9]{0,8})")
+NUMBER_TEXT = re.compile(r"-?(0|[1-9][0-9]*)(\.[0-9]+)?([eE][-+]?[0-9]+)?")
+NUMERIC_TEXT = {"lanes_forward": INTEGER_TEXT, "lanes_backward": INTEGER_TEXT,
+                "speed_limit_kph": NUMBER_TEXT, "width_m": NUMBER_TEXT}
+
+
+def numbers_from_text(properties: dict[str, Any]) -> dict[str, Any]:
+    """``properties`` with the numeric properties given as JSON number text read as numbers
+    (``"3.5"`` -> 3.5, ``"2"`` -> 2); any other text is left for the rules to refuse."""
+    read = {}
+    for key, pattern in NUMERIC_TEXT.items():
+        value = properties.get(key)
+        if isinstance(value, str) and len(value) <= 32 and pattern.fullmatch(value):
+            number = int(value) if pattern is INTEGER_TEXT else float(value)
+            if not isinstance(number, float) or math.isfinite(number):
+                read[key] = number
+    return {**properties, **read}
 
 
 def field_errors(properties: dict[str, Any], kind: Kind = "segments",

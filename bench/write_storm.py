@@ -493,6 +493,10 @@ def main() -> int:
     print(f"\n{args.clients} clients, {args.minutes:g} min, {args.workers} workers; "
           f"baseline: 1 client, {args.baseline_seconds:g} s, same mix")
     table(stats, baseline, seconds)
+    rates = [sum(map(len, s.latency.values())) / t
+             for s, t in ((stats, seconds), (baseline, args.baseline_seconds))]
+    print(f"writes/s: {rates[0]:.1f} with {args.clients} clients, {rates[1]:.1f} with 1 "
+          f"(baseline); ratio {rates[0] / rates[1]:.2f} (a network's edits run one at a time)")
     fivexx = sum(n for kind in (baseline, stats) for c in kind.status.values()
                  for s, n in c.items() if s >= 500)
     conflicts = sum(c[409] for kind in (baseline, stats) for c in kind.status.values())

@@ -29,10 +29,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import random
 import sys
-import tempfile
 import time
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
@@ -45,10 +43,10 @@ import psycopg
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from app.db.session import get_engine, libpq_dsn, session_scope  # noqa: E402
+from app.db.session import libpq_dsn, session_scope  # noqa: E402
 from app.settings import get_settings  # noqa: E402
 from cli.ops import embedded  # noqa: E402
-from testkit.scratch import scratch_database  # noqa: E402
+from testkit.scratch import bench_database  # noqa: E402
 from testkit.server import running_server  # noqa: E402
 
 OSM = REPO.parent / "shared" / "data" / "osm" / "andorra.osm.pbf"
@@ -330,17 +328,11 @@ def main() -> int:
     args = parser.parse_args()
     if args.db_outage and not get_settings().embedded:
         parser.error("--db-outage stops the embedded cluster; unset DATABASE_URL")
-    with scratch_database("ugvmap_load") as url, \
-            tempfile.TemporaryDirectory(prefix="ugvmap-load-") as tmp:
-        os.environ.update({"DATABASE_URL": url, "UGVMAP_RASTER_STORE": f"{tmp}/rasters"})
-        get_settings.cache_clear()
-        get_engine.cache_clear()
+    with bench_database("ugvmap_load") as (url, tmp, env):
         t = time.perf_counter()
-        scene = prepare(url, Path(tmp), args.seed)
+        scene = prepare(url, tmp, args.seed)
         print(f"prepared in {time.perf_counter() - t:.1f} s: {len(scene.raster_tiles)} raster "
               f"tiles, {len(scene.mvt_tiles)} MVT tiles, {len(scene.nodes)} routable nodes")
-        env = {"DATABASE_URL": url, "UGVMAP_RASTER_STORE": f"{tmp}/rasters",
-               "UGVMAP_LOG_LEVEL": "WARNING"}
         with running_server(env, workers=args.workers, timeout_s=120) as base:
             warm_up(base, scene)
             stats, elapsed, log = asyncio.run(run_load(base, scene, args))

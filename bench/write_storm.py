@@ -41,7 +41,6 @@ import os
 import random
 import subprocess
 import sys
-import tempfile
 import time
 from collections import Counter, defaultdict
 from collections.abc import Awaitable, Callable
@@ -55,9 +54,8 @@ import psycopg
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from app.db.session import get_engine, libpq_dsn, session_scope  # noqa: E402
-from app.settings import get_settings  # noqa: E402
-from testkit.scratch import scratch_database  # noqa: E402
+from app.db.session import libpq_dsn, session_scope  # noqa: E402
+from testkit.scratch import bench_database  # noqa: E402
 from testkit.server import running_server  # noqa: E402
 
 OSM = REPO.parent / "shared" / "data" / "osm" / "andorra.osm.pbf"
@@ -129,12 +127,15 @@ class Client:
         return {**token, "If-Match": read.headers["etag"]} if self.rng.random() < 0.5 \
             else dict(token)
 
-    async def read(self, kind: str, collection: str, ids: list[int]
-                   ) -> tuple[int, httpx.Response] | None:
-        """GET a random feature of ``ids``: (its id, the answer), or None if it is gone."""
+    async def write(self, kind: str) -> None:
+        """One write of ``kind``, on a random feature read first (none if it is gone)."""
+        _, reads, write = MIX[kind]
+        collection, ids = ((self.scene.segments, self.scene.segment_ids) if reads == "segment"
+                           else (self.scene.nodes, self.scene.node_ids))
         fid = self.rng.choice(ids)
-        r = await self.send(kind, "GET", f"{collection}/{fid}")
-        return (fid, r) if r.status_code == 200 else None
+        read = await self.send(kind, "GET", f"{collection}/{fid}")
+        if read.status_code == 200:
+            await write(self, fid, read)
 
     def offset(self, position: list[float], metres: float) -> list[float]:
         """``position`` moved ``metres`` in a random direction, computed in floating point."""
@@ -150,12 +151,8 @@ class Client:
         return [x0 + t * (x1 - x0), y0 + t * (y1 - y0)]
 
     # -- the writes ------------------------------------------------------------------------
-    async def patch_attributes(self) -> None:
+    async def patch_attributes(self, fid: int, read: httpx.Response) -> None:
         """PATCH one attribute of a segment (name, speed, attrs or surface)."""
-        got = await self.read("patch-attrs", self.scene.segments, self.scene.segment_ids)
-        if got is None:
-            return
-        fid, read = got
         patch = self.rng.choice([
             {"name": f"storm {self.rng.random()}"},
             {"speed_limit_kph": round(self.rng.uniform(10, 120), 3)},
@@ -167,12 +164,8 @@ class Client:
         if r.status_code == 200:
             self.accept_edit("segment_edits", fid, "update", read, r)
 
-    async def patch_line(self) -> None:
+    async def patch_line(self, fid: int, read: httpx.Response) -> None:
         """PATCH a segment's line with a vertex added off the middle of one of its pieces."""
-        got = await self.read("patch-line", self.scene.segments, self.scene.segment_ids)
-        if got is None:
-            return
-        fid, read = got
         coords = read.json()["geometry"]["coordinates"]
         i = self.rng.randrange(len(coords) - 1)
         mid = self.offset([(coords[i][0] + coords[i + 1][0]) / 2,
@@ -184,12 +177,8 @@ class Client:
         if r.status_code == 200:
             self.accept_edit("segment_edits", fid, "update", read, r)
 
-    async def put_segment(self) -> None:
+    async def put_segment(self, fid: int, read: httpx.Response) -> None:
         """PUT a segment back whole, as QGIS does, with its name and lanes changed."""
-        got = await self.read("put-segment", self.scene.segments, self.scene.segment_ids)
-        if got is None:
-            return
-        fid, read = got
         feature = read.json()
         feature["properties"]["name"] = f"put {self.rng.random()}"
         feature["properties"]["lanes_forward"] = self.rng.randint(1, 3)
@@ -199,12 +188,9 @@ class Client:
         if r.status_code == 200:
             self.accept_edit("segment_edits", fid, "replace", read, r)
 
-    async def post_segment(self) -> None:
+    async def post_segment(self, fid: int, read: httpx.Response) -> None:
         """POST a road from a node to a point 15-80 m away in a random direction."""
-        got = await self.read("post-segment", self.scene.nodes, self.scene.node_ids)
-        if got is None:
-            return
-        start = got[1].json()["geometry"]["coordinates"]
+        start = read.json()["geometry"]["coordinates"]
         end = self.offset(start, self.rng.uniform(15, 80))
         line = [start, self.offset([(start[0] + end[0]) / 2, (start[1] + end[1]) / 2], 3),
                 end]
@@ -219,23 +205,15 @@ class Client:
                                         created["properties"]["target_node"]))
             self.accept("segment_edits", created["id"], "create", 1)
 
-    async def delete_segment(self) -> None:
+    async def delete_segment(self, fid: int, read: httpx.Response) -> None:
         """DELETE a segment."""
-        got = await self.read("delete-segment", self.scene.segments, self.scene.segment_ids)
-        if got is None:
-            return
-        fid, read = got
         r = await self.send("delete-segment", "DELETE", f"{self.scene.segments}/{fid}",
                             headers=self.condition(read, self.scene.editor))
         if r.status_code == 204:
             self.accept("segment_edits", fid, "delete", None)
 
-    async def split(self) -> None:
+    async def split(self, fid: int, read: httpx.Response) -> None:
         """Split a segment at a random fraction or at a point interpolated along it."""
-        got = await self.read("split", self.scene.segments, self.scene.segment_ids)
-        if got is None:
-            return
-        fid, read = got
         body = {"fraction": self.rng.uniform(0.1, 0.9)} if self.rng.random() < 0.5 else \
             {"point": self.along(read.json()["geometry"]["coordinates"])}
         r = await self.send("split", "POST", f"{self.scene.segments}/{fid}/split", json=body,
@@ -247,13 +225,10 @@ class Client:
             self.scene.segment_ids.append(new["id"])
             self.scene.node_ids.append(kept["properties"]["target_node"])
 
-    async def merge(self) -> None:
+    async def merge(self, fid: int, read: httpx.Response) -> None:
         """Merge the two segments at one end of a segment, when that node joins just two:
         by POST merge or by DELETE of the node."""
-        got = await self.read("merge", self.scene.segments, self.scene.segment_ids)
-        if got is None:
-            return
-        node = got[1].json()["properties"][self.rng.choice(["source_node", "target_node"])]
+        node = read.json()["properties"][self.rng.choice(["source_node", "target_node"])]
         at = [(await self.send("merge", "GET", self.scene.segments,
                                params={end: node})).json()["features"]
               for end in ("source_node", "target_node")]
@@ -274,12 +249,8 @@ class Client:
             self.accept("segment_edits", pair[0], "merge", version(r))
             self.accept("segment_edits", pair[1], "merge", None)
 
-    async def move_node(self) -> None:
+    async def move_node(self, fid: int, read: httpx.Response) -> None:
         """Move a node 1 cm to 2 m (PATCH or PUT of its Point)."""
-        got = await self.read("move-node", self.scene.nodes, self.scene.node_ids)
-        if got is None:
-            return
-        fid, read = got
         node = read.json()
         point = {"type": "Point",
                  "coordinates": self.offset(node["geometry"]["coordinates"],
@@ -296,12 +267,9 @@ class Client:
         if r.status_code == 200:
             self.accept_edit("node_edits", fid, "move update replace", read, r)
 
-    async def post_node(self) -> None:
+    async def post_node(self, fid: int, read: httpx.Response) -> None:
         """POST a node at a point interpolated along a segment (which it splits)."""
-        got = await self.read("post-node", self.scene.segments, self.scene.segment_ids)
-        if got is None:
-            return
-        point = self.along(got[1].json()["geometry"]["coordinates"])
+        point = self.along(read.json()["geometry"]["coordinates"])
         r = await self.send("post-node", "POST", self.scene.nodes, headers={
             **self.scene.admin, "Content-Type": "application/geo+json"}, json={
             "type": "Feature", "properties": {},
@@ -316,12 +284,17 @@ def version(r: httpx.Response) -> int:
     return int(r.headers["etag"].strip('"').removeprefix("W/").strip('"'))
 
 
-MIX: dict[str, tuple[int, Callable[[Client], Awaitable[None]]]] = {
-    "patch-attrs": (20, Client.patch_attributes), "patch-line": (10, Client.patch_line),
-    "put-segment": (10, Client.put_segment), "post-segment": (12, Client.post_segment),
-    "delete-segment": (8, Client.delete_segment), "split": (10, Client.split),
-    "merge": (10, Client.merge), "move-node": (12, Client.move_node),
-    "post-node": (8, Client.post_node),
+Write = Callable[[Client, int, httpx.Response], Awaitable[None]]
+MIX: dict[str, tuple[int, str, Write]] = {  # weight, what it reads first, the write
+    "patch-attrs": (20, "segment", Client.patch_attributes),
+    "patch-line": (10, "segment", Client.patch_line),
+    "put-segment": (10, "segment", Client.put_segment),
+    "post-segment": (12, "node", Client.post_segment),
+    "delete-segment": (8, "segment", Client.delete_segment),
+    "split": (10, "segment", Client.split),
+    "merge": (10, "segment", Client.merge),
+    "move-node": (12, "node", Client.move_node),
+    "post-node": (8, "segment", Client.post_node),
 }
 
 
@@ -337,7 +310,7 @@ async def storm(base: str, scene: Scene, clients: int, seconds: float, seed: int
         async with httpx.AsyncClient(base_url=base, timeout=60.0) as http:
             client = Client(http, scene, stats, rng)
             while time.monotonic() < deadline:
-                await MIX[rng.choices(kinds, weights)[0]][1](client)
+                await client.write(rng.choices(kinds, weights)[0])
 
     await asyncio.gather(*(one(n) for n in range(clients)))
     return stats
@@ -465,17 +438,11 @@ def main() -> int:
     parser.add_argument("--baseline-seconds", type=float, default=20.0)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    with scratch_database("ugvmap_storm") as url, \
-            tempfile.TemporaryDirectory(prefix="ugvmap-storm-") as tmp:
-        os.environ.update({"DATABASE_URL": url, "UGVMAP_RASTER_STORE": f"{tmp}/rasters"})
-        get_settings.cache_clear()
-        get_engine.cache_clear()
+    with bench_database("ugvmap_storm") as (url, _, env):
         t = time.perf_counter()
         scene = prepare(url)
         print(f"prepared in {time.perf_counter() - t:.1f} s: {len(scene.segment_ids)} "
               f"segments, {len(scene.node_ids)} nodes")
-        env = {"DATABASE_URL": url, "UGVMAP_RASTER_STORE": f"{tmp}/rasters",
-               "UGVMAP_LOG_LEVEL": "WARNING"}
         pairs = route_pairs(url, args.seed)
         with running_server(env, workers=args.workers, timeout_s=120) as base:
             for _ in range(2 * args.workers):  # every worker loads its graph: edits patch it

@@ -6,9 +6,12 @@ migrated to head or left empty, so tests and benchmarks never touch a user's dat
 
 from __future__ import annotations
 
+import os
+import tempfile
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import psycopg
 from sqlalchemy.engine import make_url
@@ -42,3 +45,17 @@ def scratch_database(prefix: str = "ugvmap_scratch", *, migrated: bool = True,
         get_engine(url).dispose()
         with psycopg.connect(admin, autocommit=True) as conn:
             conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@contextmanager
+def bench_database(prefix: str) -> Iterator[tuple[str, Path, dict[str, str]]]:
+    """A scratch database and a raster store in a temporary folder that this process uses
+    until the block ends (a benchmark's whole run): (its URL, the folder, the environment a
+    server started on them needs)."""
+    with scratch_database(prefix) as url, \
+            tempfile.TemporaryDirectory(prefix=f"{prefix}-") as tmp:
+        env = {"DATABASE_URL": url, "UGVMAP_RASTER_STORE": f"{tmp}/rasters"}
+        os.environ.update(env)
+        get_settings.cache_clear()
+        get_engine.cache_clear()
+        yield url, Path(tmp), {**env, "UGVMAP_LOG_LEVEL": "WARNING"}

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import errno
+import socket
 from pathlib import Path
 
 import click
 
+from app.errors import UserError
 from app.settings import get_settings
 
 
@@ -21,9 +24,27 @@ def demo(shared_data: Path) -> None:
     click.echo(f"editor token for the web map: {token}")
 
 
+def refuse_busy_port(host: str, port: int) -> None:
+    """Say in one line that the port is taken and how to choose another, before uvicorn
+    would (as a JSON log line, after loading the whole app). A port freed a moment later
+    than this check still gets uvicorn's own error."""
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn binds
+        try:
+            probe.bind((host, port))
+        except OSError as exc:
+            if exc.errno != errno.EADDRINUSE:
+                raise UserError(f"cannot listen on {host}:{port} ({exc.strerror})") from exc
+            raise UserError(
+                f"port {port} on {host} is in use (another `ugvmap serve`, or another "
+                f"program): choose another with --port N, UGVMAP_PORT=N, or "
+                f"`make demo PORT=N`") from exc
+
+
 @click.command("serve")
 @click.option("--host", default="127.0.0.1", show_default=True)
-@click.option("--port", default=8000, show_default=True, type=int)
+@click.option("--port", default=8000, show_default=True, type=int, envvar="UGVMAP_PORT",
+              help="TCP port to listen on (env UGVMAP_PORT).")
 @click.option("--workers", default=1, show_default=True, type=int)
 @click.option("--front-cache", is_flag=True,
               help="Put nginx (a disk cache of versioned tiles) on --port, the app behind it.")
@@ -47,6 +68,7 @@ def serve(host: str, port: int, workers: int, front_cache: bool, app_port: int |
                     workers=workers, log_config=logging_config(settings.log_level),
                     access_log=False, http=ServiceHttpProtocol)
 
+    refuse_busy_port(host, port)
     if not front_cache:
         run(host, port)
         return

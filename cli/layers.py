@@ -31,16 +31,23 @@ from cli.jobs import absolute, enqueue_job, queue_option
 @click.option("--replace", is_flag=True,
               help="Re-ingest files already in the layer: the sources with the same content "
                    "or file name are replaced (without it such a file is refused).")
+@click.option("--add", is_flag=True,
+              help="Add files that do not touch the layer's area as separate areas (without "
+                   "it such a file is refused).")
 @queue_option
 def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, kind: str,
                       crs: str | None, priority: int, gcps_file: Path | None,
-                      gcp_method: str, replace: bool, queued: bool) -> None:
+                      gcp_method: str, replace: bool, add: bool, queued: bool) -> None:
     """Ingest GeoTIFFs / world-file images / zone mosaics / GCP images into layer SLUG.
 
-    A file whose content is already a source of the layer is refused unless --replace.
+    A file whose content is already a source of the layer is refused unless --replace; a
+    file that neither overlaps nor touches the layer's sources (for a new layer: the first
+    file given) unless --add. Each source's line says where it landed (centre lon,lat and
+    size): check it, a wrong --crs is a valid place elsewhere.
     With --queue, workers write one source each, in parallel, and the layer is registered
     once when all are written."""
     from app.jobs.recorder import JobRecorder
+    from ingest.raster.footprint import where
     from ingest.raster.gcps import ingest_with_gcps
     from ingest.raster.job import ingest_raster
 
@@ -50,13 +57,14 @@ def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, k
         enqueue_job("ingest-raster", {
             "sources": [absolute(s) for s in sources], "layer": slug, "title": title,
             "kind": kind, "crs": crs, "priority": priority, "gcps": absolute(gcps_file),
-            "gcp_method": gcp_method, "replace": replace})
+            "gcp_method": gcp_method, "replace": replace, "add": add})
         return
     params = {"sources": [str(s) for s in sources], "kind": kind, "crs": crs,
               "gcps": str(gcps_file) if gcps_file else None}
     with JobRecorder("ingest-raster", slug, params) as job:
         options: dict[str, Any] = {"title": title, "kind": kind, "priority": priority,
-                                   "on_progress": job.progress, "replace": replace}
+                                   "on_progress": job.progress, "replace": replace,
+                                   "add": add}
         if gcps_file is None:
             report = ingest_raster(list(sources), slug, crs=crs, **options)
         else:
@@ -65,8 +73,11 @@ def ingest_raster_cmd(sources: tuple[Path, ...], slug: str, title: str | None, k
             click.echo(accuracy.table())
     for src in report.sources:
         click.echo(f"{src.name}: {src.width}x{src.height} px at z{src.zoom} "
-                   f"({src.resolution_m:.3f} m/px) -> {resolve(src.uri)}")
-    click.echo(f"layer {report.layer} at version {report.version}")
+                   f"({src.resolution_m:.3f} m/px), {where(src.meta['bounds_4326'])} -> "
+                   f"{resolve(src.uri)}")
+        for warning in src.meta.get("warnings", []):
+            click.echo(f"Warning: {warning}", err=True)
+    click.echo(report.summary())
 
 
 @click.group()
@@ -129,6 +140,21 @@ def layers_delete(slug: str, yes: bool) -> None:
         raise UserError(f"no raster layer {slug!r}")
     remove_files(get_engine(), uris)
     click.echo(f"deleted layer {slug} ({len(uris)} files)")
+
+
+@layers.command("remove-source")
+@click.argument("slug")
+@click.argument("source")
+@click.option("--yes", is_flag=True, help="Do not ask for confirmation.")
+def layers_remove_source(slug: str, source: str, yes: bool) -> None:
+    """Remove one SOURCE (its id or file name, as `ugvmap layers show SLUG` lists them) from
+    layer SLUG, with its COG; the other sources stay. Asks first unless --yes."""
+    from ingest.raster.removal import remove_source
+
+    if not yes:
+        click.confirm(f"Remove source {source!r} and its file from raster layer {slug!r}?",
+                      abort=True)
+    click.echo(remove_source(slug, source).summary())
 
 
 @layers.command("export")

@@ -1,11 +1,13 @@
 """Shared helpers for the network tests and benchmarks: a small synthetic network with known
-answers, and API tokens for each role."""
+answers, API tokens for each role, and a wait for this process's change listener."""
 
 from __future__ import annotations
 
+import threading
 import uuid
 from typing import Any
 
+from app.db.notify import Subscriber, network_changes
 from app.db.session import session_scope
 from app.network.tokens import create_token
 from ingest.network import ImportSummary, RoadAttributes, RoadLine, write_network
@@ -39,3 +41,27 @@ def token(role: str, name: str | None = None) -> str:
 def bearer(role: str) -> dict[str, str]:
     """The Authorization header of a new token of ``role``."""
     return {"Authorization": f"Bearer {token(role)}"}
+
+
+class NoteWatch:
+    """What this process's network-change listener has passed on about one network: the
+    newest version it has told every subscriber that joined before this watch (the MVT cache,
+    the routing graphs; subscribers are told in the order they joined), so a test knows a
+    write's invalidation has landed instead of racing it."""
+
+    def __init__(self, database_url: str, network_id: int) -> None:
+        self.network_id = network_id
+        self.version = 0
+        self._changed = threading.Condition()
+        network_changes(database_url, Subscriber(self._on_note, lambda: None, lambda: None))
+
+    def _on_note(self, note: dict) -> None:
+        if int(note["network_id"]) == self.network_id:
+            with self._changed:
+                self.version = max(self.version, int(note["version"]))
+                self._changed.notify_all()
+
+    def wait_for(self, version: int, timeout_s: float = 10.0) -> bool:
+        """Whether the note of ``version`` (or a later one) was passed on within the time."""
+        with self._changed:
+            return self._changed.wait_for(lambda: self.version >= version, timeout_s)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import socket
+import subprocess
 from pathlib import Path
 
 from click.testing import CliRunner
@@ -12,6 +15,7 @@ from sqlalchemy import text
 from app.db.session import session_scope
 from cli.main import main
 from ingest.demo import SYNTHETIC_ORIGIN
+from tests.conftest import REPO
 
 
 def _names(table: str, column: str) -> set[str]:
@@ -60,3 +64,29 @@ def test_demo_with_shared_samples(client, shared_data: Path) -> None:
     route = client.get("/networks/vegas/route", params={"points": points})
     assert route.status_code == 200, route.text
     assert route.json()["routes"][0]["distance"] > 200
+
+
+def test_a_busy_port_is_said_plainly_and_make_demo_takes_another(database_url: str) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        said = (f"Error: port {port} on 127.0.0.1 is in use (another `ugvmap serve`, or "
+                "another program): choose another with --port N, UGVMAP_PORT=N, or "
+                "`make demo PORT=N`")
+        for args, env in ((["serve", "--port", str(port)], {}),
+                          (["serve"], {"UGVMAP_PORT": str(port)})):
+            result = CliRunner().invoke(main, args, env=env)
+            assert result.exit_code == 1 and result.output.strip() == said, result.output
+
+    def served_on(*args: str, **env: str) -> str:
+        """The port `make demo` serves on (its plan, `make -n`), with only ``env``'s
+        UGVMAP_PORT."""
+        clean = {k: v for k, v in os.environ.items() if k != "UGVMAP_PORT"}
+        plan = subprocess.run(["make", "-n", "demo", *args], cwd=REPO, check=True, text=True,
+                              capture_output=True, env={**clean, **env}).stdout
+        return plan.strip().splitlines()[-1].rsplit(" ", 1)[-1]
+
+    assert served_on("PORT=8101") == "8101"
+    assert served_on(UGVMAP_PORT="8102") == "8102"
+    assert served_on() == "8000"

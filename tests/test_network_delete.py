@@ -13,7 +13,7 @@ from app.network.tile_cache import shared_cache
 from app.routing.live import registry
 from app.settings import get_settings
 from cli.main import main
-from testkit.network_helpers import bearer, grid_network
+from testkit.network_helpers import NoteWatch, bearer, grid_network
 
 
 def _cli(*args: str, stdin: str | None = None):
@@ -26,6 +26,12 @@ def _rows(network_id: int) -> tuple[int, ...]:
         return tuple(s.execute(text(f"SELECT count(*) FROM {t} WHERE network_id = :n"),
                                {"n": network_id}).scalar_one()
                      for t in ("road_segments", "road_nodes", "segment_edits"))
+
+
+def _network_version(network_id: int) -> int:
+    with session_scope() as s:
+        return s.execute(text("SELECT version FROM networks WHERE id = :n"),
+                         {"n": network_id}).scalar_one()
 
 
 def _wait_for(condition, timeout_s: float = 5.0) -> bool:
@@ -41,8 +47,13 @@ def test_delete_network_and_forget_it_everywhere(client) -> None:
     doomed, kept = grid_network(), grid_network()
     items = f"/collections/{doomed.network}-segments/items"
     fid = client.get(items).json()["features"][0]["id"]
+    cache = shared_cache(get_settings().database_url)  # subscribed before the note below
+    notes = NoteWatch(get_settings().database_url, doomed.network_id)
     assert client.patch(f"{items}/{fid}", json={"name": "x"},
                         headers={**bearer("editor"), "If-Match": '"1"'}).status_code == 200
+    # The edit's invalidation must land before the tile is cached, or it drops the tile
+    # between the two GETs below (a "miss" where a "hit" is expected).
+    assert notes.wait_for(_network_version(doomed.network_id)), "the edit's note never came"
     tile = f"/networks/{doomed.network}/tiles/14/8647/5556.mvt"
     assert client.get(tile).status_code == 200
     assert client.get(tile).headers["x-tile-cache"] == "hit"
@@ -50,7 +61,6 @@ def test_delete_network_and_forget_it_everywhere(client) -> None:
                        params={"points": "10.0,50.0;10.002,50.002"})
     assert route.status_code == 200, route.text
     graphs = registry(get_settings().database_url)
-    cache = shared_cache(get_settings().database_url)
     assert doomed.network_id in graphs._graphs
     assert any(k[0] == doomed.network_id for k in cache._tiles)
 

@@ -113,7 +113,7 @@ def test_real_orthophotos_tiles_match_source(client, shared_data: Path) -> None:
     ortho = shared_data / "orthophotos"
     name = slug()
     paths = [ortho / "pix4d_alpha_nodata.tif", ortho / "webodm_orthophoto.tif"]
-    ingest_raster(paths, name, title="drone orthophotos")
+    ingest_raster(paths, name, title="drone orthophotos", add=True)  # two continents
     info = layer_info(client, name)
     assert info["source_count"] == 2
     for src in info["sources"]:

@@ -78,6 +78,8 @@ class RasterParams(JobParams):
     gcp_method: Literal["poly1", "poly2", "tps"] = "poly1"
     replace: bool = False
     """Re-ingest files already in the layer in place of their old sources (else refused)."""
+    add: bool = False
+    """Add sources apart from the layer's area as separate areas (else refused)."""
 
     @field_validator("crs")
     @classmethod

@@ -351,7 +351,7 @@ def ingest_ipm(frames_path: Path, layer: str, calib_path: Path, poses_path: Path
             report = ingest_raster(
                 stitcher.written, layer, title=options.title, kind="ipm-mosaic",
                 priority=options.priority, database_url=database_url, store=store,
-                replace=options.replace,
+                replace=options.replace, add=True,  # a drive's zones: wherever it drove
                 on_progress=lambda f, step: progress(FRAMES_SHARE + (1 - FRAMES_SHARE) * f,
                                                      f"zone COG {step}"),
                 after_register=keep_trajectory)

@@ -38,10 +38,12 @@ from app.jobs.rows import lock_running, record_progress, succeed_in
 from app.tiles.store import RasterStore, claim_root, open_store, remove_files
 from ingest.raster.gcps import gcp_writer, inspect_with_gcps, read_gcps
 from ingest.raster.job import (
+    IngestReport,
     WrittenSource,
     checksum,
     layer_lock,
     refuse_duplicates,
+    refuse_far,
     register,
     sweep_leftovers,
     write_source,
@@ -80,11 +82,14 @@ def _from_json(data: dict[str, Any]) -> WrittenSource:
 def run(job_id: int, params: RasterParams) -> None:
     """Validate every source, then queue one :func:`write_part` task per source."""
     check, _ = _reader(params)
-    names = [check(Path(path)).name for path in params.sources]
-    if not params.replace:
-        with get_engine().connect() as conn:
+    checked = [check(Path(path)) for path in params.sources]
+    names, bounds = [c.name for c in checked], [c.bounds_4326 for c in checked]
+    with get_engine().connect() as conn:
+        if not params.replace:
             refuse_duplicates(conn, params.layer, names,
                               [checksum(Path(p)) for p in params.sources])
+        if not params.add:
+            refuse_far(conn, params.layer, names, bounds)
     with session_scope() as session:
         if not lock_running(session.connection(), job_id):
             return
@@ -179,23 +184,23 @@ def finish(job_id: int) -> None:
                 written = [_from_json(r) for r in session.scalars(text(
                     "SELECT result FROM ingest_job_parts WHERE job_id = :id ORDER BY part"),
                     {"id": job_id})]
-                version, replaced = register(session, written, params.layer, params.title,
-                                             params.kind, params.priority, overview, store,
-                                             params.replace)
+                done = register(session, written, params.layer, params.title, params.kind,
+                                params.priority, overview, store, params.replace, params.add)
                 # The rest of the job's folder (files of killed attempts) goes before the job
                 # is said to have succeeded: whoever sees it done finds only registered COGs.
                 kept = {w.uri for w in written}
                 store.delete([r for r in store.refs_under(job_prefix(params.layer, job_id))
                               if r not in kept])
-                succeed_in(session.connection(), job_id,
-                           f"layer {params.layer} at version {version}")
+                report = IngestReport(params.layer, done.shape.version, written, done.shape,
+                                      done.replaced_sources)
+                succeed_in(session.connection(), job_id, report.summary())
         except BaseException:
             overview.unlink(missing_ok=True)
             with contextlib.suppress(Exception):  # the original error matters more
                 store.delete([store.ref(f"{params.layer}/{overview.name}")])
             raise
-    if replaced:
-        remove_files(get_engine(), replaced, store)
+    if done.replaced:
+        remove_files(get_engine(), done.replaced, store)
 
 
 def discard(job_id: int) -> None:

@@ -1,4 +1,5 @@
-"""Footprint of a written COG: the area where it has valid pixels, in EPSG:3857.
+"""Footprint of a written COG: the area where it has valid pixels, in EPSG:3857; and where
+sources are: which of them form one connected area, and a place in words.
 
 Tiles ask PostGIS which footprints meet them, so the footprint must never be *smaller* than
 the data (a tile would miss a source); it may be slightly larger (one extra source read).
@@ -13,6 +14,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 import shapely
+from pyproj import Geod
 from rasterio.features import shapes
 from rasterio.io import DatasetReader
 from rasterio.transform import Affine
@@ -50,3 +52,16 @@ def connected_areas(geoms: Sequence[BaseGeometry]) -> list[int]:
     member = [next(i for i, part in enumerate(parts) if part.intersects(g)) for g in geoms]
     order = {area: n for n, area in enumerate(dict.fromkeys(member))}
     return [order[m] for m in member]
+
+
+def where(bounds_4326: Sequence[float]) -> str:
+    """A lon/lat box in words: its centre (lon,lat, as every command takes points) and its
+    ground size, so a wrong --crs shows at once (a survey of Boston said to be in Italy)."""
+    west, south, east, north = bounds_4326
+    lon, lat = (west + east) / 2, (south + north) / 2
+    geod = Geod(ellps="WGS84")
+    width = geod.inv(west, lat, east, lat)[2]
+    height = geod.inv(lon, south, lon, north)[2]
+    size = (f"{width:,.0f} x {height:,.0f} m" if max(width, height) < 10_000
+            else f"{width / 1000:,.1f} x {height / 1000:,.1f} km")
+    return f"centre {lon:.5f},{lat:.5f}, {size}"

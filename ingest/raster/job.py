@@ -15,6 +15,11 @@ A job killed between 2 and 3 leaves at most unregistered objects, which are neve
 (tiles are only read from sources the catalogue lists) and which the next ingest into the
 layer deletes (jobs on one layer are serialised by an advisory lock, so that is safe).
 
+A layer is one place: a source whose bounds neither overlap nor touch the layer's sources (or,
+for a new layer, the first source given, and those connected to it) is refused unless
+``add``: a file from another continent would otherwise stretch the layer's bounds across
+it, unnoticed (:func:`refuse_far`).
+
 Re-ingesting: a source is its input file's content (SHA-256, kept as the source's checksum).
 A file whose content is already a source of the layer is refused (it would stack a duplicate,
 drawn twice over itself) unless ``replace``: then every source of the layer with the same
@@ -31,10 +36,14 @@ import json
 import re
 import sys
 import uuid
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import shapely
+from pyproj import Geod
+from shapely.geometry import box
+from shapely.geometry.base import BaseGeometry
 from sqlalchemy import Connection, text
 from sqlalchemy.orm import Session
 from tqdm import tqdm
@@ -52,6 +61,7 @@ from app.tiles.store import (
     store_root,
 )
 from ingest.raster.cog import measure_cog, write_cog
+from ingest.raster.footprint import connected_areas
 from ingest.raster.overview import build_overview
 from ingest.raster.sources import Source, SourceError, inspect
 
@@ -76,11 +86,39 @@ class WrittenSource:
 
 
 @dataclass(frozen=True)
+class LayerShape:
+    """A layer as a change left it: its version, how many sources, in how many separate
+    areas (:func:`~ingest.raster.footprint.connected_areas` of their footprints)."""
+
+    version: int
+    sources: int
+    areas: int
+
+
+@dataclass(frozen=True)
 class IngestReport:
-    """What an ingest did: the layer's new version and each COG written."""
+    """What an ingest did: each COG written, and the layer it left."""
     layer: str
     version: int
     sources: list[WrittenSource]
+    shape: LayerShape | None = None
+    replaced: int = 0
+    """How many sources of the layer the new ones replaced (``replace``)."""
+
+    def summary(self) -> str:
+        """The line that closes an ingest: the new version and, for a layer that had sources
+        before, how many it has now; and how many separate areas, where more than one."""
+        line = f"layer {self.layer} at version {self.version}"
+        shape = self.shape
+        if shape is None:
+            return line
+        added = len(self.sources)
+        if shape.sources > added:
+            line += (f": {shape.sources} sources ({added} added"
+                     + (f", {self.replaced} replaced)" if self.replaced else ")"))
+        if shape.areas > 1:
+            line += f"{',' if shape.sources > added else ''} in {shape.areas} separate areas"
+        return line
 
 
 def checksum(path: Path) -> str:
@@ -113,6 +151,43 @@ def refuse_duplicates(conn: Connection, layer: str, names: Sequence[str],
                           f"{REPLACE_HINT}")
 
 
+ADD_HINT = ("ingest it into a layer of its own (--layer NAME), or add it to this one as a "
+            "separate area with --add (POST /jobs: \"add\": true)")
+
+
+def _geometries(wkbs: Iterable[bytes]) -> list[BaseGeometry]:
+    return [shapely.from_wkb(bytes(wkb)) for wkb in wkbs]
+
+
+def refuse_far(conn: Connection, layer: str, names: Sequence[str],
+               bounds_4326: Sequence[Sequence[float]]) -> None:
+    """Refuse new sources (``names``, with their lon/lat bounds) that do not overlap or touch
+    the layer's area: its sources' footprints, or for a new layer the first source given; a
+    new source connected to the area through another new one is in it."""
+    existing = _geometries(conn.execute(text(
+        "SELECT ST_AsBinary(ST_Transform(s.footprint, 4326)) FROM raster_sources s "
+        "JOIN layers l ON l.id = s.layer_id WHERE l.slug = :layer ORDER BY s.id"),
+        {"layer": layer}).scalars())
+    boxes = [box(*b) for b in bounds_4326]
+    area = connected_areas([*existing, *boxes])
+    home = set(area[:len(existing)]) if existing else {area[0]}
+    far = [i for i, a in enumerate(area[len(existing):]) if a not in home]
+    if not far:
+        return
+    place = shapely.union_all([g for g, a in zip([*existing, *boxes], area, strict=True)
+                               if a in home])
+    first = boxes[far[0]]
+    centre, there = first.centroid, place.centroid
+    _, _, metres = Geod(ellps="WGS84").inv(centre.x, centre.y, there.x, there.y)
+    whose = (f"layer {layer}'s sources" if existing
+             else f"{names[0]}, the first file given for the new layer {layer}")
+    west, south, east, north = place.bounds
+    raise SourceError(
+        f"{', '.join(names[i] for i in far)}: lies at {centre.x:.4f},{centre.y:.4f}, "
+        f"{metres / 1000:,.0f} km from the area of {whose} ({west:.4f},{south:.4f},"
+        f"{east:.4f},{north:.4f}), touching none of it; {ADD_HINT}")
+
+
 def write_source(source: Source, store: RasterStore, staging: Path, layer: str,
                  to_cog: Callable[[Source, Path], None] | None = None,
                  stored: list[str] | None = None, content: str | None = None) -> WrittenSource:
@@ -136,6 +211,8 @@ def write_source(source: Source, store: RasterStore, staging: Path, layer: str,
                 "bounds_4326": list(source.bounds_4326)}
         if cog.display_range:
             meta["display_range"] = cog.display_range
+        if source.warnings:
+            meta["warnings"] = source.warnings
         if stored is not None:
             stored.append(store.ref(key))
         store.put(dst, key)
@@ -150,15 +227,25 @@ def write_source(source: Source, store: RasterStore, staging: Path, layer: str,
         raise
 
 
+@dataclass(frozen=True)
+class Registered:
+    """What :func:`register` did: the layer it left, and the store references it replaced
+    (the old overview, replaced sources' COGs: to delete after the commit)."""
+
+    shape: LayerShape
+    replaced: list[str]
+    replaced_sources: int
+
+
 def register(session: Session, written: Sequence[WrittenSource], layer: str,
              title: str | None, kind: str, priority: int, overview: Path,
-             store: RasterStore, replace: bool = False) -> tuple[int, list[str]]:
+             store: RasterStore, replace: bool = False, add: bool = False) -> Registered:
     """Upsert the layer, insert its new sources (replacing, with ``replace``, those with the
-    same content or file name; else refusing a duplicate), render its new overview into the
-    local file ``overview``, put it into the store as ``layer/<name>`` and point the layer at
-    it, in the caller's transaction (so the layer changes at once, on commit; a queued job
-    commits its own success with it); return the new version and the references it replaced
-    (the old overview, replaced sources' COGs: to delete after the commit)."""
+    same content or file name; else refusing a duplicate; refusing, unless ``add``, those
+    apart from the layer's area), render its new overview into the local file ``overview``,
+    put it into the store as ``layer/<name>`` and point the layer at it, in the caller's
+    transaction (so the layer changes at once, on commit; a queued job commits its own
+    success with it)."""
     overview_ref = store.ref(f"{layer}/{overview.name}")
     old_overview = session.execute(
         text("SELECT overview_uri FROM layers WHERE slug = :slug FOR UPDATE"),
@@ -174,7 +261,7 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
     ).one()
     layer_id, version = int(row[0]), int(row[1])
     names, sums = [w.name for w in written], [w.checksum for w in written]
-    replaced: list[str] = [old_overview] if old_overview else []
+    replaced: list[str] = []
     if replace:
         replaced += session.execute(text(
             "DELETE FROM raster_sources WHERE layer_id = :id AND (checksum = ANY(:sums) "
@@ -182,6 +269,9 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
             {"id": layer_id, "sums": sums, "names": names}).scalars()
     else:  # again, in the transaction: another ingest may have registered it meanwhile
         refuse_duplicates(session.connection(), layer, names, sums)
+    if not add:
+        refuse_far(session.connection(), layer, names,
+                   [w.meta["bounds_4326"] for w in written])
     for src in written:
         session.execute(text(
             "INSERT INTO raster_sources (layer_id, name, uri, footprint, priority, width, "
@@ -192,6 +282,16 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
              "wkb": src.footprint_wkb, "priority": priority, "width": src.width,
              "height": src.height, "bands": src.band_count, "dtype": src.dtype,
              "res": src.resolution_m, "meta": json.dumps(src.meta)})
+    shape = refresh_layer(session, layer_id, layer, version, overview, store)
+    return Registered(shape, [old_overview, *replaced] if old_overview else replaced,
+                      len(replaced))
+
+
+def refresh_layer(session: Session, layer_id: int, layer: str, version: int, overview: Path,
+                  store: RasterStore) -> LayerShape:
+    """After its sources changed: the layer's bounds, resolution and zooms from its sources,
+    its overview rendered into the local file ``overview`` and put into the store as
+    ``layer/<name>``; what it now is."""
     session.execute(text(
         "UPDATE layers l SET "
         " bounds = (SELECT ST_Envelope(ST_Transform(ST_SetSRID(ST_Extent(s.footprint),"
@@ -205,7 +305,10 @@ def register(session: Session, written: Sequence[WrittenSource], layer: str,
         "WHERE l.id = :id"), {"id": layer_id})
     render_overview(session.connection(), layer_id, layer, overview)
     store.put(overview, f"{layer}/{overview.name}")
-    return version, replaced
+    footprints = _geometries(session.execute(text(
+        "SELECT ST_AsBinary(footprint) FROM raster_sources WHERE layer_id = :id"),
+        {"id": layer_id}).scalars())
+    return LayerShape(version, len(footprints), max(connected_areas(footprints)) + 1)
 
 
 def render_overview(conn: Connection, layer_id: int, layer: str, dst: Path) -> None:
@@ -272,9 +375,10 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
                   store: RasterStore | Path | str | None = None,
                   on_progress: Callable[[float, str], None] | None = None,
                   after_register: Callable[[Session], None] | None = None,
-                  replace: bool = False) -> IngestReport:
+                  replace: bool = False, add: bool = False) -> IngestReport:
     """Ingest ``paths`` into layer ``layer``; raise :class:`SourceError` on bad input,
-    including a file already in the layer unless ``replace`` (module docstring).
+    including a file already in the layer unless ``replace``, and one apart from the layer's
+    area unless ``add`` (module docstring).
 
     ``inspect_source``/``to_cog`` let the GCP path plug in its own georeferencing and warp;
     ``on_progress(fraction, step)`` is told before each step (e.g. to update a job row);
@@ -292,9 +396,11 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
     check = inspect_source or (lambda p: inspect(p, crs=crs))
     sources = [check(Path(p)) for p in paths]
     sums = [checksum(source.path) for source in sources]
-    if not replace:
-        with get_engine(database_url).connect() as conn:
+    with get_engine(database_url).connect() as conn:
+        if not replace:
             refuse_duplicates(conn, layer, [s.name for s in sources], sums)
+        if not add:
+            refuse_far(conn, layer, [s.name for s in sources], [s.bounds_4326 for s in sources])
     written: list[WrittenSource] = []
     created: list[str] = []
     bar = tqdm([*sources, None], desc=f"ingest {layer}", unit="step",
@@ -312,14 +418,15 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
             overview = staging / f"overview-{uuid.uuid4().hex}.tif"
             created.append(raster_store.ref(f"{layer}/{overview.name}"))
             with session_scope(database_url) as session:
-                version, replaced = register(session, written, layer, title, kind, priority,
-                                             overview, raster_store, replace)
+                registered = register(session, written, layer, title, kind, priority,
+                                      overview, raster_store, replace, add)
                 if after_register is not None:
                     after_register(session)
         except BaseException:
             with contextlib.suppress(Exception):  # the original error matters more
                 raster_store.delete(created)
             raise
-    if replaced:
-        remove_files(get_engine(database_url), replaced, raster_store)
-    return IngestReport(layer=layer, version=version, sources=written)
+    if registered.replaced:
+        remove_files(get_engine(database_url), registered.replaced, raster_store)
+    return IngestReport(layer=layer, version=registered.shape.version, sources=written,
+                        shape=registered.shape, replaced=registered.replaced_sources)

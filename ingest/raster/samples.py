@@ -2,7 +2,8 @@
 
 Called by the demo set-up; re-running it is harmless (layers that exist are left alone).
 The Landsat scene (300 m/px) gets its own layer instead of sharing one with the drone
-orthophotos (0.3-0.5 m/px), which cover a few hectares on other continents.
+orthophotos (0.3-0.5 m/px), which cover a few hectares on two other continents: one layer of
+two separate areas (``add``), showing what such a layer is.
 """
 
 from __future__ import annotations
@@ -29,5 +30,6 @@ def ingest_sample_orthophotos(orthophotos_dir: Path) -> list[IngestReport]:
     for slug, (title, names) in missing.items():
         paths = [orthophotos_dir / n for n in names if (orthophotos_dir / n).is_file()]
         if paths:
-            reports.append(ingest_raster(paths, slug, title=title, kind="orthophoto"))
+            reports.append(ingest_raster(paths, slug, title=title, kind="orthophoto",
+                                         add=True))
     return reports

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
+import pyproj
 import rasterio
 from rasterio.control import GroundControlPoint
 from rasterio.crs import CRS
@@ -28,6 +29,7 @@ from rasterio.errors import CRSError, NotGeoreferencedWarning, RasterioError
 from rasterio.transform import Affine
 from rasterio.warp import transform_bounds
 from rasterio.windows import Window
+from shapely.geometry import box
 
 from app.errors import UserError
 from ingest.raster.georef import (
@@ -70,6 +72,8 @@ class Source:
     #: False when every pixel is valid (no nodata, alpha or mask): no mask to carry over.
     has_mask: bool = True
     band_count: int = 0
+    warnings: list[str] = field(default_factory=list)
+    """What looks wrong but is not refused (a world file placing it outside its CRS's area)."""
 
     @property
     def name(self) -> str:
@@ -161,7 +165,8 @@ def _check_plausible(path: Path, src: Source) -> None:
         metres = src.crs.linear_units_factor[1] if src.crs.is_projected else 111_320.0
         res_m = min(res_x, res_y) * metres
         if not MIN_RES_M <= res_m <= MAX_RES_M:
-            raise SourceError(f"{path.name}: pixel size {res_m:.4g} m is not plausible")
+            raise SourceError(f"{path.name}: pixel size {res_m:.4g} m is not plausible"
+                              + _units_mismatch(src))
         corners = [src.transform @ (c, r) for c in (0, src.width) for r in (0, src.height)]
         xs, ys = [c[0] for c in corners], [c[1] for c in corners]
         left, bottom, right, top = min(xs), min(ys), max(xs), max(ys)
@@ -177,8 +182,36 @@ def _check_plausible(path: Path, src: Source) -> None:
     if not (all(map(math.isfinite, (west, south, east, north)))
             and -180 <= west < east <= 180 and -85.06 <= south < north <= 85.06):
         raise SourceError(f"{path.name}: bounds ({west:.4f}, {south:.4f}, {east:.4f}, "
-                          f"{north:.4f}) are outside the web-mercator world; wrong --crs?")
+                          f"{north:.4f}) are outside the web-mercator world; wrong --crs?"
+                          + _units_mismatch(src))
     src.bounds_4326 = (west, south, east, north)
+    area = pyproj.CRS.from_user_input(src.crs.to_string()).area_of_use
+    if src.georef_from == "world-file" and area is not None and not box(
+            area.west, area.south, area.east, area.north).buffer(1.0).contains(
+            box(west, south, east, north)):
+        src.warnings.append(
+            f"{path.name}: its world file puts it at {(west + east) / 2:.4f},"
+            f"{(south + north) / 2:.4f} (lon,lat), outside where {src.crs.to_string()} is "
+            f"used ({area.name}: {area.west:g},{area.south:g},{area.east:g},{area.north:g}); "
+            "check --crs")
+
+
+def _units_mismatch(src: Source) -> str:
+    """Why a world file's numbers may not fit the CRS they were given with: degree-sized
+    numbers in a metric CRS, or metre-sized ones in a geographic CRS ("" when neither)."""
+    if src.georef_from != "world-file" or src.transform is None:
+        return ""
+    t = src.transform
+    looks_like_degrees = abs(t.c) <= 180 and abs(t.f) <= 90 and abs(t.a) < 0.01
+    if src.crs.is_projected and looks_like_degrees:
+        return (f": the world file's numbers look like degrees (origin {t.c:.6g},{t.f:.6g}, "
+                f"pixel {abs(t.a):.3g}) but --crs {src.crs.to_string()} is in metres; "
+                "a lon/lat world file wants --crs EPSG:4326")
+    if src.crs.is_geographic and not looks_like_degrees:
+        return (f": the world file's numbers look like metres (origin {t.c:.6g},{t.f:.6g}, "
+                f"pixel {abs(t.a):.3g}) but --crs {src.crs.to_string()} is in degrees; "
+                "give the projected CRS they were measured in (e.g. a UTM zone, EPSG:326NN)")
+    return ""
 
 
 def _describe(path: Path, ds: rasterio.io.DatasetReader, crs: str | None,

@@ -806,3 +806,30 @@ def test_one_point_off_the_road_keeps_the_legs_that_work(browser, world, request
     page.wait_for_function("() => !document.querySelector('.task-point.off-road')")
     page.locator("#route-result .distance").wait_for()
     page.wait_for_function("() => !document.querySelector('#route-result .route-partial')")
+
+
+def test_inspector_says_which_vehicle_may_drive_a_segment(browser, review, request,
+                                                          tmp_path) -> None:
+    """Every way is kept (an OSM import keeps footways): the inspector says which vehicle
+    profile may drive the segment, from its class and the server's profiles."""
+    from sqlalchemy import text
+
+    from app.db.session import session_scope
+
+    page = open_review(browser, review, request, tmp_path)
+    segment = review["ids"]["E"][0]
+    click_lonlat(page, *middle(E_ONEWAY))
+    vehicles = page.locator('#seg-readonly dd[data-field="vehicles"]')
+    page.wait_for_function("document.querySelector('#f-name').value === 'E0'")
+    assert vehicles.inner_text() == "car, sidewalk"
+    with session_scope() as s:
+        s.execute(text("UPDATE road_segments SET road_class = 'footway' WHERE id = :id"),
+                  {"id": segment})
+    try:
+        page.evaluate("(id) => window.ugvmap.inspector.open('webrev', id)", segment)
+        page.wait_for_function("document.querySelector('#f-road_class').value === 'footway'")
+        assert vehicles.inner_text() == "sidewalk (never car)"
+    finally:
+        with session_scope() as s:
+            s.execute(text("UPDATE road_segments SET road_class = 'unclassified' WHERE id = :id"),
+                      {"id": segment})

@@ -125,6 +125,7 @@ async function start() {
     onDeleted: (network) => { selection.clear(); changed([network]); },
     onClose: () => selection.clear(),
     onLayout: layout,
+    vehicles: () => route.profiles,
   });
   const bulk = new BulkEditor({ selection, onChanged: changed, onClose: () => selection.clear(), onLayout: layout });
   function showSelection(segments) {

@@ -59,7 +59,8 @@ function historyItem(edit) {
  * `onDeleted(network)` after the segment was deleted, `onClose()` when the user closes it,
  * `onLayout()` after it opens or hides (the map must resize). */
 export class Inspector {
-  constructor({ onSaved, onDeleted, onClose, onLayout }) {
+  constructor({ onSaved, onDeleted, onClose, onLayout, vehicles = () => [] }) {
+    this.vehicles = vehicles; // the vehicle profiles, to say which may drive the segment
     this.onSaved = onSaved;
     this.onDeleted = onDeleted;
     this.onClose = onClose;
@@ -150,6 +151,19 @@ export class Inspector {
       dd.textContent = formatValue(props[key], key); // server text (e.g. a token's name): never HTML
       list.append(dt, dd);
     }
+    // Every way is kept (an OSM import keeps footways); which vehicle may drive this one
+    // follows from its class and the profiles, said here rather than stored beside it.
+    const vehicles = this.vehicles();
+    if (!vehicles.length) return;
+    const barred = (p) => p.never.includes(props.road_class);
+    const may = vehicles.filter((p) => !barred(p)).map((p) => p.name);
+    const never = vehicles.filter(barred).map((p) => p.name);
+    const dt = document.createElement('dt');
+    const dd = document.createElement('dd');
+    dt.textContent = 'Driven by';
+    dd.dataset.field = 'vehicles';
+    dd.textContent = `${may.length ? may.join(', ') : 'no vehicle'}${never.length ? ` (never ${never.join(', ')})` : ''}`;
+    list.append(dt, dd);
   }
 
   async loadHistory() {

@@ -67,6 +67,7 @@ export class RouteTool {
     this.result = document.getElementById('route-result');
     this.network.replaceChildren(...networks.names.map((n) => new Option(n, n)));
     this.picked = false; // the user chose the network in the list
+    this.profiles = []; // the server's vehicle profiles (loadProfiles)
     this.followView();
     map.on('moveend', () => this.followView());
     this.requestSeq = 0;
@@ -93,6 +94,7 @@ export class RouteTool {
    * names the one it routes with (a car never drives footways; a sidewalk robot may). */
   async loadProfiles() {
     const result = await request('/routing/profiles');
+    this.profiles = result.ok ? result.body.profiles : [];
     if (!result.ok) {
       this.profile.replaceChildren(new Option('server default', ''));
     } else {

@@ -132,15 +132,26 @@ def test_cli_reports_unreadable_files_in_one_line(database_url: str, tmp_path: P
 
     from cli.main import main
 
-    cases = {"garbage.geojson": "{not json", "empty.geojson": '{"type":"FeatureCollection",'
-             '"features":[]}', "bad.osm": "<osm><way id='1'></osm", "x.gpkg": "nope"}
-    for name, content in cases.items():
+    formats = ("OpenStreetMap (.osm, .osm.pbf), GeoJSON, GeoPackage or another vector format "
+               "GDAL reads")
+    cases = {  # file name, content, what is said (in our words, not GDAL's or libosmium's)
+        "garbage.geojson": ("{not json", "not a GeoJSON file: it is not JSON (line 1, column 2)"),
+        "empty.geojson": ('{"type":"FeatureCollection","features":[]}', "no road lines found"),
+        "bad.osm": ("<osm version='0.6'><way id='1'></osm", "not OpenStreetMap XML: it is not well-formed "
+                                             "XML (line 1, column"),
+        "bad.osm.pbf": ("hello", "not an OpenStreetMap PBF file: its blocks cannot be read"),
+        "x.gpkg": ("nope", f"not a road network file: its content is in none of {formats}"),
+        "notes.txt": ("a text file\n", "notes.txt: not a road network file"),
+    }
+    for name, (content, says) in cases.items():
         path = tmp_path / name
         path.write_text(content)
         result = CliRunner().invoke(main, ["ingest", "network", str(path), "--network", "cli"])
         assert result.exit_code == 1, (name, result.output)
-        assert result.output.startswith("Error: ") and result.output.count("\n") == 1, \
-            result.output
+        assert result.output.startswith(f"Error: {name}: ") \
+            and result.output.count("\n") == 1, result.output
+        assert says in result.output, result.output
+        assert "DRIVER" not in result.output and "prefixing" not in result.output
     with session_scope() as s:
         assert s.execute(text("SELECT count(*) FROM networks WHERE name = 'cli'")).scalar() == 0
 

@@ -55,6 +55,8 @@ def bad_inputs(tmp_path: Path) -> dict[str, tuple[Path, str]]:
     good, transform = synthetic_utm(tmp_path / "full.tif", width=600, height=600)
     truncated = tmp_path / "truncated.tif"
     truncated.write_bytes(good.read_bytes()[: good.stat().st_size * 6 // 10])
+    no_header = tmp_path / "no_header.tif"  # a TIFF signature, then zeros where its IFD was
+    no_header.write_bytes(good.read_bytes()[:8] + bytes(200) + good.read_bytes()[208:])
     plain = tmp_path / "plain.png"
     import cv2
 
@@ -68,9 +70,13 @@ def bad_inputs(tmp_path: Path) -> dict[str, tuple[Path, str]]:
     off_world = write_tif(tmp_path / "off_world.tif", pattern_image(transform, 64, 64),
                           CRS.from_epsg(4326), polar)
     return {
-        "text": (text_file, "not a readable image"),
+        "text": (text_file, "notes.tif: not an image: its content is in no raster format "
+                            "GDAL reads (GeoTIFF, PNG, JPEG, ... were expected)"),
         "empty": (empty, "empty file"),
-        "truncated": (truncated, "not a readable image"),
+        "truncated": (truncated, "truncated.tif: a damaged image: pixel row 600 of 600 cannot "
+                                 "be read (the file is cut short or corrupt)"),
+        "corrupt header": (no_header, "no_header.tif: a damaged image: its header cannot be "
+                                      "read (the file is cut short or corrupt)"),
         "no georef": (plain, "not georeferenced"),
         "degenerate world file": (bad_world, "degenerate world file"),
         "absurd resolution": (absurd_res, "not plausible"),
@@ -90,6 +96,8 @@ def test_bad_inputs_refused_and_nothing_changes(existing_layer: str, tmp_path: P
             assert result.exit_code == 1, (case, result.output)
             assert message in result.output, (case, result.output)
             assert "Traceback" not in result.output
+            assert "See previous exception" not in result.output and "TIFF" not in \
+                result.output.replace("GeoTIFF", ""), result.output
             assert len(result.output.strip().splitlines()) == 1, result.output
         assert snapshot() == before, case
 

@@ -71,8 +71,14 @@ def _geojson_features(path: Path) -> list[dict[str, Any]] | None:
     """The features of a GeoJSON file in lon/lat; None for a legacy projected ``crs``."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise NetworkFileError(f"{path.name}: not a readable GeoJSON file ({exc})") from exc
+    except json.JSONDecodeError as exc:
+        raise NetworkFileError(f"{path.name}: not a GeoJSON file: it is not JSON (line "
+                               f"{exc.lineno}, column {exc.colno})") from exc
+    except UnicodeDecodeError as exc:
+        raise NetworkFileError(f"{path.name}: not a GeoJSON file: it is not UTF-8 text "
+                               f"(byte {exc.start})") from exc
+    except OSError as exc:
+        raise NetworkFileError(f"{path.name}: cannot be read ({exc.strerror})") from exc
     crs_name = ((data.get("crs") or {}).get("properties") or {}).get("name")
     if crs_name and not _is_lonlat(crs_name):
         return None
@@ -140,13 +146,25 @@ def _ogr_features(path: Path, layer: str) -> list[dict[str, Any]]:
     return features
 
 
+NETWORK_FORMATS = ("OpenStreetMap (.osm, .osm.pbf), GeoJSON, GeoPackage or another vector "
+                   "format GDAL reads")
+
+
+def _unopenable(exc: Exception) -> str:
+    """Why GDAL could not open a network file, in our words (not its advice to prefix the
+    path with a driver name)."""
+    if "not recognized as being in a supported file format" in str(exc):
+        return f"not a road network file: its content is in none of {NETWORK_FORMATS}"
+    return f"a damaged vector file: GDAL cannot open it (expected {NETWORK_FORMATS})"
+
+
 def read_ogr(path: Path) -> tuple[list[RoadLine], list[NodePoint], bool]:
     """Every layer of a GeoPackage (or any OGR vector file): lines and node points, in
     lon/lat whatever the layer's CRS."""
     try:
         layers = pyogrio.list_layers(path)
     except Exception as exc:  # pyogrio raises its own DataSourceError hierarchy
-        raise NetworkFileError(f"{path.name}: not a readable vector file ({exc})") from exc
+        raise NetworkFileError(f"{path.name}: {_unopenable(exc)}") from exc
     features: list[dict[str, Any]] = []
     for name, geometry_type in layers:
         if geometry_type and ("Line" in geometry_type or "Point" in geometry_type):

@@ -9,6 +9,7 @@ do not node crossings.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -55,7 +56,19 @@ def read_osm(path: Path) -> Iterator[RoadLine | NodePoint]:
         for coords, attributes in new_nodes.resolve(path):
             yield from _lines(coords, attributes)
     except RuntimeError as exc:  # libosmium reports parse errors as RuntimeError
-        raise NetworkFileError(f"{path.name}: not a readable OSM file ({exc})") from exc
+        raise NetworkFileError(f"{path.name}: {_unreadable(exc)}") from exc
+
+
+def _unreadable(exc: RuntimeError) -> str:
+    """What libosmium's parse error means for the file, in our words."""
+    xml = re.search(r"XML parsing error at line (\d+), column (\d+)", str(exc))
+    if xml:
+        return (f"not OpenStreetMap XML: it is not well-formed XML (line {xml[1]}, column "
+                f"{xml[2]})")
+    if str(exc).startswith("PBF error"):
+        return ("not an OpenStreetMap PBF file: its blocks cannot be read (the file is cut "
+                "short, corrupt, or not PBF)")
+    return f"not a readable OpenStreetMap file ({exc})"
 
 
 def _lines(coords: list[Coord | None], attributes: RoadAttributes) -> Iterator[RoadLine]:

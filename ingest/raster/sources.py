@@ -231,11 +231,29 @@ def _describe(path: Path, ds: rasterio.io.DatasetReader, crs: str | None,
     # The last row sits at the end of strip/sequential formats: a truncated file fails
     # here instead of half-way through writing the pyramid.
     for row in sorted({0, ds.height // 2, ds.height - 1}):
-        ds.read(bands, window=Window(0, row, ds.width, 1))
+        try:
+            ds.read(bands, window=Window(0, row, ds.width, 1))
+        except RasterioError as exc:
+            raise SourceError(f"{path.name}: a damaged image: pixel row {row + 1} of "
+                              f"{ds.height} cannot be read ({DAMAGED})") from exc
     has_mask = any(MaskFlags.all_valid not in flags for flags in ds.mask_flag_enums)
     return Source(path=path, width=ds.width, height=ds.height, dtype=dtype, bands=bands,
                   crs=src_crs, transform=transform, georef_from=how, gcps=list(gcps or []),
                   has_mask=has_mask, band_count=ds.count)
+
+
+DAMAGED = "the file is cut short or corrupt"
+
+
+def _unopenable(exc: RasterioError) -> str:
+    """Why GDAL could not open a file, in our words: GDAL's own text names a C function or
+    advises a driver prefix, neither of which tells a user what is wrong with the file."""
+    if "Permission denied" in str(exc):
+        return "cannot be read (permission denied)"
+    if "not recognized as being in a supported file format" in str(exc):
+        return ("not an image: its content is in no raster format GDAL reads (GeoTIFF, PNG, "
+                "JPEG, ... were expected)")
+    return f"a damaged image: its header cannot be read ({DAMAGED})"
 
 
 def inspect(path: Path, crs: str | None = None,
@@ -252,7 +270,6 @@ def inspect(path: Path, crs: str | None = None,
             with rasterio.open(path) as ds:
                 source = _describe(path, ds, crs, gcps, gcp_crs)
     except RasterioError as exc:
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise SourceError(f"{path.name}: not a readable image ({reason})") from exc
+        raise SourceError(f"{path.name}: {_unopenable(exc)}") from exc
     _check_plausible(path, source)
     return source

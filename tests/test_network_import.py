@@ -137,8 +137,8 @@ def test_cli_reports_unreadable_files_in_one_line(database_url: str, tmp_path: P
     cases = {  # file name, content, what is said (in our words, not GDAL's or libosmium's)
         "garbage.geojson": ("{not json", "not a GeoJSON file: it is not JSON (line 1, column 2)"),
         "empty.geojson": ('{"type":"FeatureCollection","features":[]}', "no road lines found"),
-        "bad.osm": ("<osm version='0.6'><way id='1'></osm", "not OpenStreetMap XML: it is not well-formed "
-                                             "XML (line 1, column"),
+        "bad.osm": ("<osm version='0.6'><way id='1'></osm",
+                    "not OpenStreetMap XML: it is not well-formed XML (line 1, column"),
         "bad.osm.pbf": ("hello", "not an OpenStreetMap PBF file: its blocks cannot be read"),
         "x.gpkg": ("nope", f"not a road network file: its content is in none of {formats}"),
         "notes.txt": ("a text file\n", "notes.txt: not a road network file"),

@@ -164,15 +164,23 @@ def _lonlat_box(ctx: click.Context, param: click.Parameter, values: tuple[str, .
 @field_option("line_width", SampleWidth.model_fields["line_width"])
 @extraction_options
 @rule_options
+@click.option("--no-labels", "use_labels", is_flag=True, default=True, flag_value=False,
+              help="Leave out the layer's stored labels (`ugvmap layers labels`).")
+@click.option("--no-review-labels", "use_review", is_flag=True, default=True,
+              flag_value=False,
+              help="Leave out the review of the networks extracted from the layer (deleted "
+                   "extracted segments: not road; drawn, moved or edited ones: road).")
 @click.option("--replace", is_flag=True, help="Replace the network if it exists.")
 @queue_option
 def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: list,
-                 train_lines: Path | None, line_width: float, replace: bool, queued: bool,
-                 **options: Any) -> None:
+                 train_lines: Path | None, line_width: float, use_labels: bool,
+                 use_review: bool, replace: bool, queued: bool, **options: Any) -> None:
     """Extract the roads of raster layer SLUG into road network NETWORK (PostGIS).
 
     The road model runs zero-shot without a sample and adapts to one when given; on an
-    ipm-mosaic layer the drive's own trajectory is the sample. Attributes (lanes, class,
+    ipm-mosaic layer the drive's own trajectory is the sample. The layer's stored labels and
+    the review of the networks extracted from it are added to the sample (the report says
+    how many of each). Attributes (lanes, class,
     speed, junctions, confidence) follow the network's rules (`ugvmap network settings`),
     overridden for this job by the rule options.
     """
@@ -182,7 +190,8 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
         enqueue_job("ingest-roads", {
             "layer": slug, "network": network, "replace": replace, "train_boxes": train_boxes,
             "not_road_boxes": not_road_boxes, "train_lines": absolute(train_lines),
-            "line_width": line_width, "rules": rules.overrides(), **tuning})
+            "line_width": line_width, "labels": use_labels, "review_labels": use_review,
+            "rules": rules.overrides(), **tuning})
         return
     from app.db.session import session_scope
     from app.jobs.recorder import JobRecorder
@@ -196,7 +205,8 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
                 session_scope() as session:
             done = ingest_layer_roads(session, slug, network, sample, extract_params(**tuning),
                                       rules=rules, replace=replace,
-                                      progress=sys.stderr.isatty())
+                                      progress=sys.stderr.isatty(), labels=use_labels,
+                                      review_labels=use_review)
     for line in done.lines():
         click.echo(line)
 

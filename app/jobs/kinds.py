@@ -133,6 +133,10 @@ class RoadsParams(JobParams, RoadTuning, SampleWidth):
     train_boxes: list[LonLatBox] = Field(default_factory=list, max_length=1000)
     not_road_boxes: list[LonLatBox] = Field(default_factory=list, max_length=1000)
     train_lines: ServerPath | None = None
+    labels: bool = True
+    """Add the layer's stored labels to the sample."""
+    review_labels: bool = True
+    """Add the review of the networks extracted from the layer to the sample."""
     rules: AttributeRules | None = None
     """Attribute rules for this job on top of the network's (speed_kph, classes, ...)."""
 

@@ -65,7 +65,7 @@ def layer_id(conn: Connection, slug: str, *, lock: bool = False) -> int:
 def _positions_problem(coordinates: Any, depth: int) -> str | None:
     """Why ``coordinates`` (nested ``depth`` lists deep above the positions) are not lon/lat
     positions, or None."""
-    if not isinstance(coordinates, list):
+    if not isinstance(coordinates, list | tuple):  # tuples: a Python caller's
         return "coordinates must be arrays of [lon, lat] positions"
     if depth == 0:
         if len(coordinates) not in (2, 3) or not all(

@@ -39,5 +39,6 @@ def ingest_roads(job_id: int, params: RoadsParams) -> None:
     tuning = tuned_params(params)
     with Lease(get_engine(), job_id), session_scope() as session:
         done = ingest_layer_roads(session, params.layer, params.network, sample, tuning,
-                                  rules=params.rules, replace=params.replace)
+                                  rules=params.rules, replace=params.replace,
+                                  labels=params.labels, review_labels=params.review_labels)
         succeed_in(session.connection(), job_id, "; ".join(done.lines()))

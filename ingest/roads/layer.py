@@ -52,6 +52,7 @@ from ingest.roads.georef import Image, as_image, pixel_size_m
 from ingest.roads.pipeline import Extraction, ExtractParams, extract_roads
 from ingest.roads.rules import effective_rules
 from ingest.roads.sample import NO_SAMPLE_ROAD, GeoSample, burn_sample
+from ingest.roads.taught import Taught, merged, taught
 
 MAX_MOSAIC_SIDE_PX = 40_000
 MAX_MOSAIC_PX = MAX_MOSAIC_SIDE_PX ** 2
@@ -158,10 +159,13 @@ class LayerExtraction:
     """The classifier each connected area of the layer was extracted with."""
     summary: ImportSummary
     sample: str
-    """"none" (zero-shot), "given", or "drive trajectory" (an ipm-mosaic's stored drives)."""
+    """"none" (zero-shot), or what the sample held, joined by " + ": "given", "drive
+    trajectory" (an ipm-mosaic's stored drives), "layer labels", "review labels"."""
     rules: AttributeRules
     stored: list[RoadAttributes]
     """The attributes of the lines written (one per extracted edge)."""
+    taught: Taught
+    """The layer's labels and review labels the sample held."""
 
     def lines(self) -> list[str]:
         """The CLI's report: what was written, from what, and the attributes it got."""
@@ -171,6 +175,7 @@ class LayerExtraction:
         junctions = sum(a.is_junction for a in self.stored)
         areas = (f" in {len(self.classifiers)} separate areas"
                  if len(self.classifiers) > 1 else "")
+        used = self.taught.describe()
         return [
             f"network {s.network}: {s.segments} segments, {s.nodes} nodes, "
             f"{s.total_length_m / 1000:.3f} km extracted from layer {self.layer}{areas} "
@@ -178,7 +183,7 @@ class LayerExtraction:
             "classes: " + ", ".join(f"{n} {c}" for c, n in classes)
             + f"; {junctions} junction segments; confidence mean "
               f"{np.mean(confidence):.2f}, min {min(confidence):.2f}",
-        ]
+        ] + ([used] if used else [])
 
 
 def _layer_sources(session: Session, slug: str) -> tuple[str, list[LayerSource]]:
@@ -195,57 +200,82 @@ def _layer_sources(session: Session, slug: str) -> tuple[str, list[LayerSource]]
 
 
 def _no_road(slug: str, classifier: str, sample: str) -> str:
-    advice = {"none": "give a training sample (--train-box / --train-lines) to adapt it",
-              "given": "check the training sample",
-              "drive trajectory": "the drive's imagery may not show a road surface; give a "
-                                  "training sample (--train-box / --train-lines)"}[sample]
+    if sample == "none":
+        advice = "give a training sample (--train-box / --train-lines) to adapt it"
+    elif sample.startswith("drive trajectory"):
+        advice = ("the drive's imagery may not show a road surface; give a training sample "
+                  "(--train-box / --train-lines)")
+    else:
+        advice = f"check the training sample (and the layer's: `ugvmap layers labels {slug}`)"
     return f"no road found in layer {slug!r} with the {classifier} classifier; {advice}"
 
 
+ADAPTING: tuple[Classifier, ...] = ("auto", "model", "adapted")
+"""The classifiers that are the road model: it adapts to not-road labels alone (a reviewer's
+deleted false roads), where a per-job classifier has no road to learn from."""
+
+
 def _area_labels(image: Image, sample: GeoSample, area: Sequence[LayerSource], areas: int,
-                 classifier: Classifier) -> np.ndarray | None:
-    """The sample's labels on one area's mosaic, or None where it labels no road there and
-    the road model may run zero-shot instead (``auto``); refused when it labels none in a
-    layer of one area, or in an area a per-job classifier would have nothing to learn from."""
+                 classifier: Classifier, required: bool) -> np.ndarray | None:
+    """The sample's labels on one area's mosaic, or None where it labels nothing the
+    classifier can use there and the road model may run zero-shot instead (``auto``). The
+    road model takes not-road labels alone; a per-job classifier needs road. Refused when a
+    ``required`` sample (the user's, a drive) labels no road in a layer of one area, or in an
+    area a per-job classifier would have nothing to learn from."""
     assert image.crs is not None  # a layer's sources are all EPSG:3857
     labels = burn_sample(image.pixels.shape[:2], image.transform, image.crs, sample,
                          image.valid)
-    if (labels == ROAD).any():
+    if (labels == ROAD).any() or (classifier in ADAPTING and labels.any()):
         return labels
-    if areas == 1:
+    if required and areas == 1:
         raise RoadsInputError(NO_SAMPLE_ROAD)
     if classifier not in ("auto", "model"):
         raise RoadsInputError(
             f"the training sample covers no road in the area of "
             f"{', '.join(s.name for s in area)}, one of the layer's {areas} separate areas: "
             f"give a sample there too, or use --classifier auto (the road model, zero-shot "
-            f"where there is no sample)")
+            f"where there is no sample)" if areas > 1 else
+            f"the {classifier} classifier needs road in its sample: the layer's labels "
+            f"label no road on its imagery; give --train-box / --train-lines, or use "
+            f"--classifier auto")
     return None
 
 
 def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSample | None,
                        params: ExtractParams, *, rules: AttributeRules | None = None,
-                       replace: bool = False, progress: bool = False) -> LayerExtraction:
+                       replace: bool = False, progress: bool = False, labels: bool = True,
+                       review_labels: bool = True) -> LayerExtraction:
     """Extract layer ``slug``'s roads into network ``network`` in the caller's transaction,
     each connected area of its sources as one mosaic (:func:`source_areas`).
 
     ``sample`` None: an ipm-mosaic's stored drives are the sample, else the road model runs
-    zero-shot. ``rules`` override the network's attribute rules for this job.
+    zero-shot. The layer's stored labels (``labels``) and the review of the networks
+    extracted from it (``review_labels``) are added to it (:mod:`ingest.roads.taught`),
+    read before anything is written (``replace`` clears the network's edit history).
+    ``rules`` override the network's attribute rules for this job.
     """
     kind, sources = _layer_sources(session, slug)
-    used = "none" if sample is None else "given"
+    team = taught(session, slug, labels=labels, review=review_labels)
+    used = ["given"] if sample is not None else []
     if kind == "ipm-mosaic" and params.classifier == "auto":
         params = dataclasses.replace(params, classifier=IPM_CLASSIFIER)
     if kind == "ipm-mosaic" and sample is None:
         drives = layer_trajectories(session, slug)
-        if not drives:
+        if drives:
+            sample = GeoSample(road_lines=drives, line_width_m=TRAJECTORY_WIDTH_M,
+                               not_road_beyond_m=3 * TRAJECTORY_WIDTH_M, open_ends=True)
+            used = ["drive trajectory"]
+        elif team.sample.empty:
             raise RoadsInputError(
                 f"layer {slug!r} is an ipm-mosaic without a stored drive (made by `ugvmap "
                 "ingest raster`, or before drives were kept): give a training sample "
-                "(--train-lines / --train-box), or ingest the drive with `ugvmap ingest ipm`")
-        sample = GeoSample(road_lines=drives, line_width_m=TRAJECTORY_WIDTH_M,
-                           not_road_beyond_m=3 * TRAJECTORY_WIDTH_M, open_ends=True)
-        used = "drive trajectory"
+                "(--train-lines / --train-box, or the layer's labels), or ingest the drive "
+                "with `ugvmap ingest ipm`")
+    required = sample is not None
+    sample = merged(sample, team.sample)
+    used += [f"{what} labels" for what, part in (("layer", team.labels),
+                                                  ("review", team.review))
+             if part is not None and part.count]
     applied = effective_rules(session, network, rules)
     areas = source_areas(sources)
     lines: list[RoadLine] = []
@@ -253,17 +283,18 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
     labelled = False
     for area in areas:
         image = layer_mosaic([s.path for s in area], [s.name for s in area])
-        labels = (None if sample is None else
-                  _area_labels(image, sample, area, len(areas), params.classifier))
-        labelled = labelled or labels is not None
-        extraction = extract_roads(image, labels, params, progress=progress)
+        burnt = (None if sample is None else
+                 _area_labels(image, sample, area, len(areas), params.classifier, required))
+        labelled = labelled or burnt is not None
+        extraction = extract_roads(image, burnt, params, progress=progress)
         classifiers.append(extraction.classifier)
         lines += road_lines(extraction, applied, {"extracted_from": slug,
                                                   "classifier": extraction.classifier})
-    if sample is not None and not labelled:
+    if required and not labelled:
         raise RoadsInputError(NO_SAMPLE_ROAD)
     if not lines:
-        raise RoadsInputError(_no_road(slug, "/".join(dict.fromkeys(classifiers)), used))
+        raise RoadsInputError(_no_road(slug, "/".join(dict.fromkeys(classifiers)),
+                                       " + ".join(used) or "none"))
     summary = write_network(session, network, lines, replace=replace, node_crossings=False)
-    return LayerExtraction(slug, classifiers, summary, used, applied,
-                           [line.attributes for line in lines])
+    return LayerExtraction(slug, classifiers, summary, " + ".join(used) or "none", applied,
+                           [line.attributes for line in lines], team)

@@ -78,8 +78,13 @@ class ReviewLabels:
                                                (self.confirmed, "confirmed")) if n]
         source = (f"network{'s' if len(self.networks) > 1 else ''} {', '.join(self.networks)}"
                   if self.networks else "no network extracted from the layer")
-        return (f"{self.count} review labels from {source}"
+        return (f"{counted(self.count, 'review label')} from {source}"
                 + (f" ({', '.join(parts)})" if parts else ""))
+
+
+def counted(n: int, noun: str) -> str:
+    """``1 road line``, ``2 road lines``: a count in a report."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 def _geometry(geojson: str) -> BaseGeometry:

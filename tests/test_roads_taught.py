@@ -90,6 +90,12 @@ def test_ingest_roads_uses_the_layers_labels_and_its_review(client, tmp_path: Pa
     assert f"sample: 2 labels of layer {SLUG} (1 road line" in message
     assert "review" not in message
 
+    # Re-extracting the reviewed network in place rewrites its segments and their history,
+    # but not what the reviewers deleted: the next extraction still learns from it.
+    _extract("taught-a", "--replace")
+    again = _extract("taught-g")
+    assert "1 review label from networks taught-a, " in again and "(1 deleted)" in again
+
 
 def _image() -> Image:
     """A 100 x 100 px web-mercator image at 1 m/px near (0, 0), all valid."""

@@ -81,7 +81,13 @@ def _network_id(session: Session, network: str, replace: bool) -> int:
     if has_data and not replace:
         raise NetworkExistsError(f"network {network!r} already has segments; replace them "
                                  "with --replace (POST /jobs: \"replace\": true)")
-    for table in ("segment_edits", "road_segments", "road_nodes"):
+    # A reviewer's deletion of an extracted segment stays: it is what the next extraction of
+    # that layer learns "not road" from (ingest/roads/review.py), and re-extracting the
+    # network in place is exactly when it is needed.
+    session.execute(text(
+        "DELETE FROM segment_edits WHERE network_id = :id "
+        "AND NOT (action = 'delete' AND old->'attrs' ? 'extracted_from')"), {"id": network_id})
+    for table in ("road_segments", "road_nodes"):
         session.execute(text(f"DELETE FROM {table} WHERE network_id = :id"), {"id": network_id})
     return network_id
 

@@ -4,6 +4,8 @@ what is refused (with nothing written), and that they go with their layer."""
 from __future__ import annotations
 
 import json
+import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -14,6 +16,7 @@ from pyproj import Transformer
 from sqlalchemy import text
 
 from app.db.session import get_engine, session_scope
+from app.errors import InvalidValueError
 from app.labels import store
 from app.tiles.catalog import delete_layer
 from cli.main import main
@@ -175,6 +178,45 @@ def test_a_full_layer_takes_no_more(client, lonlat: Lonlat, editor: dict[str, st
     refused = client.post(url, json=two, headers=editor)
     assert refused.status_code == 422 and "limit of 3" in refused.json()["message"]
     assert len(stored()) == 2
+
+
+def test_two_editors_cannot_pass_the_layer_limit_together(lonlat: Lonlat,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """The second batch waits for the first to commit (the layer is locked while a batch is
+    counted), then counts it and is refused: never two batches each seeing room for itself."""
+    monkeypatch.setattr(store, "MAX_PER_LAYER", 3)
+    two = store.parse_labels(collection(*[line(lonlat, (10, 10 + i), (190, 10 + i))
+                                          for i in range(2)]))
+    pid: list[int] = []
+    started = threading.Event()
+    outcome: list[BaseException | None] = []
+
+    def second() -> None:
+        try:
+            with session_scope() as session:
+                pid.append(session.execute(text("SELECT pg_backend_pid()")).scalar_one())
+                started.set()
+                store.add_labels(session, SLUG, two, "second")
+            outcome.append(None)
+        except BaseException as exc:  # handed to the test's thread
+            outcome.append(exc)
+            started.set()
+
+    worker = threading.Thread(target=second)
+    with session_scope() as session:
+        store.add_labels(session, SLUG, two, "first")
+        worker.start()
+        assert started.wait(30) and pid
+        deadline = time.monotonic() + 30
+        with get_engine().connect() as conn:  # until the second batch waits for the lock
+            while conn.execute(text("SELECT wait_event_type FROM pg_stat_activity "
+                                    "WHERE pid = :pid"), {"pid": pid[0]}).scalar() != "Lock":
+                assert time.monotonic() < deadline, "the second batch never waited"
+                conn.rollback()
+    worker.join(60)
+    assert len(outcome) == 1 and isinstance(outcome[0], InvalidValueError)
+    assert "limit of 3" in outcome[0].message
+    assert [r[2] for r in stored()] == ["first", "first"]
 
 
 def test_unknown_layer_and_bad_requests(client, lonlat: Lonlat, editor: dict[str, str]) -> None:

@@ -4,8 +4,8 @@ Composition only; each stage lives in its own module. Images finer than the work
 resolution are first averaged down to it: a road is metres wide, so 0.5-1 m pixels keep every
 centerline within the survey's accuracy while a 0.16 m mosaic would cost 40 times the work.
 
-Classifiers: ``model`` (the shipped road network, zero-shot, on its own 1 m grid),
-``adapted`` (the same, adapted to the job's labels: :mod:`ingest.roads.model.adapt`),
+Classifiers: ``model`` (the shipped road network, zero-shot, on its own grid),
+``adapted`` (the same, corrected by the job's labels: :mod:`ingest.roads.model.adapt`),
 ``learned`` (per-job trees on hand-made features) and ``spectral`` (the survey's colour line).
 The model paths keep the road probability, which the topology clean-up uses to decide which
 gaps in the skeleton are real roads the threshold broke.
@@ -18,7 +18,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from skimage.filters import apply_hysteresis_threshold
 
 from app.road_tuning import DEFAULT_TUNING, Classifier, RoadTuning
 from ingest.roads import RoadsInputError
@@ -28,6 +27,7 @@ from ingest.roads.finegrid import applies, refine_on_source
 from ingest.roads.georef import Frame, Image, crs_member, resize, to_working_grid
 from ingest.roads.graph import GraphParams, RoadGraph, build_graph, feature_collection
 from ingest.roads.houses import HouseRule, remove_houses
+from ingest.roads.model.adapt import DEFAULT_ADAPT, AdaptParams
 from ingest.roads.ridge import RoadField, soft_mask
 from ingest.roads.skeleton import prune_spurs, thin
 from ingest.roads.topology import TopologyParams, clean_topology
@@ -48,10 +48,10 @@ class ExtractParams:
     k: float = DEFAULT_TUNING.k
     """Spectral: keep pixels within k x the mean training distance to the colour line."""
     threshold: float = 0.5
-    """Learned/adapted: road probability above which a pixel is road (the zero-shot model uses
-    its own, chosen on its hold-out scenes)..."""
+    """Learned: road probability above which a pixel is road (the zero-shot model uses its
+    own, chosen on its hold-out scenes; the adapted one its sample's)..."""
     seed_threshold: float = 0.85
-    """...when connected to a pixel at least this probable (hysteresis; learned/adapted)."""
+    """...when connected to a pixel at least this probable (hysteresis; learned)."""
     work_resolution_m: float | None = DEFAULT_TUNING.work_resolution or None
     """Average finer images down to this grid; None keeps the source grid."""
     open_m: float = 1.0
@@ -79,6 +79,8 @@ class ExtractParams:
     """ONNX road model; None = ``UGVMAP_ROAD_MODEL`` or the shipped ``models/roads-v2``."""
     tta: int = 1
     """Road model: average it over this many rotations/mirrors of the image (1, 2, 4, 8)."""
+    adapt: AdaptParams = DEFAULT_ADAPT
+    """How the road model learns from a sample (:mod:`ingest.roads.model.adapt`)."""
 
 
 def tuned_params(tuning: RoadTuning) -> ExtractParams:
@@ -113,18 +115,19 @@ class Extraction:
 
 
 def choose_classifier(requested: Classifier, labels: np.ndarray | None) -> str:
-    """Resolve ``auto``: the road model, adapted when the user gave road labels."""
+    """Resolve ``auto``: the road model, adapted when the user labelled anything (a reviewer's
+    deletions alone are "not road" labels, and worth learning from)."""
     if requested != "auto":
         return requested
-    return "adapted" if labels is not None and (labels == ROAD).any() else "model"
+    return "adapted" if labels is not None and labels.any() else "model"
 
 
-def _on_grid(labels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+def _on_grid(labels: np.ndarray, shape: tuple[int, int], need_road: bool = True) -> np.ndarray:
     """Source-grid labels on the working grid (nearest: a label is a class, not a value)."""
     if labels.shape == shape:
         return labels
     labels = resize(labels, shape, cv2.INTER_NEAREST)
-    if not (labels == ROAD).any():
+    if need_road and not (labels == ROAD).any():
         raise RoadsInputError("the road sample is too small for the working grid: draw a "
                               "bigger --train-box (learned/spectral: or pass a finer "
                               "--work-resolution; the road model's grid is fixed)")
@@ -152,10 +155,9 @@ def model_mask(image: Image, labels: np.ndarray | None, adapt: bool, params: Ext
         if labels is None:
             raise RoadsInputError("--classifier adapted needs a training sample (--train-box, "
                                   "--train-mask or --train-lines)")
-        prob, _ = adapted_probability(model, rgb, _on_grid(labels, rgb.shape[:2]),
-                                      frame.resolution_m, progress=progress)
-        low = params.threshold
-        binary = apply_hysteresis_threshold(prob, low, max(params.seed_threshold, low))
+        prob, _, low = adapted_probability(model, rgb, _on_grid(labels, rgb.shape[:2], False),
+                                           params.adapt, progress=progress)
+        binary = prob >= low
     else:
         # Zero-shot: one cut, the model's own (hold-out F1) threshold. A second, absolute seed
         # level (0.85) held in the scenes the model knows and removed everything where it is

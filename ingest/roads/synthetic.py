@@ -43,6 +43,12 @@ class Scene:
     hairs: list[Polyline] = field(default_factory=list)
     noise: float = 6.0
     seed: int = 0
+    road_rgb: tuple[int, int, int] = ROAD_RGB
+    ground_rgb: tuple[int, int, int] = GRASS_RGB
+    decoys: list[Polyline] = field(default_factory=list)
+    """Road-like strips that are not roads (canals, field edges), drawn road-width in
+    ``decoy_rgb``: what a map team teaches the model to leave out."""
+    decoy_rgb: tuple[int, int, int] = ROAD_RGB
 
 
 def render(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -53,7 +59,7 @@ def render(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     texture: np.ndarray = cv2.GaussianBlur(noise, (0, 0), 3)
     texture /= texture.std() + 1e-6
     img = np.empty((rows, cols, 3), np.float32)
-    img[:] = GRASS_RGB
+    img[:] = scene.ground_rgb
     img += texture[..., None] * np.array([8, 14, 6], np.float32)
     road = np.zeros((rows, cols), np.uint8)
     for line in scene.roads:
@@ -65,9 +71,13 @@ def render(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
         cv2.rectangle(roofs, (x0, y0), (x1, y1), 1, cv2.FILLED)
     for line in scene.hairs:
         cv2.polylines(roofs, [np.asarray(line, np.int32)], False, 1, 1)
-    grey = (road | roofs).astype(bool)
-    wear = 1.0 + 0.12 * np.clip(texture[grey], -2.5, 2.5)
-    img[grey] = np.outer(wear, ROAD_RGB)
+    decoys = np.zeros_like(road)
+    for line in scene.decoys:
+        cv2.polylines(decoys, [np.asarray(line, np.int32)], False, 1, scene.road_width_px)
+    for mask, rgb in ((decoys.astype(bool) & ~road.astype(bool), scene.decoy_rgb),
+                      ((road | roofs).astype(bool), scene.road_rgb)):
+        wear = 1.0 + 0.12 * np.clip(texture[mask], -2.5, 2.5)
+        img[mask] = np.outer(wear, rgb)
     img += rng.normal(0, scene.noise, img.shape).astype(np.float32)
     return np.clip(img, 0, 255).astype(np.uint8), road.astype(bool)
 

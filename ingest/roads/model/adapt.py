@@ -1,66 +1,258 @@
-"""Per-job adaptation of the road model to a user's own labels, without torch.
+"""Adapting the road model to a map team's labels in seconds, without torch at run time.
 
 The shipped network already separates roads from most clutter; what a new survey changes is
-the look of its roads (dirt tracks, a sensor's colours, parking aisles that the job does or
-does not want). Fine-tuning the network would need torch at run time, so instead a small
-gradient-boosted classifier is trained on the labelled pixels with the network's own view of
-them (its road probability as a logit and its 16 decoder features) next to the hand-made
-multi-scale features of :mod:`ingest.roads.classify`. Where the network is right the trees
-learn to follow its logit; where the job's labels disagree, they learn the exception.
+which look-alikes count (parking aisles, field tracks, canals) and how its roads look. So the
+network stays frozen and a small *correction* is learnt on top of it: the adapted road logit
+is the network's own logit plus a function of the network's 16 decoder features, its logit
+blurred at two scales (is there road around here) and the pixel's colour, regularised towards
+zero. With few labels the correction stays near zero and the result is the zero-shot one;
+with many it learns where the team disagrees with the network. That is why a sample can no
+longer make things worse than zero-shot, which the earlier per-job trees (learnt from scratch
+on the labelled pixels) did.
 
-A sample with road labels only (a ``--train-box`` around a road) gets pseudo not-road labels
-where the network is confidently not road *and* the colour is unlike the sampled road (the
-survey's spectral line, :func:`ingest.roads.classify.spectral_classify`): on imagery the
-network does not know, its "not road" covers the very roads the user pointed at, and those
-must not be taught as negatives.
+Labels a person gives are not a random sample of the image: a reviewer deletes the network's
+false roads (all of them confidently "road" to the network) and draws the ones it missed (all
+confidently "not road"). Learnt from those alone, a correction inverts the network. Pixels the
+network is sure about, away from every label, are therefore added as weak *anchors* of its own
+opinion, so the correction must keep what nobody contradicted.
+
+The correction is learnt on half of the image's blocks and judged on the other half (labels
+and anchors alike, by F1 weighed as they are): that chooses the threshold of the adapted
+probability, so it follows the sample rather than the network's training scenes, and where the
+judged half is no better than the network on its own (contradictory labels, too few to learn
+from) the network's own result stands. A sample may fail to help; it cannot make things worse
+on its own evidence.
 """
 
 from __future__ import annotations
 
-import numpy as np
+from dataclasses import dataclass
 
-from ingest.roads.classify import (
-    NOT_ROAD,
-    ROAD,
-    UNLABELLED,
-    road_probability,
-    spectral_classify,
-    train_pixel_classifier,
-)
+import cv2
+import numpy as np
+from scipy.optimize import minimize
+
+from ingest.roads.classify import NOT_ROAD, ROAD
 from ingest.roads.model.runtime import RoadModel, predict
 
-PSEUDO_NOT_ROAD_BELOW = 0.05
-"""Network probability under which an unlabelled pixel may serve as a not-road example."""
+
+@dataclass(frozen=True)
+class AdaptParams:
+    """The knobs of the correction (chosen on ``bench/roads_adapt.py``; see docs/roads.md)."""
+
+    context_px: tuple[float, ...] = (2.0, 6.0)
+    """Gaussian scales (model-grid pixels) at which the network's logit is also given."""
+    smooth_px: float = 3.0
+    """Gaussian scale (model-grid pixels) every feature is blurred by before the correction."""
+    hidden: int = 0
+    """0: a linear correction; > 0: a one-hidden-layer (tanh) correction of that width."""
+    l2: float = 1.0
+    """Weight decay of the correction, against a sample's total weight of 1000."""
+    pixels: int = 30_000
+    """Labelled pixels the correction learns from (a uniform draw keeps the sample's mix)."""
+    anchors: int = 20_000
+    """Unlabelled pixels where the network is sure, as weak examples of its own opinion..."""
+    anchor_weight: float = 0.1
+    """...each weighing this much of a labelled pixel."""
+    sure: float = 0.05
+    """The network is sure where its probability is below this or above 1 - this."""
+    block_px: int = 64
+    """Side of the blocks the sample is split by to choose the threshold."""
 
 
-def model_features(prob: np.ndarray, features: np.ndarray) -> np.ndarray:
-    """(rows, cols, 1 + C): the probability as a clipped logit, then the decoder features."""
+DEFAULT_ADAPT = AdaptParams()
+
+
+def _blur(a: np.ndarray, sigma: float) -> np.ndarray:
+    return cv2.GaussianBlur(a, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+
+
+def logit_of(prob: np.ndarray) -> np.ndarray:
+    """The network's probability as a clipped logit (float32)."""
     p = np.clip(prob, 1e-4, 1 - 1e-4)
-    logit = np.log(p / (1 - p)).astype(np.float32)
-    return np.concatenate([logit[..., None], features], axis=-1)
+    return np.log(p / (1 - p)).astype(np.float32)
 
 
-def with_pseudo_labels(labels: np.ndarray, prob: np.ndarray, rgb: np.ndarray) -> np.ndarray:
-    """``labels`` plus not-road where unlabelled, the network is sure and the colour is not
-    the sampled road's, if the sample has no not-road of its own."""
-    if (labels == NOT_ROAD).any():
-        return labels
-    out = labels.copy()
-    road_coloured = spectral_classify(rgb, labels)
-    out[(labels == UNLABELLED) & (prob < PSEUDO_NOT_ROAD_BELOW) & ~road_coloured] = NOT_ROAD
+def correction_features(logit: np.ndarray, features: np.ndarray, rgb: np.ndarray,
+                        context_px: tuple[float, ...], smooth_px: float) -> np.ndarray:
+    """(rows, cols, C) what the correction sees: decoder features, blurred logits and colour,
+    each with its linear dependence on the logit taken out.
+
+    The network's logit is a linear function of its decoder features, so a linear correction
+    of them could simply scale the logit down or invert it, and labels chosen by the network's
+    mistakes (deleted false roads, all "sure", drawn missed ones, all "unsure") teach exactly
+    that: the result had hollow roads and drew their edges. Without the logit's direction the
+    correction can only add what the network did not already say. Every feature is also
+    blurred (``smooth_px``), so the correction is smooth across a road: it raises or lowers a
+    whole road, never its middle against its edges (which thinning then splits in two)."""
+    parts = [features, *(_blur(logit, s)[..., None] for s in context_px), rgb]
+    x = np.concatenate(parts, axis=-1).astype(np.float32, copy=False)
+    for i in range(x.shape[-1]):
+        x[..., i] = _blur(x[..., i], smooth_px)
+    flat_x, flat_logit = x.reshape(-1, x.shape[-1]), logit.ravel()
+    some = np.random.default_rng(0).choice(len(flat_logit), min(len(flat_logit), 200_000),
+                                           replace=False)
+    centred = flat_logit[some] - flat_logit[some].mean()
+    slope = (centred @ (flat_x[some] - flat_x[some].mean(axis=0))) / max(
+        float(centred @ centred), 1e-12)
+    flat_x -= flat_logit[:, None] * slope.astype(np.float32)
+    return x
+
+
+@dataclass(frozen=True)
+class Correction:
+    """A learnt correction of the network's logit: standardisation and weights."""
+
+    mean: np.ndarray
+    scale: np.ndarray
+    weights: tuple[np.ndarray, ...]
+    """(w, b) for a linear correction, (W1, b1, w2, b2) for a hidden layer."""
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """The correction (added to the logit) for rows of features ``x``."""
+        xs = (x - self.mean) / self.scale
+        if len(self.weights) == 2:
+            w, b = self.weights
+            return xs @ w + b
+        w1, b1, w2, b2 = self.weights
+        return np.tanh(xs @ w1 + b1) @ w2 + b2
+
+
+def _unpack(theta: np.ndarray, shapes: list[tuple[int, ...]]) -> list[np.ndarray]:
+    out, i = [], 0
+    for shape in shapes:
+        n = int(np.prod(shape)) if shape else 1
+        out.append(theta[i:i + n].reshape(shape))
+        i += n
     return out
 
 
+def fit_correction(x: np.ndarray, offset: np.ndarray, y: np.ndarray, weight: np.ndarray,
+                   params: AdaptParams, seed: int = 0) -> Correction:
+    """Weighted logistic regression of ``y`` on ``offset`` + correction(``x``), by L-BFGS,
+    the correction's weights decayed towards 0 (so no evidence means no change)."""
+    mean = x.mean(axis=0)
+    scale = x.std(axis=0) + 1e-6
+    xs = (x - mean) / scale
+    c, h = x.shape[1], params.hidden
+    shapes: list[tuple[int, ...]] = [(c, h), (h,), (h,), ()] if h else [(c,), ()]
+    rng = np.random.default_rng(seed)
+    theta0 = np.concatenate([rng.normal(0, 0.1, c * h), np.zeros(2 * h + 1)]) if h else \
+        np.zeros(c + 1)
+    l2 = params.l2
+
+    def loss(theta: np.ndarray) -> tuple[float, np.ndarray]:
+        parts = _unpack(theta, shapes)
+        if h:
+            w1, b1, w2, b2 = parts
+            hid = np.tanh(xs @ w1 + b1)
+            z = offset + hid @ w2 + b2
+        else:
+            w, b = parts
+            z = offset + xs @ w + b
+        p = 1 / (1 + np.exp(-z))
+        g = weight * (p - y)
+        value = float(np.sum(weight * (np.logaddexp(0, z) - y * z)))
+        if h:
+            gh = np.outer(g, w2) * (1 - hid ** 2)
+            grads = [xs.T @ gh + 2 * l2 * w1, gh.sum(0), hid.T @ g + 2 * l2 * w2,
+                     np.array(g.sum())]
+            value += l2 * float(np.sum(w1 ** 2) + np.sum(w2 ** 2))
+        else:
+            grads = [xs.T @ g + 2 * l2 * w, np.array(g.sum())]
+            value += l2 * float(np.sum(w ** 2))
+        return value, np.concatenate([np.ravel(a) for a in grads])
+
+    result = minimize(loss, theta0, jac=True, method="L-BFGS-B", options={"maxiter": 200})
+    weights = tuple(_unpack(result.x, shapes))
+    return Correction(mean.astype(np.float32), scale.astype(np.float32),
+                      tuple(a.astype(np.float32) for a in weights))
+
+
+def training_pixels(labels: np.ndarray, prob: np.ndarray, params: AdaptParams,
+                    within: np.ndarray | None = None, seed: int = 0
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(flat pixel indices, targets 0/1, weights): labelled pixels and anchors (unlabelled
+    pixels where the network is sure, its opinion as the target), each drawn uniformly and
+    weighed by how many pixels it stands for, an anchor ``anchor_weight`` of a labelled
+    pixel; only pixels ``within`` (flat) if given; the weights sum to 1000.
+
+    Weighed by the pixels they stand for, the labels count for what they cover of the image:
+    a fully labelled quadrant outweighs the network's opinion elsewhere, while thirty deleted
+    false roads (a thin band each, all where the network said "road") cannot turn every road
+    it is sure of into background."""
+    rng = np.random.default_rng(seed)
+    flat = labels.ravel()
+    inside = np.ones(flat.shape, bool) if within is None else within
+    labelled = np.flatnonzero(inside & ((flat == ROAD) | (flat == NOT_ROAD)))
+    picked = rng.choice(labelled, min(len(labelled), params.pixels), replace=False)
+    p = prob.ravel()
+    sure = np.flatnonzero(inside & (flat == 0) & ((p < params.sure) | (p > 1 - params.sure)))
+    anchors = rng.choice(sure, min(len(sure), params.anchors), replace=False)
+    index = np.concatenate([picked, anchors])
+    target = np.concatenate([(flat[picked] == ROAD), p[anchors] > 0.5]).astype(np.float64)
+    weight = np.concatenate([
+        np.full(len(picked), len(labelled) / max(len(picked), 1)),
+        np.full(len(anchors), params.anchor_weight * len(sure) / max(len(anchors), 1))])
+    return index, target, weight * (1000.0 / max(weight.sum(), 1e-12))
+
+
+CUTS = np.linspace(0.1, 0.9, 17)
+"""The thresholds a sample may choose between."""
+
+
+def weighted_f1(prob: np.ndarray, road: np.ndarray, weight: np.ndarray, cut: float) -> float:
+    """F1 of ``prob >= cut`` against ``road``, each pixel counting ``weight``."""
+    said = prob >= cut
+    tp = weight[road & said].sum()
+    return float(2 * tp / max(2 * tp + weight[~road & said].sum() + weight[road & ~said].sum(),
+                              1e-12))
+
+
+def best_threshold(prob: np.ndarray, road: np.ndarray, weight: np.ndarray, default: float
+                   ) -> tuple[float, float]:
+    """(the cut from 0.1 to 0.9 with the best weighted F1, that F1); ``default`` and its F1
+    when only one class is there to judge by."""
+    if road.all() or not road.any():
+        return default, weighted_f1(prob, road, weight, default)
+    scores = [weighted_f1(prob, road, weight, c) for c in CUTS]
+    best = int(np.argmax(scores))
+    return float(CUTS[best]), scores[best]
+
+
 def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
-                        resolution_m: float, progress: bool = False
-                        ) -> tuple[np.ndarray, np.ndarray]:
-    """(adapted road probability, the network's own probability) on the model grid."""
+                        params: AdaptParams = DEFAULT_ADAPT, progress: bool = False
+                        ) -> tuple[np.ndarray, np.ndarray, float]:
+    """(adapted road probability, the network's own probability, the adapted threshold) on
+    the model grid, from ``labels`` (255 road / 128 not road / 0) on the same grid.
+
+    The correction is first learnt on half of the image's blocks and judged on the other
+    half, labels and anchors alike: that chooses the threshold, and where the held-out half
+    is no better than the network on its own (contradictory labels, or too few to learn
+    from), the network's own probability and threshold are returned unchanged.
+    """
     prob, feats = predict(model, rgb, features=True, progress=progress)
     assert feats is not None  # asked for
-    extra = model_features(prob, feats)
+    logit = logit_of(prob)
+    x = correction_features(logit, feats, rgb, params.context_px, params.smooth_px)
     del feats
-    labels = with_pseudo_labels(labels, prob, rgb)
-    if not ((labels == ROAD).any() and (labels == NOT_ROAD).any()):
-        return prob, prob
-    trees = train_pixel_classifier(rgb, labels, resolution_m, extra=extra)
-    return road_probability(rgb, trees, resolution_m, progress=progress, extra=extra), prob
+    rows, cols, c = x.shape
+    flat_x, flat_logit = x.reshape(-1, c), logit.ravel()
+    r, cc = np.indices((rows, cols))
+    odd = ((r // params.block_px + cc // params.block_px) % 2).astype(bool).ravel()
+    learn = training_pixels(labels, prob, params, within=~odd, seed=1)
+    held, target, weight = training_pixels(labels, prob, params, within=odd, seed=2)
+    trial = fit_correction(flat_x[learn[0]], flat_logit[learn[0]], learn[1], learn[2], params)
+    z = flat_logit[held] + trial(flat_x[held])
+    road = target > 0.5
+    threshold, adapted_f1 = best_threshold(1 / (1 + np.exp(-z)), road, weight, model.threshold)
+    if adapted_f1 <= weighted_f1(prob.ravel()[held], road, weight, model.threshold):
+        return prob, prob, model.threshold
+    index, target, weight = training_pixels(labels, prob, params)
+    correction = fit_correction(flat_x[index], flat_logit[index], target, weight, params)
+    adapted = np.empty(rows * cols, np.float32)
+    step = 1 << 20  # a million pixels at a time bounds the temporary arrays
+    for i in range(0, rows * cols, step):
+        z = flat_logit[i:i + step] + correction(flat_x[i:i + step])
+        adapted[i:i + step] = 1 / (1 + np.exp(-z))
+    return adapted.reshape(rows, cols), prob, threshold

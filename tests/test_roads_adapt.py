@@ -28,7 +28,8 @@ from ingest.roads.skeleton import thin
 from ingest.roads.synthetic import Scene, render
 
 SIZE = 320
-ROADS: list[Sequence[tuple[int, int]]] = [[(40, 0), (40, SIZE - 1)], [(0, 200), (SIZE - 1, 200)], [(260, 0), (240, SIZE - 1)]]
+ROADS: list[Sequence[tuple[int, int]]] = [
+    [(40, 0), (40, SIZE - 1)], [(0, 200), (SIZE - 1, 200)], [(260, 0), (240, SIZE - 1)]]
 CANAL: Sequence[tuple[int, int]] = [(140, 0), (160, SIZE - 1)]
 
 

@@ -16,6 +16,7 @@ placeholders.
 from __future__ import annotations
 
 import importlib.util
+import itertools
 import re
 import shlex
 from collections.abc import Iterator
@@ -270,6 +271,38 @@ def test_readme_starts_with_the_two_commands() -> None:
     first_block = code_blocks((REPO / "README.md").read_text())[0]
     assert [ln.split()[:2] for ln in first_block.splitlines()] == [["make", "demo"],
                                                                   ["make", "test"]]
+
+
+def walkthrough_problems(text: str) -> list[str]:
+    """What in a page's shell blocks would make its walk-through differ from its excerpts or
+    leave files in the checkout: a written path (``--out``, ``mkdir``) relative to the
+    checkout, or a ``curl`` whose excerpt shows the status line and headers without ``-i`` /
+    ``-I`` asking for them."""
+    problems = []
+    for block in code_blocks(text):
+        lines = list(block_lines(block))
+        for n, line in enumerate(lines):
+            words = shell_words(strip_prefixes(line))
+            written = [w for i, w in enumerate(words) if i and words[i - 1] == "--out"]
+            if words[:1] == ["mkdir"]:
+                written += [w for w in words[1:] if not w.startswith("-")]
+            problems += [f"{line!r} writes {w} inside the checkout" for w in written
+                         if not w.startswith(("/", "$", "~", "FILE"))]
+            shown = list(itertools.takewhile(lambda later: later.startswith("#"),
+                                             lines[n + 1:]))
+            if words[:1] == ["curl"] and any("HTTP/1." in later for later in shown) \
+                    and not any(re.fullmatch(r"-[a-zA-Z]*[iI][a-zA-Z]*", w) for w in words):
+                problems.append(f"{line!r} shows headers its curl does not ask for (-i)")
+    return problems
+
+
+def test_readme_walkthrough_keeps_the_checkout_clean_and_shows_what_it_asks_for() -> None:
+    """Run after `make demo` in a fresh clone, the README's commands printed its excerpts and
+    left `git status` clean; this keeps the two properties a page edit can break."""
+    assert walkthrough_problems((REPO / "README.md").read_text()) == []
+    bad = ("```sh\nmkdir -p maps/vegas\nugvmap export package --out mission.zip\n"
+           "curl -X PATCH http://x/items/1\n#   HTTP/1.1 200 OK  ETag: \"2\"\n```\n")
+    assert len(walkthrough_problems(bad)) == 3
 
 
 @pytest.mark.parametrize("line", [

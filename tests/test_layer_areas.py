@@ -86,6 +86,10 @@ def test_a_source_far_from_the_layer_is_refused_unless_added(database_url: str,
     after = _layer(slug)
     assert after["version"] == 4 and after["sources"] == 2 and after["south"] > 48
     assert "far.tif" not in run_cli("layers", "show", slug).output
+    again = run_cli("ingest", "raster", str(home), "--layer", slug, "--replace")
+    assert again.exit_code == 0, again.output
+    assert again.output.strip().endswith(
+        f"layer {slug} at version 5: 2 sources (1 added, 1 replaced)")
 
 
 def test_a_new_layer_is_the_place_of_its_first_file(database_url: str,

@@ -107,17 +107,19 @@ class IngestReport:
 
     def summary(self) -> str:
         """The line that closes an ingest: the new version and, for a layer that had sources
-        before, how many it has now; and how many separate areas, where more than one."""
+        before, how many it has now (added, replaced); and how many separate areas, where
+        more than one."""
         line = f"layer {self.layer} at version {self.version}"
         shape = self.shape
         if shape is None:
             return line
         added = len(self.sources)
-        if shape.sources > added:
+        if shape.sources > added or self.replaced:
             line += (f": {shape.sources} sources ({added} added"
                      + (f", {self.replaced} replaced)" if self.replaced else ")"))
         if shape.areas > 1:
-            line += f"{',' if shape.sources > added else ''} in {shape.areas} separate areas"
+            line += f"{',' if shape.sources > added or self.replaced else ''} in {shape.areas} " \
+                "separate areas"
         return line
 
 

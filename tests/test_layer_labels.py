@@ -219,6 +219,21 @@ def test_two_editors_cannot_pass_the_layer_limit_together(lonlat: Lonlat,
     assert [r[2] for r in stored()] == ["first", "first"]
 
 
+def test_the_api_document_describes_the_label_urls(client) -> None:
+    paths = client.get("/openapi.json").json()["paths"]
+    labels, one = paths["/layers/{slug}/labels"], paths["/layers/{slug}/labels/{label_id}"]
+    assert "security" not in labels["get"]  # public, as the layer
+    assert "application/geo+json" in labels["get"]["responses"]["200"]["content"]
+    post = labels["post"]
+    assert post["security"] == [{"bearer": []}]
+    assert set(post["responses"]) >= {"201", "400", "401", "403", "404", "413", "415", "422"}
+    body = post["requestBody"]["content"]["application/geo+json"]["schema"]["oneOf"]
+    assert body[0]["properties"]["properties"]["properties"]["label"]["enum"] == [
+        "road", "not_road"]
+    assert set(one["delete"]["responses"]) >= {"204", "401", "403", "404"}
+    assert set(labels["delete"]["responses"]) >= {"200", "401", "403", "404"}
+
+
 def test_unknown_layer_and_bad_requests(client, lonlat: Lonlat, editor: dict[str, str]) -> None:
     body = line(lonlat, (10, 100), (190, 100))
     for response in (client.get("/layers/no-such/labels"),

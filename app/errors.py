@@ -65,6 +65,15 @@ class PreconditionFailedError(UgvmapError):
         self.current = current
 
 
+class ServiceBusyError(UgvmapError):
+    """Too many requests of one heavy kind (exports, matches, tables...) at once: refused
+    before any work, to be sent again after ``retry_after_s`` (:mod:`app.lanes`)."""
+
+    def __init__(self, message: str, *, retry_after_s: int) -> None:
+        super().__init__(message)
+        self.retry_after_s = retry_after_s
+
+
 class InvalidValueError(UgvmapError):
     """Well-formed input whose values break a rule; ``errors`` says which field and why."""
 

@@ -101,17 +101,34 @@ def client(app) -> Iterator:
         yield c
 
 
+@contextmanager
+def settings_from_env(monkeypatch: pytest.MonkeyPatch, prefix: str, cached) -> Iterator:
+    """A setter of ``prefix``-ed variables for one test (``set(max_points=3)``), clearing the
+    ``cached`` settings reader after each change and at the end."""
+    def set_values(**values: object) -> None:
+        for key, value in values.items():
+            monkeypatch.setenv(f"{prefix}{key.upper()}", str(value))
+        cached.cache_clear()
+
+    yield set_values
+    monkeypatch.undo()
+    cached.cache_clear()
+
+
 @pytest.fixture()
 def limits(monkeypatch: pytest.MonkeyPatch) -> Iterator:
     """Set routing limits through the environment for one test: ``limits(max_points=3)``."""
-    def set_limits(**values: object) -> None:
-        for key, value in values.items():
-            monkeypatch.setenv(f"UGVMAP_ROUTING_{key.upper()}", str(value))
-        routing_settings.cache_clear()
+    with settings_from_env(monkeypatch, "UGVMAP_ROUTING_", routing_settings) as set_limits:
+        yield set_limits
 
-    yield set_limits
-    monkeypatch.undo()
-    routing_settings.cache_clear()
+
+@pytest.fixture()
+def heavy(monkeypatch: pytest.MonkeyPatch) -> Iterator:
+    """Set the heavy-request lanes' limits for one test: ``heavy(running=1, waiting=0)``."""
+    from app.lanes import lane_settings
+
+    with settings_from_env(monkeypatch, "UGVMAP_HEAVY_", lane_settings) as set_limits:
+        yield set_limits
 
 
 @pytest.fixture(scope="session")

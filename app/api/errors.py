@@ -81,6 +81,7 @@ STATUS_CODES: Table = {
     e.InvalidValueError: Answer(422, "InvalidValue"),
     e.PreconditionRequiredError: Answer(428, "PreconditionRequired"),
     e.DatabaseUnavailableError: Answer(503, "DatabaseUnavailable", {"Retry-After": "5"}),
+    e.ServiceBusyError: Answer(503, "ServiceBusy"),  # Retry-After: the lane's (fault_response)
     e.RasterSourceMissingError: Answer(500, "RasterSourceMissing"),
     e.StoreMismatchError: Answer(503, "StoreMismatch"),
     e.SchemaOutOfDateError: Answer(503, "SchemaOutOfDate"),
@@ -144,6 +145,8 @@ def fault_response(exc: e.UgvmapError, table: Table = STATUS_CODES) -> JSONRespo
     headers = dict(row.headers)
     if isinstance(exc, e.PreconditionFailedError) and exc.current is not None:  # to reload
         headers["ETag"] = f'"{exc.current}"'
+    if isinstance(exc, e.ServiceBusyError):
+        headers["Retry-After"] = str(exc.retry_after_s)
     return JSONResponse(_body(row.code, exc.message, exc.errors), status_code=row.status,
                         headers=headers or None)
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from app.errors import ResponseTooLargeError
 from app.routing import engine
+from app.routing.budget import Budget
 from app.routing.geometry import cut
 from app.routing.graph import CostGraph, RoadGraph
 from app.routing.settings import routing_settings
@@ -63,7 +64,9 @@ def reachable(graph: RoadGraph, cg: CostGraph, snap: Snap, avoid: frozenset[str]
 def isochrone_geojson(graph: RoadGraph, cg: CostGraph, snap: Snap, avoid: frozenset[str],
                       budget: float, unit: str) -> dict[str, Any]:
     """The reachable segments and segment parts as a GeoJSON FeatureCollection: each names its
-    segment and the fraction range reached, so a client can tell whole segments from parts."""
+    segment and the fraction range reached, so a client can tell whole segments from parts.
+    ``TooBig`` once the request's time budget is spent."""
+    time_left = Budget("the isochrone", "ask for a smaller budget or another point")
     reached = reachable(graph, cg, snap, avoid, budget)
     offsets = graph.segs.offsets
     count = sum((int(offsets[r + 1] - offsets[r]) + 2) * len(iv) for r, iv in reached.items())
@@ -74,6 +77,7 @@ def isochrone_geojson(graph: RoadGraph, cg: CostGraph, snap: Snap, avoid: frozen
             "(UGVMAP_ROUTING_MAX_RESPONSE_COORDINATES): ask for a smaller budget")
     features = []
     for row, intervals in sorted(reached.items()):
+        time_left.check()
         coords, fracs = graph.line(row)
         for lo, hi in intervals:
             features.append({

@@ -26,7 +26,6 @@ for all candidates at once; Viterbi is a numpy max over each step's small matrix
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -34,13 +33,12 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from app.errors import TooBigError
+from app.routing.budget import Budget
 from app.routing.engine import Piece, Place, arrivals, departures, direct, place
 from app.routing.geometry import haversine_m
 from app.routing.graph import CostGraph, RoadGraph
 from app.routing.nearby import within
 from app.routing.options import PointOptions
-from app.routing.settings import routing_settings
 from app.routing.snap import Snap, fitting
 
 SEARCH_SIGMAS = 3.0  # candidates within this many standard deviations (OSRM's 3)
@@ -194,11 +192,10 @@ def _network_distances(graph: RoadGraph, cg: CostGraph, corridor: _Corridor, p: 
     return out
 
 
-def match(graph: RoadGraph, cg: CostGraph, trace: Track, avoid: frozenset[str]
-          ) -> list[Matching]:
+def match(graph: RoadGraph, cg: CostGraph, trace: Track, avoid: frozenset[str],
+          budget: Budget) -> list[Matching]:
     """The trace's matchings (each at least two points), in trace order; ``cg`` prices by
-    distance. Raises ``TooBig`` past the routing time budget."""
-    deadline = time.monotonic() + routing_settings().time_budget_s
+    distance. Raises ``TooBig`` once ``budget`` is spent."""
     kept = tidied(trace)
     pts = np.array([trace.points[i] for i in kept], np.float64).reshape(-1, 2)
     sigma = np.array([trace.snap[i].radius_m for i in kept])
@@ -206,6 +203,7 @@ def match(graph: RoadGraph, cg: CostGraph, trace: Track, avoid: frozenset[str]
     candidates: list[_Point] = []
     corridor = _Corridor(graph, cg, pts, float(sigma.max()))
     for k, i in enumerate(kept):
+        budget.check()
         opts = trace.snap[i]
         search = PointOptions(SEARCH_SIGMAS * opts.radius_m, opts.bearing, opts.approach)
         snaps = []
@@ -221,7 +219,7 @@ def match(graph: RoadGraph, cg: CostGraph, trace: Track, avoid: frozenset[str]
             i, snaps, places, -0.5 * (d / max(opts.radius_m, 0.1)) ** 2,
             _ends(corridor, [departures(graph, cg, pl) for pl in places]),
             _ends(corridor, [arrivals(graph, cg, pl) for pl in places])))
-    return _viterbi(graph, cg, corridor, trace, candidates, deadline)
+    return _viterbi(graph, cg, corridor, trace, candidates, budget)
 
 
 @dataclass
@@ -258,15 +256,13 @@ def _step_limit(trace: Track, p: int, q: int, crow: float) -> float:
 
 
 def _viterbi(graph: RoadGraph, cg: CostGraph, corridor: _Corridor, trace: Track,
-             candidates: list[_Point], deadline: float) -> list[Matching]:
+             candidates: list[_Point], budget: Budget) -> list[Matching]:
     """The likeliest candidates, chain by chain: a chain ends where no candidate of the next
     point can be reached from any of the last one's, or at a time gap (``gaps=split``)."""
     gap = _gap_limit(trace)
     chains: list[_Chain] = []
     for q in candidates:
-        if time.monotonic() > deadline:
-            raise TooBigError(f"matching took longer than the time budget "
-                              f"({routing_settings().time_budget_s:g} s): send a shorter trace")
+        budget.check()
         step = None
         if chains:
             chain = chains[-1]

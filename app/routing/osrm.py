@@ -19,11 +19,12 @@ from __future__ import annotations
 import base64
 import struct
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from app.errors import ResponseTooLargeError
+from app.routing.budget import Budget
 from app.routing.encoded_polyline import encode as encode_polyline
 from app.routing.engine import Leg
 from app.routing.graph import RoadGraph
@@ -34,6 +35,8 @@ from app.routing.settings import routing_settings
 from app.routing.snap import Snap
 from app.routing.steps import StepContext, leg_steps
 from app.routing.trace import Trace, location, node_ids, trace
+
+T = TypeVar("T")
 
 DATASOURCE_NAMES = ["ugvmap"]  # annotation.metadata: every speed comes from the network
 
@@ -73,8 +76,9 @@ def waypoint(graph: RoadGraph, snap: Snap, hints: bool) -> dict[str, Any]:
 class Shaper:
     """Turns the routes of one request into the response dictionary."""
 
-    def __init__(self, graph: RoadGraph, opts: RouteOptions) -> None:
-        self.graph, self.opts = graph, opts
+    def __init__(self, graph: RoadGraph, opts: RouteOptions, budget: Budget | None = None
+                 ) -> None:
+        self.graph, self.opts, self.budget = graph, opts, budget
         self.context = StepContext(
             graph, junctions(graph), opts.avoid, opts.cost,
             routing_settings().driving_side, self.encode) if opts.steps else None
@@ -82,6 +86,13 @@ class Shaper:
     def encode(self, coords: np.ndarray | Sequence[Sequence[float]]) -> Any:
         """A line in the requested ``geometries``."""
         return encode(coords, self.opts.geometries)
+
+    def _checked(self, item: T) -> T:
+        """``item``, once the request's time budget (when it has one) is found not spent:
+        shaping a 5,000-leg match alone took longer than its whole budget."""
+        if self.budget is not None:
+            self.budget.check()
+        return item
 
     def _summary(self, t: Trace) -> str:
         length: dict[str, float] = {}
@@ -141,7 +152,7 @@ class Shaper:
 
     def route_of(self, traces: Sequence[Trace]) -> dict[str, Any]:
         """One route of the response, from its legs' traces."""
-        legs = [self._leg(t) for t in traces]
+        legs = [self._leg(self._checked(t)) for t in traces]
         route: dict[str, Any] = {
             "distance": sum(leg["distance"] for leg in legs),
             "duration": sum(leg["duration"] for leg in legs),
@@ -162,7 +173,7 @@ class Shaper:
 
     def routes(self, routes: Sequence[Sequence[Leg]]) -> list[dict[str, Any]]:
         """OSRM route objects, refused (``ResponseTooLarge``) over the output caps."""
-        traces = [[trace(self.graph, leg) for leg in legs] for legs in routes]
+        traces = [[trace(self.graph, self._checked(leg)) for leg in legs] for legs in routes]
         check_size(traces, self.opts)
         return [self.route_of(t) for t in traces]
 

@@ -8,7 +8,9 @@ URLs they take the service's statuses (400 malformed, 422 a value that breaks a 
 point that cannot snap or connect), on the OSRM-shaped URLs every OSRM code is a 400 as OSRM
 answers it (:data:`OSRM_STATUS_CODES`). Reads need ``UGVMAP_NETWORK_READ_ROLE`` when it is set, like
 every other read of network data. Each request reads the network's version on the event
-loop, then plans on the loop when that is quick, else in one thread-pool hop (:func:`_answer`).
+loop, then plans on the loop when that is quick, else in one thread-pool hop (:func:`_answer`);
+table, match, trip and isochrone work waits for a slot of its kind's lane (:mod:`app.lanes`),
+or is refused at once with 503 ``ServiceBusy`` when that lane's queue is full.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from app.api.errors import (
 )
 from app.api.query import only_query
 from app.db.session import session_scope
+from app.lanes import Kind, lane
 from app.routing import params
 from app.routing.bodies import ServiceBody, body_model
 from app.routing.graph import RoadGraph
@@ -84,7 +87,8 @@ router = APIRouter(prefix="/networks", tags=["routing"],
                        PayloadTooLargeError, errors.InvalidValueError,
                        errors.NoSegmentError, errors.NoRouteError, errors.NoTripsError,
                        errors.NoMatchError, errors.InvalidServiceError,
-                       errors.ResponseTooLargeError, errors.DatabaseUnavailableError))
+                       errors.ResponseTooLargeError, errors.DatabaseUnavailableError,
+                       errors.ServiceBusyError))
 
 PROFILE = re.compile(r"[A-Za-z0-9_.-]{1,64}", re.ASCII)
 NOT_SERVED = ("tile",)  # OSRM's vector tiles of its graph: /networks/{name}/tiles/... has ours
@@ -152,6 +156,7 @@ class Call:
     plan: Callable[..., dict[str, Any]]
     args: tuple
     quick: Callable[[RoadGraph], bool] = lambda graph: False
+    heavy: Kind | None = None  # the lane its work queues in (app.lanes); None: no lane
 
 
 @dataclass(frozen=True)
@@ -211,7 +216,10 @@ async def _answer(name: str, call: Call) -> Response:
     graph = current_graph(ahead.network_id, ahead.version)
     if graph is not None and call.quick(graph):
         return _json(call.plan(ahead, name, *call.args))
-    return await run_in_threadpool(lambda: _json(call.plan(ahead, name, *call.args)))
+    if call.heavy is None:
+        return await run_in_threadpool(lambda: _json(call.plan(ahead, name, *call.args)))
+    async with lane(call.heavy).slot():
+        return await run_in_threadpool(lambda: _json(call.plan(ahead, name, *call.args)))
 
 
 def _raw(request: Request) -> dict[str, str]:
@@ -239,11 +247,11 @@ def _request(service: Service, raw: dict[str, str], family: UrlFamily,
     if service == "nearest":
         return Call(plan_nearest, (points[0], opts, parse_nearest(raw, n)))
     if service == "table":
-        return Call(plan_table, (points, opts, parse_table(raw, n)))
+        return Call(plan_table, (points, opts, parse_table(raw, n)), heavy="table")
     if service == "match":
-        return Call(plan_match, (points, opts, parse_match(raw, n)))
+        return Call(plan_match, (points, opts, parse_match(raw, n)), heavy="match")
     if service == "trip":
-        return Call(plan_trip, (points, opts, parse_trip(raw, n)))
+        return Call(plan_trip, (points, opts, parse_trip(raw, n)), heavy="trip")
     return Call(plan_route, (points, opts), lambda graph: quick_route(graph, n, opts))
 
 
@@ -390,4 +398,5 @@ async def osrm_other_service(name: str, service: str, profile: str,
 async def isochrone(name: str, request: Request) -> Response:
     """Segments (partly) reachable from the point within ``seconds`` or ``meters``."""
     params.network_name(name)
-    return await _answer(name, Call(plan_isochrone, (parse_isochrone(_raw(request)),)))
+    return await _answer(name, Call(plan_isochrone, (parse_isochrone(_raw(request)),),
+                                    heavy="isochrone"))

@@ -19,6 +19,7 @@ import numpy as np
 
 from app.errors import NoMatchError, NoSegmentError, NoTripsError
 from app.routing import engine, params
+from app.routing.budget import Budget
 from app.routing.costs import Cost
 from app.routing.engine import Leg, Piece
 from app.routing.geometry import haversine_m
@@ -154,9 +155,13 @@ def _joined(legs: Sequence[Leg]) -> Leg:
     return Leg.of(legs[0].start, legs[-1].end, sum(leg.weight for leg in legs), pieces)
 
 
-def _legs(router: engine.Router, m: Matching, waypoints: set[int] | None) -> list[Leg]:
+def _legs(router: engine.Router, m: Matching, waypoints: set[int] | None,
+          budget: Budget) -> list[Leg]:
     """A matching's legs between consecutive matched points, joined between waypoints."""
-    steps = router.legs(list(range(len(m.points))))
+    steps = []
+    for a, b in itertools.pairwise(range(len(m.points))):
+        budget.check()
+        steps.append(router.leg(a, b))
     if waypoints is None:
         return steps
     ends = [k for k, i in enumerate(m.points)
@@ -170,14 +175,15 @@ def plan_match(reads: Reads, network: str, points: list[tuple[float, float]],
     ``confidence``) and one ``tracepoint`` per input point (``null`` where it was left out)."""
     graph = network_graph(reads, network, graph_at)
     trace = Track(points, opts.points, options.timestamps, options.gaps == "split", options.tidy)
-    found = match(graph, graph.costs(Cost.DISTANCE, opts.avoid), trace, opts.avoid)
+    budget = Budget("matching", "send a shorter trace")
+    found = match(graph, graph.costs(Cost.DISTANCE, opts.avoid), trace, opts.avoid, budget)
     if not found:
         raise _unmatched(graph, trace, opts)
     cg = graph.costs(opts.cost, opts.avoid)
     chosen = set(options.waypoints) if options.waypoints is not None else None
     routes, tracepoints = [], [None] * len(points)  # type: list[list[Leg]], list[Any]
     for m_index, m in enumerate(found):
-        routes.append(_legs(engine.Router(graph, cg, m.snaps), m, chosen))
+        routes.append(_legs(engine.Router(graph, cg, m.snaps), m, chosen, budget))
         ranks = [i for k, i in enumerate(m.points)
                  if chosen is None or i in chosen or k in (0, len(m.points) - 1)]
         rank = {i: k for k, i in enumerate(ranks)}
@@ -185,7 +191,7 @@ def plan_match(reads: Reads, network: str, points: list[tuple[float, float]],
             tracepoints[snap.index] = {
                 **waypoint(graph, snap, opts.generate_hints), "matchings_index": m_index,
                 "waypoint_index": rank.get(snap.index), "alternatives_count": alternatives}
-    matchings = Shaper(graph, opts).routes(routes)
+    matchings = Shaper(graph, opts, budget).routes(routes)
     for m, shaped in zip(found, matchings, strict=True):
         driven = sum(haversine_m(points[a], points[b]) for a, b in itertools.pairwise(m.points))
         shaped["confidence"] = confidence(driven, shaped["distance"])

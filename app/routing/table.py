@@ -22,18 +22,16 @@ request is refused with OSRM's ``TooBig``.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
-from app.errors import TooBigError
+from app.routing.budget import Budget
 from app.routing.costs import Cost
 from app.routing.engine import Piece, Place, arrivals, departures, direct
 from app.routing.graph import CostGraph, RoadGraph
-from app.routing.settings import routing_settings
 
 TREE_BATCH_CELLS = 4_000_000  # nodes x searches per scipy call (bounds its arrays to ~100 MB)
 
@@ -139,7 +137,7 @@ def _by_trees(graph: RoadGraph, cg: CostGraph, sources: Sequence[Place],
     """Weights (and ``other`` along the same routes) from one Dijkstra per departure node:
     scipy searches a batch of them in one call, and the other quantity is summed along all of
     the batch's trees at once."""
-    deadline = time.monotonic() + routing_settings().time_budget_s
+    budget = Budget("the table", "ask for fewer sources or annotations=duration")
     values = _per_row(graph, other) if other is not None else None
     pad = cg.origin + 1  # one past the search's nodes: each row gets an inf appended there
     outs = _Ends.of([departures(graph, cg, p) for p in sources], pad, values)
@@ -149,11 +147,7 @@ def _by_trees(graph: RoadGraph, cg: CostGraph, sources: Sequence[Place],
     weight = np.full((len(sources), len(destinations)), np.inf)
     other_m = np.full_like(weight, np.inf) if values is not None else None
     for lo in range(0, len(starts), batch):
-        if time.monotonic() > deadline:
-            raise TooBigError(f"the table took longer than the time budget "
-                              f"({routing_settings().time_budget_s:g} s) after {lo} of "
-                              f"{len(starts)} sources: ask for fewer sources or "
-                              "annotations=duration")
+        budget.check(f" after {lo} of {len(starts)} sources")
         chunk = starts[lo:lo + batch]
         with cg.lock:  # the virtual origin's slots are never reached from a real node
             dist, pred = dijkstra(cg.matrix_unlocked(), directed=True, indices=chunk,

@@ -23,8 +23,11 @@ from ingest.roads.classify import NOT_ROAD, ROAD
 from ingest.roads.georef import Image, as_image
 from ingest.roads.layer import LayerSource, _area_labels
 from ingest.roads.sample import GeoSample
+from ingest.roads.synthetic import Scene
 from ingest.roads.taught import merged
 from testkit.network_helpers import bearer
+from tests.test_roads_adapt import CANAL, SIZE
+from tests.test_roads_adapt import ROADS as CANAL_ROADS
 from tests.test_roads_ingest import _layer
 
 SLUG = "taught-scene"
@@ -95,6 +98,48 @@ def test_ingest_roads_uses_the_layers_labels_and_its_review(client, tmp_path: Pa
     _extract("taught-a", "--replace")
     again = _extract("taught-g")
     assert "1 review label from networks taught-a, " in again and "(1 deleted)" in again
+
+
+def test_a_false_road_a_reviewer_deleted_stays_out_of_the_re_extraction(client,
+                                                                        tmp_path: Path) -> None:
+    """The issue's loop through the database: zero-shot draws a canal; a reviewer deletes
+    it in the network (HTTP API); re-extracting the layer in place, without being told,
+    learns from the deletion and draws no canal."""
+    slug, network = "canal-scene", "canal-roads"
+    to_lonlat = _layer(tmp_path, slug, Scene((SIZE, SIZE), roads=CANAL_ROADS, road_width_px=8,
+                                             seed=1, decoys=[CANAL], decoy_rgb=(80, 95, 115)),
+                       res=1.0)
+    canal = "ST_Buffer(ST_GeogFromText(:canal), 6)::geometry"
+    params = {"canal": "LINESTRING({} {}, {} {})".format(*to_lonlat(*CANAL[0]),
+                                                         *to_lonlat(*CANAL[1]))}
+
+    def along_canal() -> list[tuple[int, float, float]]:
+        """(id, metres along the canal, length) of each segment meeting it."""
+        with session_scope() as session:
+            return [tuple(r) for r in session.execute(text(
+                f"SELECT s.id, ST_Length(ST_Intersection(s.geom, {canal})::geography), "
+                "s.length_m FROM road_segments s JOIN networks n ON n.id = s.network_id "
+                f"WHERE n.name = :n AND ST_Intersects(s.geom, {canal})"),
+                {**params, "n": network})]
+
+    runner = CliRunner()
+    zero = runner.invoke(main, ["ingest", "roads", "--layer", slug, "--network", network])
+    assert zero.exit_code == 0 and "sample: none" in zero.output, zero.output
+    drawn = along_canal()
+    assert sum(m for _, m, _ in drawn) > 100, drawn  # the premise: zero-shot draws the canal
+    editor = bearer("editor")
+    items = f"/collections/{network}-segments/items"
+    false = [fid for fid, metres, length in drawn if metres > length / 2]
+    for fid in false:
+        assert client.delete(f"{items}/{fid}", headers=editor).status_code == 204
+
+    again = runner.invoke(main, ["ingest", "roads", "--layer", slug, "--network", network,
+                                 "--replace"])
+    assert again.exit_code == 0, again.output
+    assert "(model classifier" not in again.output  # adapted, to the review
+    assert (f"sample: {len(false)} review label{'s' if len(false) > 1 else ''} from network "
+            f"{network} ({len(false)} deleted)") in again.output
+    assert sum(m for _, m, _ in along_canal()) <= 25  # where the roads cross it, at most
 
 
 def _image() -> Image:

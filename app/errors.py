@@ -88,6 +88,11 @@ class ConflictError(UgvmapError):
     outage: the database is up, and the same request sent again normally succeeds."""
 
 
+class StalePreviewError(ConflictError):
+    """A road preview made from a version of its layer that was replaced since: accepting it
+    would put roads of imagery nobody sees any more into the network (409)."""
+
+
 class DatabaseUnavailableError(UgvmapError):
     """The database cannot be reached: a fault the client may retry, never a traceback."""
 

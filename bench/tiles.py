@@ -228,7 +228,8 @@ def ugvmap_server(url: str, store: str, workers: int,
     """``ugvmap serve`` on a free port (tile cache off unless ``env`` says otherwise)."""
     port = free_port()
     base = f"http://127.0.0.1:{port}"
-    cmd = [sys.executable, "-m", "cli", "serve", "--port", str(port), "--workers", str(workers)]
+    cmd = [sys.executable, "-m", "cli", "serve", "--port", str(port), "--workers", str(workers),
+           "--queue-workers", "0"]
     env = {"DATABASE_URL": url, "UGVMAP_RASTER_STORE": store, "UGVMAP_LOG_LEVEL": "WARNING",
            "UGVMAP_TILE_CACHE_MB": "0", **env}
     return start(cmd, env, f"{base}/healthz"), base

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import errno
 import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import click
@@ -46,15 +50,18 @@ def refuse_busy_port(host: str, port: int) -> None:
 @click.option("--port", default=8000, show_default=True, type=int, envvar="UGVMAP_PORT",
               help="TCP port to listen on (env UGVMAP_PORT).")
 @click.option("--workers", default=1, show_default=True, type=int)
+@click.option("--queue-workers", default=1, show_default=True, type=click.IntRange(0, 64),
+              help="`ugvmap worker` processes started beside the server (road previews and "
+                   "queued jobs run on them); 0 when workers run elsewhere.")
 @click.option("--front-cache", is_flag=True,
               help="Put nginx (a disk cache of versioned tiles) on --port, the app behind it.")
 @click.option("--app-port", type=int, help="With --front-cache: the app's own port "
               "(default: --port + 1, on 127.0.0.1).")
 @click.option("--cache-size", default="1g", show_default=True,
               help="With --front-cache: nginx's max_size for the tile cache.")
-def serve(host: str, port: int, workers: int, front_cache: bool, app_port: int | None,
-          cache_size: str) -> None:
-    """Serve the web map, tiles, features and routes over HTTP."""
+def serve(host: str, port: int, workers: int, queue_workers: int, front_cache: bool,
+          app_port: int | None, cache_size: str) -> None:
+    """Serve the web map, tiles, features and routes over HTTP, with queue workers beside."""
     import uvicorn
 
     from app.api.wire import ServiceHttpProtocol
@@ -69,15 +76,37 @@ def serve(host: str, port: int, workers: int, front_cache: bool, app_port: int |
                     access_log=False, http=ServiceHttpProtocol)
 
     refuse_busy_port(host, port)
-    if not front_cache:
-        run(host, port)
-        return
-    from cli.ops.frontcache.nginx import FrontCache
+    with queue_worker_processes(queue_workers):
+        if not front_cache:
+            run(host, port)
+            return
+        from cli.ops.frontcache.nginx import FrontCache
 
-    behind = app_port or port + 1
-    workdir = settings.data_dir / "front-cache"
-    with FrontCache(workdir, host, port, f"127.0.0.1:{behind}", max_size=cache_size,
-                    workers=workers):
-        click.echo(f"front cache (nginx) on http://{host}:{port} -> app on "
-                   f"127.0.0.1:{behind}; cache and config in {workdir}", err=True)
-        run("127.0.0.1", behind)
+        behind = app_port or port + 1
+        workdir = settings.data_dir / "front-cache"
+        with FrontCache(workdir, host, port, f"127.0.0.1:{behind}", max_size=cache_size,
+                        workers=workers):
+            click.echo(f"front cache (nginx) on http://{host}:{port} -> app on "
+                       f"127.0.0.1:{behind}; cache and config in {workdir}", err=True)
+            run("127.0.0.1", behind)
+
+
+@contextmanager
+def queue_worker_processes(count: int) -> Iterator[None]:
+    """``count`` ``ugvmap worker`` processes while the block runs, stopped (SIGTERM: running
+    tasks finish) when it ends. Why beside the server: the web map's previews are queued jobs
+    (the server never runs ingest code), so a server alone would leave them queued forever.
+    Separate processes, not threads: an extraction holds its cores for seconds, and the
+    server's event loop must not wait on it."""
+    procs = [subprocess.Popen([sys.executable, "-m", "cli", "worker", "--concurrency", "1"])
+             for _ in range(count)]
+    try:
+        yield
+    finally:
+        for proc in procs:
+            proc.terminate()
+        for proc in procs:
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()

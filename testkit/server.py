@@ -28,9 +28,12 @@ def free_port() -> int:
 
 @contextmanager
 def running_server(env: dict[str, str], workers: int = 1,
-                   timeout_s: float = 30.0, drop: tuple[str, ...] = ()) -> Iterator[str]:
+                   timeout_s: float = 30.0, drop: tuple[str, ...] = (),
+                   queue_workers: int = 0) -> Iterator[str]:
     """Run ``ugvmap serve`` as a real subprocess and yield its base URL (``drop``: variables
-    of this process's environment it does not get).
+    of this process's environment it does not get). ``queue_workers``: the ``ugvmap worker``
+    processes it starts beside (none by default: tests that run queued tasks by hand must not
+    race a worker).
 
     Its output (one JSON log line per request) goes to a temporary file, not a pipe: nobody
     reads a pipe while the tests run, and once its buffer is full the server blocks on logging.
@@ -39,7 +42,7 @@ def running_server(env: dict[str, str], workers: int = 1,
     with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen(
             [sys.executable, "-m", "cli", "serve", "--port", str(port),
-             "--workers", str(workers)],
+             "--workers", str(workers), "--queue-workers", str(queue_workers)],
             cwd=REPO, env={k: v for k, v in {**os.environ, **env}.items() if k not in drop},
             stdout=log, stderr=subprocess.STDOUT,
         )

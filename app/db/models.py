@@ -345,6 +345,23 @@ class IngestJobPart(Base):
     updated_at: Mapped[datetime] = _now()
 
 
+class RoadPreview(Base):
+    """The roads a ``road-preview`` job extracted from a window of a layer, stored only when
+    the layer was still at ``layer_version`` when it finished (migration 0011): accepting it
+    into a network compares that version with the layer's."""
+    __tablename__ = "road_previews"
+
+    job_id: Mapped[int] = mapped_column(
+        ForeignKey("ingest_jobs.id", ondelete="CASCADE"), primary_key=True)
+    layer_id: Mapped[int] = mapped_column(
+        ForeignKey("layers.id", ondelete="CASCADE"), nullable=False, index=True)
+    layer_version: Mapped[int] = mapped_column(Integer, nullable=False)
+    bbox: Mapped[Any] = mapped_column(
+        Geometry("POLYGON", srid=4326, spatial_index=False), nullable=False)
+    result: Mapped[dict[str, Any]] = mapped_column(JSONB, nullable=False)
+    created_at: Mapped[datetime] = _now()
+
+
 class ApiToken(Base):
     """An API token; only its hash is stored, so a database leak does not leak tokens."""
     __tablename__ = "api_tokens"

@@ -146,6 +146,23 @@ class RoadsParams(JobParams, RoadTuning, SampleWidth):
         return self.network
 
 
+class PreviewParams(JobParams):
+    """``road-preview``: the roads of one window of a raster layer, extracted with the layer's
+    labels as the sample and stored as a preview (``POST /layers/{slug}/previews`` queues
+    it, having checked the window's size); nothing is written to any network."""
+
+    layer: Slug
+    bbox: LonLatBox
+    layer_version: int = Field(ge=1, lt=2**31)
+    """The layer version the preview is of: if the layer is re-ingested before the preview
+    finishes, the preview fails and stores nothing."""
+
+    @property
+    def target(self) -> str:
+        """The layer."""
+        return self.layer
+
+
 @dataclass(frozen=True)
 class JobKind:
     """A row of the table: how to check a job's parameters and what runs it."""
@@ -158,6 +175,7 @@ JOB_KINDS: dict[str, JobKind] = {
     "ingest-raster": JobKind(RasterParams, "ingest.queue.raster:run"),
     "ingest-network": JobKind(NetworkParams, "ingest.queue.runners:ingest_network"),
     "ingest-roads": JobKind(RoadsParams, "ingest.queue.runners:ingest_roads"),
+    "road-preview": JobKind(PreviewParams, "ingest.queue.runners:road_preview"),
 }
 
 

@@ -14,6 +14,8 @@ bump the network's version and NOTIFY the deleted geometry's box when the transa
 
 from __future__ import annotations
 
+from typing import Any
+
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
@@ -23,10 +25,12 @@ from app.network.tokens import Principal
 
 
 def delete_segment(session: Session, c: colls.Collection, fid: int, expected: int | None,
-                   principal: Principal) -> None:
+                   principal: Principal, *, action: str = "delete",
+                   note: dict[str, Any] | None = None) -> None:
     """Delete segment ``fid`` if it is at version ``expected`` (404 / 412 otherwise; None:
     whatever version is current), drop the end nodes it orphans and re-kind the others, and
-    log it, all in the caller's transaction."""
+    log it as ``action`` (with ``note`` as the row's ``new``: why, e.g. the accepted
+    preview that replaced it), all in the caller's transaction."""
     feature = lock_feature(session, c, fid, expected)
     props = feature["properties"]
     ends = {"ids": sorted({props["source_node"], props["target_node"]})}
@@ -38,6 +42,6 @@ def delete_segment(session: Session, c: colls.Collection, fid: int, expected: in
                          "FOR UPDATE"), ends)
     session.execute(text("DELETE FROM road_segments WHERE id = :id"), {"id": fid})
     colls.settle_nodes(session, ends["ids"])
-    log_edit(session, c, fid, "delete", props["version"], None, principal,
-             {**props, "geometry": feature["geometry"]}, None,
+    log_edit(session, c, fid, action, props["version"], None, principal,
+             {**props, "geometry": feature["geometry"]}, note,
              conditional=expected is not None)

@@ -161,9 +161,13 @@ def node_for_end(session: Session, c: colls.Collection, position: list[float],
 
 
 def create_segment(session: Session, c: colls.Collection, body: Any, crs: crs_.Crs,
-                   principal: Principal) -> dict[str, Any]:
+                   principal: Principal, *, action: str = "create",
+                   note: dict[str, Any] | None = None,
+                   confidence: float | None = None) -> dict[str, Any]:
     """POST: a new road from a whole GeoJSON feature, noded into the network at its ends; its
-    history starts with a ``create`` row holding what was created."""
+    history starts with an ``action`` row (``create``) holding what was created, and
+    ``note``. A road from an extraction (an accepted preview) keeps its ``confidence``, which
+    no edit may set."""
     values, raw_geometry = whole_parts(body, "segments")
     errors = lanes_consistent(values)
     line, problem = parse_geometry(session, raw_geometry, "LineString", crs)
@@ -196,13 +200,14 @@ def create_segment(session: Session, c: colls.Collection, body: Any, crs: crs_.C
     fid: int = session.execute(text(insert_segments({
         "network_id": ":n", "source_node": ":source", "target_node": ":target",
         "geom": stored, "updated_by": ":who",
-        "attrs": "CAST(:attrs AS jsonb)", **{k: f":{k}" for k in attributes}},
-        returning=True)),
+        "attrs": "CAST(:attrs AS jsonb)", "confidence": ":confidence",
+        **{k: f":{k}" for k in attributes}}, returning=True)),
         {**attributes, "n": c.network_id, "source": source, "target": target,
-         "g": json.dumps(line), "who": principal.name,
+         "g": json.dumps(line), "who": principal.name, "confidence": confidence,
          "attrs": json.dumps(values["attrs"])}).scalar_one()
     colls.settle_nodes(session, [source, target])
     created = colls.get_item(session, c, fid)
-    log_edit(session, c, fid, "create", None, 1, principal, None,
-             {**values, "geometry": created["geometry"]})
+    extracted = {} if confidence is None else {"confidence": confidence}
+    log_edit(session, c, fid, action, None, 1, principal, None,
+             {**values, **extracted, "geometry": created["geometry"], **(note or {})})
     return created

@@ -7,12 +7,22 @@ retried task redoes it; a retry after the commit finds the job succeeded and doe
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+from sqlalchemy import text
+from sqlalchemy.orm import Session
 
 from app.db.session import get_engine, session_scope
-from app.jobs.kinds import NetworkParams, RoadsParams
+from app.jobs.kinds import NetworkParams, PreviewParams, RoadsParams
 from app.jobs.lease import Lease
-from app.jobs.rows import succeed_in
+from app.jobs.rows import record_progress, succeed_in
+
+if TYPE_CHECKING:
+    from ingest.roads.taught import Taught
 
 
 def ingest_network(job_id: int, params: NetworkParams) -> None:
@@ -42,3 +52,71 @@ def ingest_roads(job_id: int, params: RoadsParams) -> None:
                                   rules=params.rules, replace=params.replace,
                                   labels=params.labels, review_labels=params.review_labels)
         succeed_in(session.connection(), job_id, "; ".join(done.lines()))
+
+
+def road_preview(job_id: int, params: PreviewParams) -> None:
+    """Extract the roads of a window of a layer (``POST /layers/{slug}/previews``) and store
+    them as the preview, unless the layer was re-ingested since the preview was asked for:
+    the version is checked under a share lock on the layer row in the transaction that
+    stores the result, so a re-ingest committing meanwhile either came first (the preview
+    fails, nothing stored) or waits for the preview to commit."""
+    from ingest.roads.layer import window_roads
+    from ingest.roads.pipeline import ExtractParams
+    from ingest.roads.taught import taught
+
+    started = time.monotonic()
+    with Lease(get_engine(), job_id):
+        record_progress(job_id, 0.1, "extracting the roads of the view")
+        with session_scope() as session:
+            team = taught(session, params.layer)
+            try:
+                lines, classifier = window_roads(session, params.layer, params.bbox,
+                                                 team.sample, ExtractParams())
+            except Exception:  # a re-ingest may have taken the files: say that instead
+                _refuse_stale(session, params)
+                raise
+        record_progress(job_id, 0.9, f"storing {len(lines)} roads")
+        features = [{"type": "Feature", "geometry": {"type": "LineString",
+                                                     "coordinates": line.coords},
+                     "properties": dataclasses.asdict(line.attributes)} for line in lines]
+        result = {"type": "FeatureCollection", "features": features, "classifier": classifier,
+                  "labels": taught_counts(team),
+                  "seconds": round(time.monotonic() - started, 2)}
+        with session_scope() as session:
+            layer_id = _refuse_stale(session, params)
+            session.execute(text(
+                "INSERT INTO road_previews (job_id, layer_id, layer_version, bbox, result) "
+                "VALUES (:id, :layer, :version, ST_MakeEnvelope(:x0, :y0, :x1, :y1, 4326), "
+                "CAST(:result AS jsonb))"),
+                {"id": job_id, "layer": layer_id, "version": params.layer_version,
+                 "x0": params.bbox[0], "y0": params.bbox[1], "x1": params.bbox[2],
+                 "y1": params.bbox[3], "result": json.dumps(result)})
+            succeed_in(session.connection(), job_id,
+                       f"{len(lines)} roads in {result['seconds']} s ({classifier})")
+
+
+def _refuse_stale(session: Session, params: PreviewParams) -> int:
+    """The layer's id, its row share-locked until the transaction ends; refused when the
+    layer is gone or no longer at the preview's version."""
+    from ingest.roads import RoadsInputError
+
+    row = session.execute(text("SELECT id, version FROM layers WHERE slug = :slug FOR SHARE"),
+                          {"slug": params.layer}).first()
+    if row is None:
+        raise RoadsInputError(f"layer {params.layer!r} was deleted while the preview ran")
+    if row.version != params.layer_version:
+        raise RoadsInputError(
+            f"layer {params.layer!r} was re-ingested while the preview ran (version "
+            f"{params.layer_version}, now {row.version}): nothing stored; preview again")
+    return int(row.id)
+
+
+def taught_counts(team: Taught) -> dict[str, int]:
+    """How many road and not-road labels (the layer's and its review's) a preview learned
+    from, for the web map's summary."""
+    labels, review = team.labels, team.review
+    road = (labels.road_lines if labels else 0) + (
+        review.drawn + review.moved + review.confirmed if review else 0)
+    not_road = (labels.not_road_lines + labels.not_road_areas if labels else 0) + (
+        review.deleted if review else 0)
+    return {"road": road, "not_road": not_road}

@@ -51,7 +51,7 @@ from ingest.roads.classify import ROAD
 from ingest.roads.georef import Image, as_image, pixel_size_m
 from ingest.roads.pipeline import Extraction, ExtractParams, extract_roads
 from ingest.roads.rules import effective_rules
-from ingest.roads.sample import NO_SAMPLE_ROAD, GeoSample, burn_sample
+from ingest.roads.sample import NO_SAMPLE_ROAD, GeoSample, LonLatBox, burn_sample
 from ingest.roads.taught import Taught, merged, taught
 
 MAX_MOSAIC_SIDE_PX = 40_000
@@ -73,18 +73,20 @@ TRAJECTORY_WIDTH_M = 3.0
 wider band would call the verge of a narrow road "road")."""
 
 
-def layer_mosaic(paths: Sequence[str], names: Sequence[str] | None = None) -> Image:
+def layer_mosaic(paths: Sequence[str], names: Sequence[str] | None = None,
+                 bounds: tuple[float, float, float, float] | None = None) -> Image:
     """The mosaic of ``paths`` (all EPSG:3857, the one drawn on top first) at the finest
     source resolution, merged in memory, valid where any source has data (their own masks,
     whatever the pixel values: a black pixel of a JPEG COG is data). ``names`` (the sources'
-    names, for the error of a mosaic too large) default to the paths."""
+    names, for the error of a mosaic too large) default to the paths. ``bounds`` (EPSG:3857
+    left, bottom, right, top): only that window, read from the COGs without the rest (a
+    preview of the view on the map)."""
     datasets = [rasterio.open(p) for p in paths]
     try:
         res = min(min(abs(d.res[0]), abs(d.res[1])) for d in datasets)
-        left = min(d.bounds.left for d in datasets)
-        right = max(d.bounds.right for d in datasets)
-        bottom = min(d.bounds.bottom for d in datasets)
-        top = max(d.bounds.top for d in datasets)
+        left, bottom, right, top = bounds or (
+            min(d.bounds.left for d in datasets), min(d.bounds.bottom for d in datasets),
+            max(d.bounds.right for d in datasets), max(d.bounds.top for d in datasets))
         width, height = round((right - left) / res), round((top - bottom) / res)
         if width * height > MAX_MOSAIC_PX:
             raise RoadsInputError(
@@ -94,9 +96,9 @@ def layer_mosaic(paths: Sequence[str], names: Sequence[str] | None = None) -> Im
                 "source images one by one with `ugvmap extract-roads`")
         colour = [i for i, c in enumerate(datasets[0].colorinterp, 1)
                   if c != ColorInterp.alpha] or [1]
-        pixels, transform = merge(datasets, res=res, indexes=colour, nodata=0)
-        count, _ = merge(datasets, res=res, indexes=[1], nodata=0, dtype="uint16",
-                         method="count")
+        pixels, transform = merge(datasets, bounds=bounds, res=res, indexes=colour, nodata=0)
+        count, _ = merge(datasets, bounds=bounds, res=res, indexes=[1], nodata=0,
+                         dtype="uint16", method="count")
         crs = CRS.from_user_input(datasets[0].crs)
     finally:
         for d in datasets:
@@ -298,3 +300,34 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
     summary = write_network(session, network, lines, replace=replace, node_crossings=False)
     return LayerExtraction(slug, classifiers, summary, " + ".join(used) or "none", applied,
                            [line.attributes for line in lines], team)
+
+
+def window_roads(session: Session, slug: str, bbox: LonLatBox, sample: GeoSample | None,
+                 params: ExtractParams) -> tuple[list[RoadLine], str]:
+    """(roads, classifier) of one lon/lat window of layer ``slug``: a preview of the view on
+    the map. Only the sources meeting the window are read, and only that window of them
+    (:func:`layer_mosaic` with bounds), so its cost follows the window, not the layer. The
+    sample's labels there make the model adapt (zero-shot where they label nothing there).
+    The lines get the default attribute rules: they go to no network yet."""
+    _, sources = _layer_sources(session, slug)
+    to_map = Transformer.from_crs("EPSG:4326", "EPSG:3857", always_xy=True)
+    (left, right), (bottom, top) = to_map.transform([bbox[0], bbox[2]], [bbox[1], bbox[3]])
+    window = box(left, bottom, right, top)
+    meeting = []
+    for source in sources:
+        with rasterio.open(source.path) as dataset:
+            if box(*dataset.bounds).intersects(window):
+                meeting.append(source)
+    if not meeting:
+        raise RoadsInputError(f"the window {bbox} does not meet layer {slug!r}'s imagery")
+    image = layer_mosaic([s.path for s in meeting], [s.name for s in meeting],
+                         (left, bottom, right, top))
+    labels = None
+    if sample is not None:
+        assert image.crs is not None
+        burnt = burn_sample(image.pixels.shape[:2], image.transform, image.crs, sample,
+                            image.valid)
+        labels = burnt if burnt.any() else None
+    extraction = extract_roads(image, labels, params)
+    attrs = {"extracted_from": slug, "classifier": extraction.classifier}
+    return road_lines(extraction, AttributeRules(), attrs), extraction.classifier

@@ -15,6 +15,10 @@ mosaic) learns from them without anyone labelling twice:
   (an edit of its attributes only: they looked at it and kept it) is a road line along its
   current geometry.
 
+An accepted road preview (history action ``accept``, :mod:`app.previews.accept`) is the
+model's work put in by a person's one click, not a review of each road: neither the roads
+it added nor those it replaced are labels.
+
 The lines are partial (``not_road_beyond_m`` None): a reviewer fixes some roads and says
 nothing about the rest of the image.
 """
@@ -48,7 +52,8 @@ KEPT = (
     "  bool_or(e.new ? 'geometry' OR e.action = ANY(:geometry_actions)) AS moved "
     "FROM road_segments s JOIN segment_edits e "
     "  ON e.network_id = s.network_id AND e.segment_id = s.id "
-    "WHERE s.network_id = ANY(:nets) AND e.action <> 'delete' GROUP BY s.id ORDER BY s.id")
+    "WHERE s.network_id = ANY(:nets) AND e.action NOT IN ('delete', 'accept') "
+    "GROUP BY s.id ORDER BY s.id")
 
 
 @dataclass(frozen=True)

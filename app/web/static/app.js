@@ -6,6 +6,7 @@ import { Networks, reviewFilter } from './networks.js';
 import { loadRasterLayers } from './rasters.js';
 import { RouteTool } from './route.js';
 import { Selection, isMultiClick } from './selection.js';
+import { TeachTool } from './teach.js';
 
 // A style with no glyphs or sprites: nothing is fetched from outside this server.
 const STYLE = {
@@ -109,6 +110,8 @@ async function start() {
     for (const name of names) networks.refresh(name);
     route.update(); // the next route must see the edit
   };
+  const layers = [...document.querySelectorAll('#raster-layers li[data-layer]')].map((li) => li.dataset.layer);
+  const teach = new TeachTool({ map, layers, networks, onAccepted: (name) => changed([name]) });
   // The inspector (one segment) and the bulk editor (a selection) share the right dock.
   const layout = () => {
     const docked = !document.getElementById('inspector').hidden || !document.getElementById('bulk').hidden;
@@ -118,7 +121,7 @@ async function start() {
   // A plain click selects one segment, shift-drag boxes and ctrl/shift-clicks add more: one
   // selected segment is shown by the inspector, several by the bulk editor.
   const selection = new Selection({
-    map, networks, paused: () => route.isActive(), onChange: (segments) => showSelection(segments),
+    map, networks, paused: () => route.isActive() || teach.isActive(), onChange: (segments) => showSelection(segments),
   });
   const inspector = new Inspector({
     onSaved: (network) => changed([network]),
@@ -139,6 +142,10 @@ async function start() {
   }
 
   map.on('click', (ev) => {
+    if (teach.isActive()) {
+      teach.click(ev.lngLat);
+      return;
+    }
     if (route.isActive()) {
       route.addPoint(ev.lngLat);
       return;
@@ -148,7 +155,7 @@ async function start() {
     else if (hit) selection.set([hit]);
   });
   map.on('mousemove', (ev) => {
-    if (route.isActive()) return;
+    if (route.isActive() || teach.isActive()) return;
     map.getCanvas().style.cursor = networks.segmentAt(ev.point) ? 'pointer' : '';
   });
 
@@ -161,7 +168,7 @@ async function start() {
   const extent = openingView(rasterBounds, networks.extents);
   if (extent && !sharedView) map.fitBounds(extent, { padding: 30, duration: 0, maxZoom: 18 });
   // Exposed for the browser tests and for debugging from the console.
-  window.ugvmap = { map, networks, route, inspector, selection, bulk };
+  window.ugvmap = { map, networks, route, inspector, selection, bulk, teach };
   document.body.dataset.ready = 'true';
 }
 

@@ -1,0 +1,224 @@
+"""Road previews and their acceptance: ``POST /layers/{slug}/previews`` queues the extraction
+of a view, a real worker runs it (``ugvmap serve``'s own, or the task run here), and
+``.../accept`` replaces a network's unreviewed extracted roads there, keeping a person's."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from pyproj import Geod, Transformer
+from rasterio.transform import from_origin
+from sqlalchemy import text
+
+from app.db.session import get_engine, session_scope
+from ingest.queue import tasks
+from ingest.raster.job import ingest_raster
+from ingest.roads import RoadsInputError
+from ingest.roads.layer import ingest_layer_roads
+from ingest.roads.pipeline import ExtractParams
+from ingest.roads.synthetic import Scene, render
+from testkit.network_helpers import bearer
+from testkit.raster_synth import UTM33, utm_origin, write_tif
+from testkit.server import running_server
+
+RES = 0.5
+SIZE = (300, 400)  # rows, columns: 150 x 200 m
+# A cross with a T arm, in pixels (what tests/test_roads_ingest.py extracts).
+ROADS = [[(20, 150), (380, 150)], [(200, 20), (200, 280)], [(60, 150), (60, 280)]]
+CORNER = (15.31, 48.32)
+
+
+def write_scene(path: Path, seed: int = 3) -> tuple[float, float, float, float]:
+    """The scene as a UTM GeoTIFF; its lon/lat box, shrunk by a pixel (inside the image)."""
+    rgb, _ = render(Scene(SIZE, roads=ROADS, seed=seed))
+    east, north = utm_origin(*CORNER)
+    transform = from_origin(round(east), round(north), RES, RES)
+    write_tif(path, np.moveaxis(rgb, -1, 0), UTM33, transform)
+    to_lonlat = Transformer.from_crs(UTM33, "EPSG:4326", always_xy=True)
+    lons, lats = to_lonlat.transform(*(transform @ np.array(
+        [[1, 1, SIZE[1] - 1, SIZE[1] - 1], [1, SIZE[0] - 1, 1, SIZE[0] - 1]])))
+    return min(lons), min(lats), max(lons), max(lats)
+
+
+@pytest.fixture(scope="module")
+def scene(module_database: str, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """Layer ``teach`` (the scene) and network ``teach-net`` extracted from it zero-shot."""
+    folder = tmp_path_factory.mktemp("teach")
+    bbox = write_scene(folder / "scene.tif")
+    ingest_raster([folder / "scene.tif"], "teach")
+    with session_scope() as session:
+        ingest_layer_roads(session, "teach", "teach-net", None, ExtractParams())
+    return {"bbox": list(bbox), "tif": folder / "scene.tif", "folder": folder}
+
+
+def scalar(sql: str, **values: object) -> object:
+    with get_engine().connect() as conn:
+        return conn.execute(text(sql), values).scalar()
+
+
+def _reingest(scene: dict) -> None:
+    """A new survey of the same place in the layer's place: its version goes up."""
+    again = scene["folder"] / "resurvey.tif"
+    write_scene(again, seed=4)
+    ingest_raster([again], "teach", replace=True)
+
+
+def test_preview_requests_need_an_editor_and_a_view_on_the_layer(client, scene) -> None:
+    url, body = "/layers/teach/previews", {"bbox": scene["bbox"]}
+    assert client.post(url, json=body).status_code == 401
+    assert client.post(url, json=body, headers=bearer("viewer")).status_code == 403
+    editor = bearer("editor")
+    off = client.post(url, json={"bbox": [2.0, 41.0, 2.001, 41.001]}, headers=editor)
+    assert off.status_code == 422 and "does not meet layer teach's imagery" in \
+        off.json()["message"]
+    x0, y0, _, _ = scene["bbox"]
+    wide = client.post(url, json={"bbox": [x0, y0, x0 + 0.05, y0 + 0.03]}, headers=editor)
+    assert wide.status_code == 422
+    assert "a preview extracts at most 2048 x 2048 px: zoom in" in wide.json()["message"]
+    for bad in ([1, 2, 3], [x0, y0, x0 - 1, y0 + 1], ["a", 1, 2, 3], [0, 89, 1, 90]):
+        answer = client.post(url, json={"bbox": bad}, headers=editor)
+        assert answer.status_code == 422 and "bbox" in answer.json()["errors"], bad
+    assert client.post("/layers/nope/previews", json=body, headers=editor).status_code == 404
+    assert scalar("SELECT count(*) FROM ingest_jobs WHERE kind = 'road-preview'") == 0
+
+
+def test_serve_runs_a_preview_on_its_own_worker(module_database: str, scene) -> None:
+    """``ugvmap serve`` starts a queue worker: the preview runs with no other command."""
+    env = {"DATABASE_URL": module_database,
+           "UGVMAP_RASTER_STORE": os.environ["UGVMAP_RASTER_STORE"]}
+    with running_server(env, queue_workers=1, timeout_s=120) as base, \
+            httpx.Client(base_url=base) as http:
+        asked = http.post("/layers/teach/previews", json={"bbox": scene["bbox"]},
+                          headers=bearer("editor"))
+        assert asked.status_code == 202, asked.text
+        location = asked.headers["location"]
+        deadline = time.monotonic() + 120
+        while (preview := http.get(location).json())["status"] in ("queued", "running"):
+            assert time.monotonic() < deadline, preview
+            time.sleep(0.2)
+    assert preview["status"] == "succeeded", preview
+    result = preview["result"]
+    assert result["classifier"] == "model" and result["labels"] == {"road": 0, "not_road": 0}
+    assert preview["layer_version"] == scalar("SELECT version FROM layers WHERE slug = 'teach'")
+    # The cross and its T arm: about 180 + 130 + 65 m of road, every line with a confidence.
+    lengths = [Geod(ellps="WGS84").line_length(*zip(*f["geometry"]["coordinates"],
+                                                    strict=True))
+               for f in result["features"]]
+    assert 300 < sum(lengths) < 450 and len(result["features"]) >= 3
+    assert all(0 <= f["properties"]["confidence"] <= 1 for f in result["features"])
+    assert all(f["properties"]["attrs"]["extracted_from"] == "teach"
+               for f in result["features"])
+
+
+def _preview(client, scene) -> int:
+    """A finished preview of the whole scene, its task run here (the worker's own code)."""
+    asked = client.post("/layers/teach/previews", json={"bbox": scene["bbox"]},
+                        headers=bearer("editor"))
+    assert asked.status_code == 202, asked.text
+    preview_id = asked.json()["id"]
+    assert client.get(f"/layers/teach/previews/{preview_id}").json()["status"] == "queued"
+    tasks.run_job(preview_id)
+    return preview_id
+
+
+def _segments(network: str) -> dict[int, dict]:
+    with get_engine().connect() as conn:
+        return {r.id: dict(r._mapping) for r in conn.execute(text(
+            "SELECT s.id, s.version, s.attrs, s.confidence FROM road_segments s "
+            "JOIN networks n ON n.id = s.network_id WHERE n.name = :n"), {"n": network})}
+
+
+def _history(network: str, fid: int) -> list[dict]:
+    with get_engine().connect() as conn:
+        return [dict(r._mapping) for r in conn.execute(text(
+            "SELECT e.action, e.edited_by, e.old, e.new FROM segment_edits e "
+            "JOIN networks n ON n.id = e.network_id WHERE n.name = :n AND e.segment_id = :s "
+            "ORDER BY e.id"), {"n": network, "s": fid})]
+
+
+def test_accept_replaces_unreviewed_roads_and_keeps_a_persons(client, scene) -> None:
+    before = _segments("teach-net")
+    assert len(before) >= 3
+    edited = min(before)
+    patched = client.patch(f"/collections/teach-net-segments/items/{edited}",
+                           json={"road_class": "service"}, headers=bearer("editor"))
+    assert patched.status_code == 200, patched.text
+    preview_id = _preview(client, scene)
+    features = client.get(f"/layers/teach/previews/{preview_id}").json()["result"]["features"]
+    url = f"/layers/teach/previews/{preview_id}/accept"
+    assert client.post(url, json={"network": "teach-net"},
+                       headers=bearer("viewer")).status_code == 403
+    assert client.post(url, json={"network": "nope"},
+                       headers=bearer("editor")).status_code == 422
+    assert _segments("teach-net") == before | {edited: _segments("teach-net")[edited]}
+
+    answer = client.post(url, json={"network": "teach-net"}, headers=bearer("editor"))
+    assert answer.status_code == 200, answer.text
+    counts = answer.json()
+    after = _segments("teach-net")
+    removed = set(before) - set(after)
+    assert removed == set(before) - {edited} and counts["removed"] == len(removed)
+    assert after[edited]["attrs"] == before[edited]["attrs"]  # the person's road stays
+    assert counts["kept"] >= 1 and counts["added"] >= 2
+    assert counts["added"] + counts["duplicates"] == len(features)
+    added = set(after) - set(before)
+    assert len(added) == counts["added"]
+    for fid in removed:
+        last = _history("teach-net", fid)[-1]
+        assert last["action"] == "accept" and last["new"]["preview"] == preview_id
+    for fid in added:
+        (created,) = _history("teach-net", fid)
+        assert created["action"] == "accept" and created["new"]["preview"] == preview_id
+        assert after[fid]["confidence"] is not None
+        assert after[fid]["attrs"]["extracted_from"] == "teach"
+    # The preview line along the kept road was not added twice: nothing lies on it.
+    assert scalar(
+        "SELECT count(*) FROM road_segments s, road_segments k WHERE k.id = :k "
+        "AND s.id <> k.id AND s.network_id = k.network_id AND "
+        "ST_Length(ST_Intersection(s.geom, ST_Buffer(k.geom::geography, 1)::geometry)"
+        "::geography) > 10", k=edited) == 0
+
+    # Accepting again: the roads just accepted are the model's, so they are replaced again.
+    again = _preview(client, scene)
+    second = client.post(f"/layers/teach/previews/{again}/accept", json={"network": "teach-net"},
+                         headers=bearer("editor")).json()
+    assert second["removed"] == counts["added"] and edited in _segments("teach-net")
+
+
+def test_a_preview_of_a_layer_reingested_meanwhile_stores_nothing(client, scene) -> None:
+    asked = client.post("/layers/teach/previews", json={"bbox": scene["bbox"]},
+                        headers=bearer("editor"))
+    preview_id = asked.json()["id"]
+    _reingest(scene)  # while the preview waits for its worker
+    with pytest.raises(RoadsInputError, match="re-ingested while the preview ran"):
+        tasks.run_job(preview_id)
+    preview = client.get(f"/layers/teach/previews/{preview_id}").json()
+    assert preview["status"] == "failed" and preview["result"] is None
+    assert "was re-ingested while the preview ran" in preview["error"]
+    assert scalar("SELECT count(*) FROM road_previews WHERE job_id = :id", id=preview_id) == 0
+    accept = client.post(f"/layers/teach/previews/{preview_id}/accept",
+                         json={"network": "teach-net"}, headers=bearer("editor"))
+    assert accept.status_code == 409 and "preview again" in accept.json()["message"]
+
+
+def test_accepting_a_preview_of_an_older_layer_version_is_a_conflict(client, scene) -> None:
+    preview_id = _preview(client, scene)
+    _reingest(scene)
+    before = _segments("teach-net")
+    answer = client.post(f"/layers/teach/previews/{preview_id}/accept",
+                         json={"network": "teach-net"}, headers=bearer("editor"))
+    assert answer.status_code == 409
+    assert answer.json()["message"].startswith("the layer changed since this preview")
+    assert answer.json()["message"].endswith("preview again")
+    assert _segments("teach-net") == before
+
+
+def test_an_unknown_preview_is_not_found(client, scene: dict) -> None:
+    assert client.get("/layers/teach/previews/999999").status_code == 404
+    assert client.get("/layers/teach/previews/0").status_code == 400
+    assert client.get("/layers/nope/previews/1").status_code == 404

@@ -1,0 +1,94 @@
+"""The web map's Teach tool in real headless Chromium against the real server and its own
+queue worker: Preview shows the view's roads dashed magenta with their counts, Accept puts
+them into the chosen network, which redraws."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from sqlalchemy import text
+
+from app.db.session import get_engine, session_scope
+from ingest.raster.job import ingest_raster
+from ingest.roads.layer import ingest_layer_roads
+from ingest.roads.pipeline import ExtractParams
+from testkit.network_helpers import token
+from testkit.server import running_server
+from tests.test_road_previews import write_scene
+from tests.test_web_map import finish, wait_idle
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def teach_world(module_database: str, tmp_path_factory: pytest.TempPathFactory
+                ) -> Iterator[dict]:
+    """The synthetic scene as layer ``teach``, network ``teach-net`` extracted from it, and the
+    server with one queue worker beside it (as ``ugvmap serve`` starts by default)."""
+    folder = tmp_path_factory.mktemp("web-teach")
+    bbox = write_scene(folder / "scene.tif")
+    ingest_raster([folder / "scene.tif"], "teach")
+    with session_scope() as session:
+        ingest_layer_roads(session, "teach", "teach-net", None, ExtractParams())
+    env = {"DATABASE_URL": module_database,
+           "UGVMAP_RASTER_STORE": os.environ["UGVMAP_RASTER_STORE"]}
+    with running_server(env, queue_workers=1, timeout_s=120) as base:
+        yield {"base": base, "bbox": bbox, "token": token("editor")}
+
+
+def segment_history_actions() -> dict[str, int]:
+    with get_engine().connect() as conn:
+        return dict(conn.execute(text(  # type: ignore[arg-type]
+            "SELECT action, count(*) FROM segment_edits e JOIN networks n "
+            "ON n.id = e.network_id WHERE n.name = 'teach-net' GROUP BY action")).all())
+
+
+def test_teach_preview_then_accept(browser, teach_world, request, tmp_path: Path) -> None:
+    context = browser.new_context(viewport={"width": 1100, "height": 750})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    outside: list[str] = []
+    page.on("request", lambda r: None if r.url.startswith(teach_world["base"])
+            or r.url.startswith(("data:", "blob:")) else outside.append(r.url))
+    request.addfinalizer(lambda: finish(page, context, request, tmp_path, errors, outside))
+    page.goto(teach_world["base"] + "/")
+    page.wait_for_selector("body[data-ready=true]", timeout=20_000)
+    page.evaluate("(b) => window.ugvmap.map.fitBounds(b, {padding: 10, duration: 0})",
+                  list(teach_world["bbox"]))
+    wait_idle(page)
+    page.fill("#token", teach_world["token"])
+    page.select_option("#teach-layer", "teach")
+    page.select_option("#teach-network", "teach-net")
+    assert page.locator("#teach-accept").is_disabled()
+
+    page.click("#teach-preview")
+    page.wait_for_function(
+        "() => /roads, confidence mean|failed|No preview/.test("
+        "document.getElementById('teach-result').textContent)", timeout=120_000)
+    summary = page.locator("#teach-result").inner_text()
+    assert "no labels (zero-shot)" in summary, summary
+    wait_idle(page)
+    drawn = page.evaluate("() => window.ugvmap.map.queryRenderedFeatures("
+                          "{layers: ['teach-preview-line']}).length")
+    assert drawn > 0, "the preview's roads are not drawn"
+    assert page.evaluate("() => window.ugvmap.map.getPaintProperty('teach-preview-line', "
+                         "'line-color')") == "#ff00ff"
+
+    page.click("#teach-accept")
+    page.wait_for_function("() => /Accepted into|Not accepted/.test("
+                           "document.getElementById('teach-result').textContent)",
+                           timeout=30_000)
+    result = page.locator("#teach-result").inner_text()
+    assert result.startswith("Accepted into teach-net:"), result
+    actions = segment_history_actions()
+    assert actions.get("accept", 0) > 0 and set(actions) == {"accept"}
+    assert page.locator("#teach-accept").is_disabled()
+    wait_idle(page)
+    assert page.evaluate("() => window.ugvmap.map.queryRenderedFeatures("
+                         "{layers: ['teach-preview-line']}).length") == 0
+    assert page.evaluate("() => window.ugvmap.map.queryRenderedFeatures("
+                         "{layers: ['net-teach-net-segments']}).length") > 0

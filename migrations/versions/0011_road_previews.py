@@ -18,7 +18,7 @@ from geoalchemy2 import Geometry
 from sqlalchemy.dialects.postgresql import JSONB
 
 revision = "0011_road_previews"
-down_revision = "0009_part4_editing"  # TEMP until 0010 lands
+down_revision = "0010_layer_labels"
 branch_labels = None
 depends_on = None
 

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import errno
+import signal
 import socket
 import subprocess
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from types import FrameType
 
 import click
 
@@ -100,9 +102,14 @@ def queue_worker_processes(count: int) -> Iterator[None]:
     server's event loop must not wait on it."""
     procs = [subprocess.Popen([sys.executable, "-m", "cli", "worker", "--concurrency", "1"])
              for _ in range(count)]
+    # uvicorn ends on SIGTERM by raising it again once it has shut down; with the default
+    # handler that kills this process before the ``finally`` below, leaving the workers
+    # running. A handler of our own turns it into SystemExit, so they are stopped.
+    previous = signal.signal(signal.SIGTERM, _exit_on_sigterm)
     try:
         yield
     finally:
+        signal.signal(signal.SIGTERM, previous)
         for proc in procs:
             proc.terminate()
         for proc in procs:
@@ -110,3 +117,7 @@ def queue_worker_processes(count: int) -> Iterator[None]:
                 proc.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 proc.kill()
+
+
+def _exit_on_sigterm(signum: int, frame: FrameType | None) -> None:
+    raise SystemExit(128 + signum)

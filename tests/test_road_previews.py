@@ -21,6 +21,7 @@ from ingest.raster.job import ingest_raster
 from ingest.roads import RoadsInputError
 from ingest.roads.layer import ingest_layer_roads
 from ingest.roads.pipeline import ExtractParams
+from ingest.roads.review import review_labels
 from ingest.roads.synthetic import Scene, render
 from testkit.network_helpers import bearer
 from testkit.raster_synth import UTM33, utm_origin, write_tif
@@ -102,6 +103,10 @@ def test_serve_runs_a_preview_on_its_own_worker(module_database: str, scene) -> 
             assert time.monotonic() < deadline, preview
             time.sleep(0.2)
     assert preview["status"] == "succeeded", preview
+    # The worker that ran it stopped with the server (none is left to race later tests).
+    worker = scalar("SELECT worker FROM ingest_jobs WHERE id = :id", id=preview["id"])
+    with pytest.raises(ProcessLookupError):
+        os.kill(int(str(worker).rsplit(":", 1)[1]), 0)
     result = preview["result"]
     assert result["classifier"] == "model" and result["labels"] == {"road": 0, "not_road": 0}
     assert preview["layer_version"] == scalar("SELECT version FROM layers WHERE slug = 'teach'")
@@ -183,6 +188,10 @@ def test_accept_replaces_unreviewed_roads_and_keeps_a_persons(client, scene) -> 
         "ST_Length(ST_Intersection(s.geom, ST_Buffer(k.geom::geography, 1)::geometry)"
         "::geography) > 10", k=edited) == 0
 
+    # Accepted roads are the model's, not a review: only the person's edit is a label.
+    with session_scope() as session:
+        review = review_labels(session, "teach")
+    assert (review.deleted, review.drawn, review.moved, review.confirmed) == (0, 0, 0, 1)
     # Accepting again: the roads just accepted are the model's, so they are replaced again.
     again = _preview(client, scene)
     second = client.post(f"/layers/teach/previews/{again}/accept", json={"network": "teach-net"},

@@ -18,7 +18,7 @@ from ingest.roads.pipeline import ExtractParams
 from testkit.network_helpers import token
 from testkit.server import running_server
 from tests.test_road_previews import write_scene
-from tests.test_web_map import finish, wait_idle
+from tests.test_web_map import finish, screen, wait_idle
 
 pytestmark = pytest.mark.slow
 
@@ -46,7 +46,13 @@ def segment_history_actions() -> dict[str, int]:
             "ON n.id = e.network_id WHERE n.name = 'teach-net' GROUP BY action")).all())
 
 
-def test_teach_preview_then_accept(browser, teach_world, request, tmp_path: Path) -> None:
+def stored_labels() -> set[tuple[str, str]]:
+    with get_engine().connect() as conn:
+        return {tuple(r) for r in conn.execute(text(
+            "SELECT label, ST_GeometryType(geom) FROM layer_labels"))}
+
+
+def test_teach_label_preview_then_accept(browser, teach_world, request, tmp_path: Path) -> None:
     context = browser.new_context(viewport={"width": 1100, "height": 750})
     page = context.new_page()
     errors: list[str] = []
@@ -65,12 +71,34 @@ def test_teach_preview_then_accept(browser, teach_world, request, tmp_path: Path
     page.select_option("#teach-network", "teach-net")
     assert page.locator("#teach-accept").is_disabled()
 
+    # Label: a road line along the T arm (two clicks, a double-click ends it) and a not-road
+    # box in an empty corner; both stored, drawn and listed; the box removed again.
+    page.check("#teach-active")
+    page.check("input[name=teach-mode][value=road]")
+    x0, y0, x1, y1 = teach_world["bbox"]
+    arm_x = x0 + (x1 - x0) * 60 / 400
+    for fraction in (0.55, 0.9):
+        page.mouse.click(*screen(page, arm_x, y1 - (y1 - y0) * fraction))
+    page.mouse.dblclick(*screen(page, arm_x, y1 - (y1 - y0) * 0.9))
+    page.wait_for_selector("#teach-labels li", timeout=10_000)
+    page.check("input[name=teach-mode][value=not_road_box]")
+    page.mouse.click(*screen(page, x0 + (x1 - x0) * 0.7, y0 + (y1 - y0) * 0.1))
+    page.mouse.click(*screen(page, x0 + (x1 - x0) * 0.9, y0 + (y1 - y0) * 0.3))
+    page.wait_for_function("() => document.querySelectorAll('#teach-labels li').length === 2",
+                           timeout=10_000)
+    assert stored_labels() == {("road", "ST_LineString"), ("not_road", "ST_Polygon")}
+    page.locator("#teach-labels li", has_text="not-road area").locator("button").click()
+    page.wait_for_function("() => document.querySelectorAll('#teach-labels li').length === 1",
+                           timeout=10_000)
+    assert stored_labels() == {("road", "ST_LineString")}
+    page.uncheck("#teach-active")
+
     page.click("#teach-preview")
     page.wait_for_function(
         "() => /roads, confidence mean|failed|No preview/.test("
         "document.getElementById('teach-result').textContent)", timeout=120_000)
     summary = page.locator("#teach-result").inner_text()
-    assert "no labels (zero-shot)" in summary, summary
+    assert "1 road / 0 not-road labels" in summary, summary
     wait_idle(page)
     drawn = page.evaluate("() => window.ugvmap.map.queryRenderedFeatures("
                           "{layers: ['teach-preview-line']}).length")

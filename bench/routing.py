@@ -59,6 +59,7 @@ from app.routing.hierarchy import Hierarchy  # noqa: E402
 from app.routing.live import read_segments, registry  # noqa: E402
 from app.settings import get_settings  # noqa: E402
 from testkit import synthetic  # noqa: E402
+from testkit.network_helpers import node_pairs  # noqa: E402
 from testkit.scratch import scratch_database  # noqa: E402
 from testkit.server import running_server  # noqa: E402
 
@@ -69,17 +70,6 @@ def percentile(xs: list[float], q: float) -> float:
     """The ``q`` quantile of ``xs`` (nearest rank)."""
     s = sorted(xs)
     return s[min(len(s) - 1, round(q * (len(s) - 1)))]
-
-
-def node_pairs(conn: psycopg.Connection, net: int, n: int, edges: str) -> list:
-    """Random node pairs inside the largest strongly connected component."""
-    rows = conn.execute(
-        "WITH c AS (SELECT component, node FROM pgr_strongComponents(%s)), "
-        "big AS (SELECT component FROM c GROUP BY component ORDER BY count(*) DESC LIMIT 1) "
-        "SELECT n.id, ST_X(n.geom), ST_Y(n.geom) FROM c JOIN big USING (component) "
-        "JOIN road_nodes n ON n.id = c.node ORDER BY n.id", (edges,)).fetchall()
-    rng = random.Random(42)
-    return [tuple(rng.sample(rows, 2)) for _ in range(n)]
 
 
 OURS, OSRM_URL, PGR = "/route (our defaults)", "/route/v1 (OSRM's defaults)", "pgr_dijkstra SQL"

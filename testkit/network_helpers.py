@@ -1,11 +1,15 @@
 """Shared helpers for the network tests and benchmarks: a small synthetic network with known
-answers, API tokens for each role, and a wait for this process's change listener."""
+answers, API tokens for each role, a wait for this process's change listener, and node
+pairs that have a route."""
 
 from __future__ import annotations
 
+import random
 import threading
 import uuid
 from typing import Any
+
+import psycopg
 
 from app.db.notify import Subscriber, network_changes
 from app.db.session import session_scope
@@ -65,3 +69,16 @@ class NoteWatch:
         """Whether the note of ``version`` (or a later one) was passed on within the time."""
         with self._changed:
             return self._changed.wait_for(lambda: self.version >= version, timeout_s)
+
+
+def node_pairs(conn: psycopg.Connection, net: int, n: int, edges: str,
+               seed: int = 42) -> list[tuple[tuple[int, float, float], ...]]:
+    """``n`` random pairs of (id, lon, lat) of nodes inside the largest strongly connected
+    component of the pgRouting ``edges`` query: pairs that have a route."""
+    rows = conn.execute(
+        "WITH c AS (SELECT component, node FROM pgr_strongComponents(%s)), "
+        "big AS (SELECT component FROM c GROUP BY component ORDER BY count(*) DESC LIMIT 1) "
+        "SELECT n.id, ST_X(n.geom), ST_Y(n.geom) FROM c JOIN big USING (component) "
+        "JOIN road_nodes n ON n.id = c.node ORDER BY n.id", (edges,)).fetchall()
+    rng = random.Random(seed)
+    return [tuple(rng.sample(rows, 2)) for _ in range(n)]

@@ -222,7 +222,7 @@ def test_a_layer_of_two_far_apart_sources_is_extracted_per_area(
     a mosaic of billions of pixels, each area alone is small."""
     north = _scene_tif(tmp_path / "north.tif")
     south = _scene_tif(tmp_path / "south.tif", at=(16.0, 39.5))
-    ingest_raster([tmp_path / "north.tif", tmp_path / "south.tif"], "two-areas")
+    ingest_raster([tmp_path / "north.tif", tmp_path / "south.tif"], "two-areas", add=True)
     runner = CliRunner()
     roads = ["ingest", "roads", "--layer", "two-areas", "--classifier", "spectral"]
     one_box = ["--train-box", _box(north, 100, 146, 140, 154)]

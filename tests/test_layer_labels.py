@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import jsonschema
 import pytest
 from click.testing import CliRunner
 from pyproj import Transformer
@@ -219,12 +220,20 @@ def test_two_editors_cannot_pass_the_layer_limit_together(lonlat: Lonlat,
     assert [r[2] for r in stored()] == ["first", "first"]
 
 
-def test_the_api_document_describes_the_label_urls(client) -> None:
+def test_the_api_document_describes_the_label_urls(client, lonlat: Lonlat,
+                                                   editor: dict[str, str]) -> None:
     paths = client.get("/openapi.json").json()["paths"]
     labels, one = paths["/layers/{slug}/labels"], paths["/layers/{slug}/labels/{label_id}"]
     assert "security" not in labels["get"]  # public, as the layer
-    assert "application/geo+json" in labels["get"]["responses"]["200"]["content"]
     post = labels["post"]
+    listed = labels["get"]["responses"]["200"]["content"]["application/geo+json"]["schema"]
+    # The labels' own shape, not OGC API's items page (no numberMatched, no links).
+    assert listed["required"] == ["type", "features", "numberReturned"]
+    assert post["responses"]["201"]["content"]["application/geo+json"]["schema"] == listed
+    url = f"/layers/{SLUG}/labels"
+    created = client.post(url, json=area(lonlat, 20, 20, 80, 80), headers=editor)
+    jsonschema.validate(created.json(), listed)  # what is served is what is declared
+    jsonschema.validate(client.get(url).json(), listed)
     assert post["security"] == [{"bearer": []}]
     assert set(post["responses"]) >= {"201", "400", "401", "403", "404", "413", "415", "422"}
     body = post["requestBody"]["content"]["application/geo+json"]["schema"]["oneOf"]

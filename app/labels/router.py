@@ -46,8 +46,22 @@ LABELS_BODY = {"oneOf": [LABEL_SCHEMA, {
     "properties": {"type": {"type": "string", "enum": ["FeatureCollection"]},
                    "features": {"type": "array", "items": LABEL_SCHEMA, "minItems": 1,
                                 "maxItems": store.MAX_PER_REQUEST}}}]}
+STORED_LABEL: dict[str, Any] = {
+    "type": "object", "required": ["type", "id", "geometry", "properties"],
+    "properties": {
+        "type": {"type": "string", "enum": ["Feature"]},
+        "id": {"type": "integer"},
+        "geometry": {"type": "object", "description": "LineString or Polygon, lon/lat"},
+        "properties": {"type": "object", "required": ["label", "created_by", "created_at"],
+                       "properties": {
+                           "label": {"type": "string", "enum": ["road", "not_road"]},
+                           "created_by": {"type": "string"},
+                           "created_at": {"type": "string", "format": "date-time"}}}}}
 COLLECTION_200: dict[int | str, dict[str, Any]] = {200: {"content": {GEOJSON: {"schema": {
-    "$ref": "#/components/schemas/FeatureCollection"}}}}}
+    "type": "object", "required": ["type", "features", "numberReturned"],
+    "properties": {"type": {"type": "string", "enum": ["FeatureCollection"]},
+                   "features": {"type": "array", "items": STORED_LABEL},
+                   "numberReturned": {"type": "integer"}}}}}}}
 
 
 def _collection(features: list[dict[str, Any]]) -> dict[str, Any]:

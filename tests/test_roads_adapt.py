@@ -111,21 +111,26 @@ def test_a_correction_learns_what_the_labels_dispute() -> None:
 
 
 def test_labels_count_for_the_pixels_they_cover() -> None:
-    """A labelled pixel outweighs an anchor (``anchor_weight``), and each counts for the
-    pixels it was drawn from: a thin band of labels cannot outweigh the network everywhere."""
+    """A labelled pixel outweighs an anchor (``anchor_weight``), each counts for the pixels it
+    was drawn from (a thin band of labels cannot outweigh the network everywhere), and an
+    anchor's target is the network's own probability."""
     labels = np.zeros((100, 100), np.uint8)
     labels[:, :2] = NOT_ROAD  # a thin deleted line
     prob = np.full((100, 100), 0.99, np.float32)  # the network is sure: road everywhere
     params = AdaptParams(pixels=50, anchors=100, anchor_weight=0.1)
     _, target, weight = training_pixels(labels, prob, params)
     labelled = target == 0
-    assert weight.sum() == pytest.approx(1000.0)
+    assert weight.sum() == pytest.approx((200 + 0.1 * 9800) / 1000)
     assert weight[labelled].sum() / weight[~labelled].sum() == pytest.approx(200 / (0.1 * 9800))
+    assert np.allclose(target[~labelled], 0.99)
 
 
 def test_the_threshold_is_where_the_sample_separates() -> None:
-    prob = np.r_[np.full(50, 0.72), np.full(50, 0.2)]
+    """Labels the default cut (0.3) gets wrong move it; labels every cut separates alike, or of
+    one class, leave it."""
+    prob = np.r_[np.full(50, 0.72), np.full(50, 0.4)]
     road = np.r_[np.ones(50, bool), np.zeros(50, bool)]
-    cut, f1 = best_threshold(prob, road, np.ones(100), 0.3)
-    assert 0.2 < cut <= 0.72 and f1 == 1.0
-    assert best_threshold(prob, np.ones(100, bool), np.ones(100), 0.3)[0] == 0.3
+    assert 0.4 < best_threshold(prob, road, np.ones(100), 0.3) <= 0.72
+    apart = np.r_[np.full(50, 0.99), np.full(50, 0.01)]
+    assert best_threshold(apart, road, np.ones(100), 0.3) == 0.3
+    assert best_threshold(prob, np.ones(100, bool), np.ones(100), 0.3) == 0.3

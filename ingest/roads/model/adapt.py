@@ -12,9 +12,10 @@ on the labelled pixels) did.
 
 Labels a person gives are not a random sample of the image: a reviewer deletes the network's
 false roads (all of them confidently "road" to the network) and draws the ones it missed (all
-confidently "not road"). Learnt from those alone, a correction inverts the network. Pixels the
-network is sure about, away from every label, are therefore added as weak *anchors* of its own
-opinion, so the correction must keep what nobody contradicted.
+confidently "not road"). Learnt from those alone, a correction inverts the network. Every
+unlabelled pixel is therefore an *anchor* whose target is the network's own probability: it
+costs nothing where the correction leaves it alone and resists every change there, so the
+correction must keep what nobody contradicted, in proportion to how much of the image that is.
 
 The correction is learnt on half of the image's blocks and judged on the other half (labels
 and anchors alike, by F1 weighed as they are): that chooses the threshold of the adapted
@@ -47,15 +48,13 @@ class AdaptParams:
     hidden: int = 0
     """0: a linear correction; > 0: a one-hidden-layer (tanh) correction of that width."""
     l2: float = 1.0
-    """Weight decay of the correction, against a sample's total weight of 1000."""
+    """Weight decay of the correction (weights count thousands of pixels)."""
     pixels: int = 30_000
     """Labelled pixels the correction learns from (a uniform draw keeps the sample's mix)."""
     anchors: int = 20_000
-    """Unlabelled pixels where the network is sure, as weak examples of its own opinion..."""
+    """Unlabelled pixels that hold the correction to the network's own opinion..."""
     anchor_weight: float = 0.1
     """...each weighing this much of a labelled pixel."""
-    sure: float = 0.05
-    """The network is sure where its probability is below this or above 1 - this."""
     block_px: int = 64
     """Side of the blocks the sample is split by to choose the threshold."""
 
@@ -172,29 +171,30 @@ def fit_correction(x: np.ndarray, offset: np.ndarray, y: np.ndarray, weight: np.
 def training_pixels(labels: np.ndarray, prob: np.ndarray, params: AdaptParams,
                     within: np.ndarray | None = None, seed: int = 0
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(flat pixel indices, targets 0/1, weights): labelled pixels and anchors (unlabelled
-    pixels where the network is sure, its opinion as the target), each drawn uniformly and
-    weighed by how many pixels it stands for, an anchor ``anchor_weight`` of a labelled
-    pixel; only pixels ``within`` (flat) if given; the weights sum to 1000.
+    """(flat pixel indices, targets in 0..1, weights in thousands of pixels): labelled pixels
+    (target 0 or 1) and anchors (unlabelled pixels, target the network's own probability),
+    each drawn uniformly and weighed by how many pixels it stands for, an anchor
+    ``anchor_weight`` of a labelled pixel; only pixels ``within`` (flat) if given.
 
-    Weighed by the pixels they stand for, the labels count for what they cover of the image:
-    a fully labelled quadrant outweighs the network's opinion elsewhere, while thirty deleted
-    false roads (a thin band each, all where the network said "road") cannot turn every road
-    it is sure of into background."""
+    An anchor's target is what the uncorrected model already says, so it pulls nothing
+    towards itself and only resists change: the correction pays for every unlabelled pixel it
+    moves. Weighed by the pixels they stand for, a fully labelled quadrant outweighs that
+    resistance, while thirty deleted false roads (a thin band each) or five drawn roads cannot
+    move the whole image."""
     rng = np.random.default_rng(seed)
     flat = labels.ravel()
     inside = np.ones(flat.shape, bool) if within is None else within
     labelled = np.flatnonzero(inside & ((flat == ROAD) | (flat == NOT_ROAD)))
     picked = rng.choice(labelled, min(len(labelled), params.pixels), replace=False)
-    p = prob.ravel()
-    sure = np.flatnonzero(inside & (flat == 0) & ((p < params.sure) | (p > 1 - params.sure)))
-    anchors = rng.choice(sure, min(len(sure), params.anchors), replace=False)
+    free = np.flatnonzero(inside & (flat == 0))
+    anchors = rng.choice(free, min(len(free), params.anchors), replace=False)
     index = np.concatenate([picked, anchors])
-    target = np.concatenate([(flat[picked] == ROAD), p[anchors] > 0.5]).astype(np.float64)
+    target = np.concatenate([(flat[picked] == ROAD).astype(np.float64),
+                             prob.ravel()[anchors].astype(np.float64)])
     weight = np.concatenate([
         np.full(len(picked), len(labelled) / max(len(picked), 1)),
-        np.full(len(anchors), params.anchor_weight * len(sure) / max(len(anchors), 1))])
-    return index, target, weight * (1000.0 / max(weight.sum(), 1e-12))
+        np.full(len(anchors), params.anchor_weight * len(free) / max(len(anchors), 1))])
+    return index, target, weight / 1000.0
 
 
 CUTS = np.linspace(0.1, 0.9, 17)
@@ -209,15 +209,29 @@ def weighted_f1(prob: np.ndarray, road: np.ndarray, weight: np.ndarray, cut: flo
                               1e-12))
 
 
-def best_threshold(prob: np.ndarray, road: np.ndarray, weight: np.ndarray, default: float
-                   ) -> tuple[float, float]:
-    """(the cut from 0.1 to 0.9 with the best weighted F1, that F1); ``default`` and its F1
-    when only one class is there to judge by."""
+def agreement(prob: np.ndarray, road: np.ndarray, weight: np.ndarray, cut: float) -> float:
+    """How well ``prob >= cut`` agrees with labels: weighted F1 when they hold both classes,
+    else the weighted share it gets right (a reviewer's deletions alone are all "not road")."""
+    if road.any() and not road.all():
+        return weighted_f1(prob, road, weight, cut)
+    return float(weight[(prob >= cut) == road].sum() / max(weight.sum(), 1e-12))
+
+
+def best_threshold(prob: np.ndarray, road: np.ndarray, weight: np.ndarray, default: float,
+                   margin: float = 0.01) -> float:
+    """The cut from ``default`` to 0.9 with the best weighted F1, if it beats ``default`` by
+    more than ``margin``; else ``default`` (one class, or labels every cut separates alike,
+    say nothing about where to cut). Never below ``default``: a person's lines label the
+    middle of clear roads, where a lower cut always looks better, and drew false roads
+    everywhere else (a person's sample at 0.1: Massachusetts 01 P 0.72 -> 0.54)."""
     if road.all() or not road.any():
-        return default, weighted_f1(prob, road, weight, default)
-    scores = [weighted_f1(prob, road, weight, c) for c in CUTS]
+        return default
+    cuts = CUTS[np.greater_equal(CUTS, default)]
+    scores = [weighted_f1(prob, road, weight, c) for c in cuts]
     best = int(np.argmax(scores))
-    return float(CUTS[best]), scores[best]
+    if scores[best] <= weighted_f1(prob, road, weight, default) + margin:
+        return default
+    return float(cuts[best])
 
 
 def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
@@ -243,10 +257,12 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     learn = training_pixels(labels, prob, params, within=~odd, seed=1)
     held, target, weight = training_pixels(labels, prob, params, within=odd, seed=2)
     trial = fit_correction(flat_x[learn[0]], flat_logit[learn[0]], learn[1], learn[2], params)
-    z = flat_logit[held] + trial(flat_x[held])
-    road = target > 0.5
-    threshold, adapted_f1 = best_threshold(1 / (1 + np.exp(-z)), road, weight, model.threshold)
-    if adapted_f1 <= weighted_f1(prob.ravel()[held], road, weight, model.threshold):
+    said = labels.ravel()[held] != 0  # the cut is judged by the labels, not the anchors
+    held, road, weight = held[said], target[said] > 0.5, weight[said]
+    judged = 1 / (1 + np.exp(-(flat_logit[held] + trial(flat_x[held]))))
+    threshold = best_threshold(judged, road, weight, model.threshold)
+    if agreement(judged, road, weight, threshold) <= agreement(
+            prob.ravel()[held], road, weight, model.threshold):
         return prob, prob, model.threshold
     index, target, weight = training_pixels(labels, prob, params)
     correction = fit_correction(flat_x[index], flat_logit[index], target, weight, params)

@@ -11,11 +11,13 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from pyproj import Geod, Transformer
 from rasterio.transform import from_origin
 from sqlalchemy import text
 
 from app.db.session import get_engine, session_scope
+from cli.main import main
 from ingest.queue import tasks
 from ingest.raster.job import ingest_raster
 from ingest.roads import RoadsInputError
@@ -188,6 +190,8 @@ def test_accept_replaces_unreviewed_roads_and_keeps_a_persons(client, scene) -> 
         "ST_Length(ST_Intersection(s.geom, ST_Buffer(k.geom::geography, 1)::geometry)"
         "::geography) > 10", k=edited) == 0
 
+    validated = CliRunner().invoke(main, ["network", "validate", "teach-net"])
+    assert validated.exit_code == 0 and "topology OK" in validated.output, validated.output
     # Accepted roads are the model's, not a review: only the person's edit is a label.
     with session_scope() as session:
         review = review_labels(session, "teach")

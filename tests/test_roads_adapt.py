@@ -117,7 +117,7 @@ def test_labels_count_for_the_pixels_they_cover() -> None:
     labels = np.zeros((100, 100), np.uint8)
     labels[:, :2] = NOT_ROAD  # a thin deleted line
     prob = np.full((100, 100), 0.99, np.float32)  # the network is sure: road everywhere
-    params = AdaptParams(pixels=50, anchors=100, anchor_weight=0.1)
+    params = AdaptParams(pixels=50, anchors=100, anchor_weight=0.1)  # the arithmetic, any weight
     _, target, weight = training_pixels(labels, prob, params)
     labelled = target == 0
     assert weight.sum() == pytest.approx((200 + 0.1 * 9800) / 1000)

@@ -53,7 +53,7 @@ class AdaptParams:
     """Labelled pixels the correction learns from (a uniform draw keeps the sample's mix)."""
     anchors: int = 20_000
     """Unlabelled pixels that hold the correction to the network's own opinion..."""
-    anchor_weight: float = 0.1
+    anchor_weight: float = 0.5
     """...each weighing this much of a labelled pixel."""
     block_px: int = 64
     """Side of the blocks the sample is split by to choose the threshold."""

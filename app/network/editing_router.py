@@ -293,8 +293,7 @@ async def revert_item(collection_id: str, fid: str, to: Version, request: Reques
 
 @router.post(ITEM + "/split", response_class=GeoJSONResponse,
              openapi_extra=_body_doc(schemas.SPLIT_BODY, ("application/json",), IF_MATCH),
-             responses={200: {"content": {GEOJSON: {"schema": {
-                 "$ref": "#/components/schemas/FeatureCollection"}}}},
+             responses={200: {"content": {GEOJSON: {"schema": schemas.SPLIT_ANSWER}}},
                  **responses(*WRITE_ERRORS, *SEGMENTS_ONLY, *BODY_ERRORS,
                                     *PRECONDITIONS)})
 async def split_item(collection_id: str, fid: str, request: Request,

@@ -167,3 +167,9 @@ HISTORY: dict[str, Any] = {
                        "conditional": {"type": "boolean"},
                        "old": {"type": "object", "nullable": True},
                        "new": {"type": "object", "nullable": True}}}}}}
+SPLIT_ANSWER: dict[str, Any] = {
+    "type": "object", "required": ["type", "features"],
+    "description": "The two segments the split made (not a page of items: no numberMatched)",
+    "properties": {"type": {"type": "string", "enum": ["FeatureCollection"]},
+                   "features": {"type": "array", "minItems": 2, "maxItems": 2,
+                                "items": {"$ref": "#/components/schemas/Feature"}}}}

@@ -21,6 +21,7 @@ from click.testing import CliRunner
 from lanelet2.core import TrafficLight
 from pyproj import Transformer
 
+from app.routing.profiles import CAR
 from cli.main import main
 from testkit import synthetic
 from testkit.network_helpers import bearer
@@ -358,7 +359,16 @@ def test_andorra_lanelets_per_segment_and_direction(andorra, writer) -> None:
         want_b = 0 if oneway == "forward" else max(bwd, 1)
         assert len(lanes.get((sid, "forward"), [])) == want_f, sid
         assert len(lanes.get((sid, "backward"), [])) == want_b, sid
-    assert all(m.rules.canPass(ll) for ll in m.lanelets())
+    # A vehicle passes every lanelet but those of (or joining) a class a car never drives.
+    classes = dict(writer.execute(
+        "SELECT s.id, s.road_class FROM road_segments s JOIN networks n "
+        "ON n.id = s.network_id WHERE n.name = %s", (name,)).fetchall())
+    for ll in m.lanelets():
+        ends = [int(ll.attributes[k]) for k in ("segment_id", "to_segment_id")
+                if k in ll.attributes]
+        for_cars = not any(CAR.forbids(classes[sid]) for sid in ends)
+        assert m.rules.canPass(ll) == for_cars, ll.id
+        assert ll.attributes["participant:vehicle"] == ("yes" if for_cars else "no")
     assert {d.kind for d in result.summary.defects} <= {"self-loop", "overlap", "duplicate",
                                                         "zero-length", "no-lanes"}
 
@@ -376,7 +386,11 @@ def test_andorra_routes_agree_with_ugvmap(andorra, writer, client) -> None:
         "SELECT s.id, ST_X(p), ST_Y(p) FROM road_segments s JOIN networks n "
         "ON n.id = s.network_id, ST_LineInterpolatePoint(s.geom, 0.5) p "
         "WHERE n.name = %s AND s.length_m > 20 ORDER BY s.id", (name,)).fetchall()
-    rows = [r for r in rows if r[0] not in skip]
+    car = {sid for sid, road_class in writer.execute(
+        "SELECT s.id, s.road_class FROM road_segments s JOIN networks n "
+        "ON n.id = s.network_id WHERE n.name = %s", (name,)).fetchall()
+        if not CAR.forbids(road_class)}
+    rows = [r for r in rows if r[0] not in skip and r[0] in car]  # where a car may start
     dropped = {(a, b) for _, a, b in result.summary.movements_dropped}
     rng = random.Random(21)
     lanes = m.by_segment()

@@ -226,6 +226,7 @@ def test_accepting_a_preview_of_an_older_layer_version_is_a_conflict(client, sce
     answer = client.post(f"/layers/teach/previews/{preview_id}/accept",
                          json={"network": "teach-net"}, headers=bearer("editor"))
     assert answer.status_code == 409
+    assert answer.json()["code"] == "StalePreview"
     assert answer.json()["message"].startswith("the layer changed since this preview")
     assert answer.json()["message"].endswith("preview again")
     assert _segments("teach-net") == before

@@ -75,6 +75,7 @@ STATUS_CODES: Table = {
     e.TileOutOfRangeError: Answer(404, "TileOutOfRange"),
     MethodNotAllowedError: Answer(405, "MethodNotAllowed"),
     e.ConflictError: Answer(409, "Conflict"),
+    e.StalePreviewError: Answer(409, "StalePreview"),
     e.PreconditionFailedError: Answer(412, "PreconditionFailed"),
     PayloadTooLargeError: Answer(413, "PayloadTooLarge"),
     UnsupportedMediaTypeError: Answer(415, "UnsupportedMediaType"),

@@ -11,7 +11,8 @@ Conventions (the README's *Lanelet2 export* section says the same for users):
   ``road_border``; lanelets beside each other share their bound (one way, written once).
 - **Lanelets.** One per lane and allowed direction, ``type=lanelet subtype=road
   location=urban one_way=yes participant:vehicle=yes speed_limit=<km/h>`` (the segment's
-  limit, else the router's class default), ``segment_id``, ``direction`` (forward/backward
+  limit, else the router's class default; ``participant:vehicle=no`` on classes a car never
+  drives, as ugvmap's car routing), ``segment_id``, ``direction`` (forward/backward
   along the segment's geometry) and ``lane`` (1 = the rightmost); junction lanelets carry
   ``turn_direction`` (straight within 30°), ``segment_id`` (the segment they leave),
   ``to_segment_id``, ``node_id`` and ``virtual`` bounds (nothing is painted in a junction).
@@ -32,7 +33,15 @@ import shapely
 from app.lanelet2 import topology as topo
 from app.lanelet2.frame import Frame, IdSource
 from app.lanelet2.geometry import line_index, progressing
-from app.lanelet2.junctions import BASE_TAGS, Pending, flush, junction, lights, speed_tag
+from app.lanelet2.junctions import (
+    BASE_TAGS,
+    Pending,
+    flush,
+    junction,
+    lights,
+    speed_tag,
+    vehicle_tags,
+)
 from app.lanelet2.layout import Layout, plan_layout
 from app.lanelet2.osm_xml import Member, OsmXmlWriter
 from app.lanelet2.roads import NetworkSelection
@@ -67,7 +76,8 @@ def _boundary_tags(k: int, n: int, backward: int) -> dict[str, str]:
 
 def _segment_tags(plan: Layout, s: int) -> dict[str, object]:
     roads = plan.roads
-    tags: dict[str, object] = {**BASE_TAGS, "speed_limit": speed_tag(plan.speed[s]),
+    tags: dict[str, object] = {**BASE_TAGS, **vehicle_tags(roads.road_class[s]),
+                               "speed_limit": speed_tag(plan.speed[s]),
                                "segment_id": int(roads.ids[s]),
                                "road_class": roads.road_class[s]}
     if roads.name[s]:

@@ -29,6 +29,7 @@ from app.lanelet2.geometry import (
 )
 from app.lanelet2.layout import Layout
 from app.lanelet2.osm_xml import Member, OsmXmlWriter
+from app.routing.profiles import CAR
 
 STRAIGHT_DEG = 30.0
 LIGHT_HEIGHT_M = 5.0
@@ -38,6 +39,17 @@ LIGHT_OFFSET_M = 1.0
 VIRTUAL: dict[str, object] = {"type": "virtual"}
 BASE_TAGS = {"type": "lanelet", "subtype": "road", "location": "urban", "one_way": "yes",
              "participant:vehicle": "yes"}
+
+
+def vehicle_tags(*road_classes: str) -> dict[str, str]:
+    """``participant:vehicle=no`` on a lanelet of a road class a car never drives (a footway,
+    cycleway, steps: :data:`app.routing.profiles.CAR`), or joining one: the map says what
+    ugvmap's own car routing says, so a planner on the Lanelet2 map cannot take the footway
+    shortcut the router refuses. Those lanelets stay in the map (a sidewalk robot's stack
+    may read them)."""
+    if any(CAR.forbids(c) for c in road_classes):
+        return {"participant:vehicle": "no", "participant:pedestrian": "yes"}
+    return {}
 
 
 def speed_tag(kph: float) -> str:
@@ -103,7 +115,8 @@ def junction(plan: Layout, node: int, ids: IdSource, pending: Pending) -> int:
             ordered_in, ordered_out = ((ins[::-1], outs[::-1]) if direction == "left"
                                        else (ins, outs))
             sa, sb = a // 2, b // 2
-            tags = {**BASE_TAGS,
+            tags = {**BASE_TAGS, **vehicle_tags(plan.roads.road_class[sa],
+                                                plan.roads.road_class[sb]),
                     "speed_limit": speed_tag(min(plan.speed[sa], plan.speed[sb])),
                     "turn_direction": direction, "segment_id": int(plan.roads.ids[sa]),
                     "to_segment_id": int(plan.roads.ids[sb]),

@@ -82,9 +82,13 @@ def test_a_busy_port_is_said_plainly_and_make_demo_takes_another(database_url: s
     def served_on(*args: str, **env: str) -> str:
         """The port `make demo` serves on (its plan, `make -n`), with only ``env``'s
         UGVMAP_PORT."""
-        clean = {k: v for k, v in os.environ.items() if k != "UGVMAP_PORT"}
-        plan = subprocess.run(["make", "-n", "demo", *args], cwd=REPO, check=True, text=True,
-                              capture_output=True, env={**clean, **env}).stdout
+        # Under `make test` (CI) the environment carries the outer make's MAKELEVEL and
+        # MAKEFLAGS, and a nested make then ends its plan with "Leaving directory ...".
+        clean = {k: v for k, v in os.environ.items()
+                 if k not in ("UGVMAP_PORT", "MAKELEVEL", "MAKEFLAGS", "MFLAGS")}
+        plan = subprocess.run(["make", "--no-print-directory", "-n", "demo", *args], cwd=REPO,
+                              check=True, text=True, capture_output=True,
+                              env={**clean, **env}).stdout
         return plan.strip().splitlines()[-1].rsplit(" ", 1)[-1]
 
     assert served_on("PORT=8101") == "8101"

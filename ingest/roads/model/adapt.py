@@ -263,7 +263,7 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     threshold = best_threshold(judged, road, weight, model.threshold)
     if agreement(judged, road, weight, threshold) <= agreement(
             prob.ravel()[held], road, weight, model.threshold):
-        return prob, prob, model.threshold
+        return np.where(labels == NOT_ROAD, 0.0, prob).astype(np.float32), prob, model.threshold
     index, target, weight = training_pixels(labels, prob, params)
     correction = fit_correction(flat_x[index], flat_logit[index], target, weight, params)
     adapted = np.empty(rows * cols, np.float32)
@@ -271,4 +271,8 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     for i in range(0, rows * cols, step):
         z = flat_logit[i:i + step] + correction(flat_x[i:i + step])
         adapted[i:i + step] = 1 / (1 + np.exp(-z))
-    return adapted.reshape(rows, cols), prob, threshold
+    adapted = adapted.reshape(rows, cols)
+    # Where a person said "not road" it is not: a deleted false road never comes back where it
+    # was, whatever the correction learnt from it for the rest of the image.
+    adapted[labels == NOT_ROAD] = 0.0
+    return adapted, prob, threshold

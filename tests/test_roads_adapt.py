@@ -99,13 +99,16 @@ def test_no_evidence_means_no_correction() -> None:
     assert np.abs(correction(x)).max() < 0.5
 
 
-def test_a_correction_learns_what_the_labels_dispute() -> None:
-    """Where the labels say the opposite of the network along one feature, it learns it."""
+@pytest.mark.parametrize("hidden", [0, 4])
+def test_a_correction_learns_what_the_labels_dispute(hidden: int) -> None:
+    """Where the labels say the opposite of the network along one feature, it learns it
+    (linear, and with the hidden layer ``bench/roads_adapt.py --set hidden=N`` tries)."""
     rng = np.random.default_rng(0)
     x = rng.normal(size=(4000, 3))
     logit = np.full(4000, 3.0)  # the network says road everywhere
     y = (x[:, 0] > 0).astype(float)  # the labels: road only where feature 0 is positive
-    correction = fit_correction(x, logit, y, np.full(4000, 0.25), AdaptParams(l2=1.0))
+    correction = fit_correction(x, logit, y, np.full(4000, 0.25),
+                                AdaptParams(l2=1.0, hidden=hidden))
     z = logit + correction(x)
     assert ((z > 0) == (y > 0)).mean() > 0.9
 

@@ -5,10 +5,11 @@ which look-alikes count (parking aisles, field tracks, canals) and how its roads
 network stays frozen and a small *correction* is learnt on top of it: the adapted road logit
 is the network's own logit plus a function of the network's 16 decoder features, its logit
 blurred at two scales (is there road around here) and the pixel's colour, regularised towards
-zero. With few labels the correction stays near zero and the result is the zero-shot one;
-with many it learns where the team disagrees with the network. That is why a sample can no
-longer make things worse than zero-shot, which the earlier per-job trees (learnt from scratch
-on the labelled pixels) did.
+zero. With few labels the correction stays near zero and the result is close to the
+zero-shot one; with many it learns where the team disagrees with the network. The earlier
+per-job trees, learnt from scratch on the labelled pixels, scored below zero-shot with a whole
+labelled quadrant; this correction scores above it on 7 of the 8 validation images (the
+model card's "Adaptation").
 
 Labels a person gives are not a random sample of the image: a reviewer deletes the network's
 false roads (all of them confidently "road" to the network) and draws the ones it missed (all
@@ -17,12 +18,11 @@ unlabelled pixel is therefore an *anchor* whose target is the network's own prob
 costs nothing where the correction leaves it alone and resists every change there, so the
 correction must keep what nobody contradicted, in proportion to how much of the image that is.
 
-The correction is learnt on half of the image's blocks and judged on the other half (labels
-and anchors alike, by F1 weighed as they are): that chooses the threshold of the adapted
-probability, so it follows the sample rather than the network's training scenes, and where the
-judged half is no better than the network on its own (contradictory labels, too few to learn
-from) the network's own result stands. A sample may fail to help; it cannot make things worse
-on its own evidence.
+The correction is learnt on half of the image's blocks and judged by the labels of the other
+half: that chooses the threshold of the adapted probability (never below the network's own),
+and where the judged half agrees with the labels no better than the network alone
+(contradictory labels, too few to learn from) the network's own result stands. Where a person
+labelled "not road", nothing is drawn.
 """
 
 from __future__ import annotations

@@ -98,7 +98,8 @@ def main() -> None:
             after = score_lines(scored, adapted.source_lines(), time.perf_counter() - start)
             rows[kind].append((before, after))
             b, a = before.scores[1], after.scores[1]
-            print(f"| {sample.name} | {kind} | {b.precision:.3f} / {b.recall:.3f} / "
+            print(f"| {sample.name} | {kind}: {taught.description} | "
+                  f"{b.precision:.3f} / {b.recall:.3f} / "
                   f"{before.apls:.3f} | {a.precision:.3f} / {a.recall:.3f} / {after.apls:.3f} "
                   f"| {f1(before):.3f} -> {f1(after):.3f} | {before.seconds:.1f} / "
                   f"{after.seconds:.1f} ({after.seconds / before.seconds:.2f}) |", flush=True)

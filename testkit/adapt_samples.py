@@ -38,9 +38,9 @@ UNSCORED_M = 6.0
 
 @dataclass(frozen=True)
 class AdaptSample:
-    """Labels (255 road / 128 not road / 0) and where scores are not counted."""
+    """Labels (255 road / 128 not road / 0), where scores are not counted, and what was
+    drawn (the bench prints it: a sample that came out empty must show)."""
 
-    kind: str
     labels: np.ndarray
     unscored: np.ndarray
     description: str
@@ -83,7 +83,7 @@ def _at(grid: np.ndarray, xy: np.ndarray) -> np.ndarray:
 
 def quadrant_sample(truth: Truth) -> AdaptSample:
     """(a) The labelled quadrant of :func:`testkit.roads_accuracy.load_sample`."""
-    return AdaptSample("quadrant", truth.labels, truth.region,
+    return AdaptSample(truth.labels, truth.region,
                        "one fully labelled quadrant")
 
 
@@ -112,7 +112,7 @@ def person_sample(truth: Truth, zero_shot_lines: Sequence[np.ndarray], lines: in
         labels[r:r + size, c:c + size] = NOT_ROAD
     _burn(longest, LINE_HALF_WIDTH_M / res, ROAD, labels)
     unscored = _near(shape, longest, UNSCORED_M / res) | (labels == NOT_ROAD)
-    return AdaptSample("person", labels, unscored,
+    return AdaptSample(labels, unscored,
                        f"{len(longest)} longest roads as lines, {len(chosen)} not-road boxes "
                        f"of {box_m:g} m")
 
@@ -155,5 +155,5 @@ def review_sample(truth: Truth, zero_shot_lines: Sequence[np.ndarray], far_m: fl
     _burn(deleted, LINE_HALF_WIDTH_M / res, NOT_ROAD, labels)
     _burn(drawn, LINE_HALF_WIDTH_M / res, ROAD, labels)
     unscored = _near(shape, [*deleted, *drawn], UNSCORED_M / res)
-    return AdaptSample("review", labels, unscored,
+    return AdaptSample(labels, unscored,
                        f"{len(deleted)} false segments deleted, {len(drawn)} missed roads drawn")

@@ -10,6 +10,7 @@ from typing import Any
 
 import click
 
+from app.db.models import LAYER_KINDS
 from app.errors import UserError
 from app.tiles.store import resolve
 from cli.jobs import absolute, enqueue_job, queue_option
@@ -20,7 +21,8 @@ from cli.jobs import absolute, enqueue_job, queue_option
 @click.option("--layer", "slug", required=True, help="Layer slug (created if new).")
 @click.option("--title", help="Human title of the layer.")
 @click.option("--kind", default="orthophoto", show_default=True,
-              type=click.Choice(["orthophoto", "ipm-mosaic", "raster"]))
+              type=click.Choice(list(LAYER_KINDS)),
+              help="elevation: a DEM (DSM or DTM) of heights in metres, see docs/terrain.md")
 @click.option("--crs", help="CRS of world-file images (e.g. EPSG:32633).")
 @click.option("--priority", default=0, show_default=True, type=int,
               help="Higher priority sources are drawn over lower ones; ties: newest on top.")

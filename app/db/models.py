@@ -29,7 +29,7 @@ from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 SLUG_RE = "^[a-z0-9][a-z0-9_-]{0,63}$"
-LAYER_KINDS = ("orthophoto", "ipm-mosaic", "raster")
+LAYER_KINDS = ("orthophoto", "ipm-mosaic", "raster", "elevation")
 NODE_KINDS = ("junction", "endpoint", "node")
 ONEWAY_VALUES = ("none", "forward", "backward")
 JOB_STATUSES = ("queued", "running", "succeeded", "failed")  # of jobs and of their parts

@@ -47,6 +47,7 @@ class TileQuery:
     created_at: datetime
     sources: list[TileSource]
     overview_uri: str | None
+    kind: str = "orthophoto"  # elevation layers are drawn as relief (app.tiles.elevation)
 
     @property
     def token(self) -> str:
@@ -63,7 +64,8 @@ def tile_sources(conn: Connection, slug: str,
                  bbox: tuple[float, float, float, float]) -> TileQuery | None:
     """The layer's version and the sources meeting ``bbox`` (EPSG:3857), bottom first."""
     rows = conn.execute(text(
-        "SELECT l.id, l.version, l.created_at, l.overview_uri, s.uri, s.meta->'display_range' "
+        "SELECT l.id, l.version, l.created_at, l.overview_uri, s.uri, s.meta->'display_range', "
+        " l.kind "
         "FROM layers l "
         "LEFT JOIN raster_sources s ON s.layer_id = l.id "
         " AND ST_Intersects(s.footprint, ST_MakeEnvelope(:x0, :y0, :x1, :y1, 3857)) "
@@ -74,7 +76,7 @@ def tile_sources(conn: Connection, slug: str,
         return None
     sources = [TileSource(r[4], r[5]) for r in rows if r[4] is not None]
     return TileQuery(layer_id=rows[0][0], version=rows[0][1], created_at=rows[0][2],
-                     sources=sources, overview_uri=rows[0][3])
+                     sources=sources, overview_uri=rows[0][3], kind=rows[0][6])
 
 
 def list_layers(conn: Connection) -> list[dict[str, Any]]:

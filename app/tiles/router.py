@@ -26,6 +26,7 @@ from app.grid import parse_tile, tile_bounds
 from app.params import LayerSlug, Shape, TileXY, TileZ
 from app.tiles import catalog
 from app.tiles.cache import tile_cache
+from app.tiles.elevation import RENDERS, relief_renders
 from app.tiles.encode import MEDIA_TYPES
 from app.tiles.mosaic import compose_tile
 from app.tiles.store import open_store
@@ -43,6 +44,7 @@ TileName = Annotated[str, Shape(pattern=rf"^[0-9]{{1,8}}(@2x)?\.({'|'.join(FORMA
                                 description="{y}[@2x].{format}")]
 SourceId = Annotated[str, Shape(pattern=r"^[0-9]{1,18}$")]
 CACHE_CONTROL = "public, max-age=60"
+Render = Annotated[str | None, Shape(enum=list(RENDERS))]
 
 
 def _format(name: str) -> str:
@@ -72,6 +74,9 @@ def _layer_json(layer: dict[str, Any], request: Request) -> dict[str, Any]:
             "tilejson": str(request.url_for("tilejson", slug=slug)),
             "tiles": versioned(_tile_template(request, slug, "png"), _token(layer)),
         },
+        **({"renders": relief_renders(versioned(_tile_template(request, slug, "png"),
+                                                _token(layer)))}
+           if layer["kind"] == "elevation" else {}),
     }
 
 
@@ -164,13 +169,16 @@ def tilejson(slug: LayerSlug, request: Request, response: Response,
 
 
 @router.get("/tiles/{slug}/{z}/{x}/{tile}", response_model=None,
-            dependencies=[only_query(VERSION_PARAM)],
+            dependencies=[only_query(VERSION_PARAM, "render")],
             responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}},
                        304: {"description": "Not modified: If-None-Match holds the ETag"},
                        **responses(errors.LayerNotFoundError, errors.TileOutOfRangeError,
                                           errors.RasterSourceMissingError)})
-def tile(slug: LayerSlug, z: TileZ, x: TileXY, tile: TileName, request: Request) -> Response:
-    """One XYZ tile (256 px, or 512 px with ``@2x``) composed from all sources meeting it."""
+def tile(slug: LayerSlug, z: TileZ, x: TileXY, tile: TileName, request: Request,
+         render: Render = None) -> Response:
+    """One XYZ tile (256 px, or 512 px with ``@2x``) composed from all sources meeting it.
+    An elevation layer is drawn as ``render``: hillshade (the default), slope (a colour ramp,
+    its legend in ``GET /layers/{slug}``) or terrarium (heights for MapLibre's raster-dem)."""
     match = TILE_RE.match(tile)
     if not match:
         raise InvalidParameterValueError(
@@ -187,10 +195,10 @@ def tile(slug: LayerSlug, z: TileZ, x: TileXY, tile: TileName, request: Request)
     if unchanged is not None:
         return unchanged
     size = 512 if match["scale"] else 256
-    key = (query.layer_id, query.version, zi, xi, yi, fmt, size)
+    key = (query.layer_id, query.version, zi, xi, yi, fmt, size, render)
     body = tile_cache().get(key)
     headers["X-Tile-Cache"] = "hit" if body is not None else "miss"
     if body is None:
-        body = compose_tile(query, zi, xi, yi, fmt, size)
+        body = compose_tile(query, zi, xi, yi, fmt, size, render)
         tile_cache().put(key, body)
     return Response(body, media_type=MEDIA_TYPES[fmt], headers=headers)

@@ -79,10 +79,11 @@ def write_cog(src: str | Path | rasterio.io.DatasetReaderBase, dst: Path,
 
 
 def write_staged_cog(dst: Path, block: TileBlock, bands: int, dtype: str,
-                     fill: Callable[[DatasetWriter], None]) -> None:
+                     fill: Callable[[DatasetWriter], None], nodata: float | None = None) -> None:
     """Write a COG whose pixels we compute ourselves (a GCP warp, a layer overview).
 
-    ``fill`` writes ``bands`` data bands plus an alpha band into a temporary tiled GeoTIFF
+    ``fill`` writes ``bands`` data bands plus an alpha band (or, with ``nodata``, the data
+    bands alone, ``nodata`` where there is none: heights) into a temporary tiled GeoTIFF
     laid out on ``block`` (so it is already on the XYZ grid and the COG driver copies it
     without resampling again); the COG is then written from it atomically (:func:`write_cog`)
     and the staging file removed, whatever happens.
@@ -92,6 +93,9 @@ def write_staged_cog(dst: Path, block: TileBlock, bands: int, dtype: str,
                "transform": block.transform, "photometric": "RGB" if bands == 3 else "MINISBLACK",
                "alpha": "YES", "tiled": True, "blockxsize": TILE_SIZE, "blockysize": TILE_SIZE,
                "compress": "zstd", "sparse_ok": True}
+    if nodata is not None:
+        profile.update(count=bands, nodata=nodata)
+        del profile["alpha"]
     staged = dst.with_name(f".{dst.name}.staged.tmp")
     dst.parent.mkdir(parents=True, exist_ok=True)
     try:

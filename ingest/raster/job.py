@@ -63,7 +63,7 @@ from app.tiles.store import (
 from ingest.raster.cog import measure_cog, write_cog
 from ingest.raster.footprint import connected_areas
 from ingest.raster.overview import build_overview
-from ingest.raster.sources import Source, SourceError, inspect
+from ingest.raster.sources import Source, SourceError, as_elevation, inspect
 
 
 @dataclass(frozen=True)
@@ -325,7 +325,8 @@ def render_overview(conn: Connection, layer_id: int, layer: str, dst: Path) -> N
         " (SELECT maxzoom FROM layers WHERE id = :id) FROM (SELECT ST_Extent(footprint) AS e "
         " FROM raster_sources WHERE layer_id = :id) q"), {"id": layer_id}).one()
     assert sources is not None  # the layer row was upserted in this transaction
-    build_overview(sources.sources, (row[0], row[1], row[2], row[3]), row[4], dst)
+    build_overview(sources.sources, (row[0], row[1], row[2], row[3]), row[4], dst,
+                   heights=sources.kind == "elevation")
 
 
 @contextlib.contextmanager
@@ -397,6 +398,8 @@ def ingest_raster(paths: Sequence[Path], layer: str, *, title: str | None = None
             claim_root(conn)
     check = inspect_source or (lambda p: inspect(p, crs=crs))
     sources = [check(Path(p)) for p in paths]
+    if kind == "elevation":
+        sources = [as_elevation(source) for source in sources]
     sums = [checksum(source.path) for source in sources]
     with get_engine(database_url).connect() as conn:
         if not replace:

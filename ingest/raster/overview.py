@@ -18,8 +18,10 @@ from rasterio.windows import Window
 
 from app.grid import TILE_SIZE, Bounds, covering_block, pixel_size_m, tile_bounds
 from app.tiles.catalog import TileSource
+from app.tiles.elevation import read_heights
 from app.tiles.mosaic import render
 from ingest.raster.cog import write_staged_cog
+from ingest.raster.sources import HEIGHT_NODATA
 
 OVERVIEW_DEPTH = 5
 MAX_TILES_PER_SIDE = 32
@@ -34,20 +36,34 @@ def overview_zoom(bounds_3857: Bounds, maxzoom: int) -> int:
     return zoom
 
 
+def _colour_tile(sources: list[TileSource], bbox: Bounds) -> np.ndarray:
+    bgra = render(sources, bbox, TILE_SIZE)
+    return np.moveaxis(bgra[..., [2, 1, 0, 3]], -1, 0)
+
+
+def _height_tile(sources: list[TileSource], bbox: Bounds) -> np.ndarray:
+    heights = read_heights(sources, bbox, TILE_SIZE, TILE_SIZE)
+    return np.where(np.isfinite(heights), heights, HEIGHT_NODATA)[None].astype(np.float32)
+
+
 def build_overview(sources: list[TileSource], bounds_3857: Bounds, maxzoom: int,
-                   dst: Path) -> int:
-    """Render the layer into ``dst`` (COG, 8-bit RGB + mask); return the overview zoom."""
+                   dst: Path, heights: bool = False) -> int:
+    """Render the layer into ``dst`` (COG, 8-bit RGB + mask; for an elevation layer, float32
+    heights + mask, which its relief tiles are drawn from); return the overview zoom."""
     zoom = overview_zoom(bounds_3857, maxzoom)
     block = covering_block(bounds_3857, zoom)
+    draw = _height_tile if heights else _colour_tile
 
     def paint(out: DatasetWriter) -> None:
         for x, y in block.tiles():
-            bgra = render(sources, tile_bounds(zoom, x, y), TILE_SIZE)
-            if not bgra[..., 3].any():
+            bands = draw(sources, tile_bounds(zoom, x, y))
+            if not (bands[-1] != (HEIGHT_NODATA if heights else 0)).any():
                 continue  # sparse: empty tiles are never written
-            rgba = np.moveaxis(bgra[..., [2, 1, 0, 3]], -1, 0)
-            out.write(rgba, window=Window((x - block.col0) * TILE_SIZE,
-                                          (y - block.row0) * TILE_SIZE, TILE_SIZE, TILE_SIZE))
+            out.write(bands, window=Window((x - block.col0) * TILE_SIZE,
+                                           (y - block.row0) * TILE_SIZE, TILE_SIZE, TILE_SIZE))
 
-    write_staged_cog(dst, block, 3, "uint8", paint)
+    if heights:
+        write_staged_cog(dst, block, 1, "float32", paint, nodata=HEIGHT_NODATA)
+    else:
+        write_staged_cog(dst, block, 3, "uint8", paint)
     return zoom

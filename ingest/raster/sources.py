@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
@@ -45,6 +45,8 @@ MAX_SIDE_PX = 200_000
 MAX_PIXELS = 8_000_000_000
 #: Pixel sizes outside this range (metres) are georeferencing mistakes, not imagery.
 MIN_RES_M, MAX_RES_M = 0.001, 50_000.0
+#: The nodata value of elevation COGs (no DEM has land 32 km below the sea).
+HEIGHT_NODATA = -32768.0
 GDAL_TYPES = {"uint8": "Byte", "uint16": "UInt16", "int16": "Int16", "uint32": "UInt32",
               "int32": "Int32", "float32": "Float32", "float64": "Float64"}
 #: Reading these makes libjpeg/libtiff/libpng complaints about truncated data hard errors.
@@ -74,6 +76,9 @@ class Source:
     band_count: int = 0
     warnings: list[str] = field(default_factory=list)
     """What looks wrong but is not refused (a world file placing it outside its CRS's area)."""
+    heights: bool = False
+    """An elevation source (:func:`as_elevation`): float32 with :data:`HEIGHT_NODATA` where
+    the input has no data, instead of a mask (GDAL takes no float alpha band as a mask)."""
 
     @property
     def name(self) -> str:
@@ -83,7 +88,7 @@ class Source:
     def cog_input(self) -> str:
         """What the COG driver reads: the file itself when nothing needs normalising (it is
         measurably faster than a VRT on big mosaics), else :meth:`vrt_xml`."""
-        plain = (self.georef_from == "file" and not self.has_mask
+        plain = (self.georef_from == "file" and not self.has_mask and not self.heights
                  and self.bands == list(range(1, self.band_count + 1)))
         return str(self.path) if plain else self.vrt_xml()
 
@@ -108,6 +113,13 @@ class Source:
                          + "</GeoTransform>")
         names = ("Red", "Green", "Blue") if len(self.bands) == 3 else ("Gray",)
         gdal_type = GDAL_TYPES[self.dtype]
+        if self.heights:  # masked pixels (nodata, alpha, mask) become the band's nodata
+            parts.append(
+                f'<VRTRasterBand dataType="Float32" band="1"><NoDataValue>{HEIGHT_NODATA!r}'
+                f'</NoDataValue><ComplexSource><SourceFilename relativeToVRT="0">{path}'
+                f"</SourceFilename><SourceBand>{self.bands[0]}</SourceBand>"
+                "<UseMaskBand>true</UseMaskBand></ComplexSource></VRTRasterBand></VRTDataset>")
+            return "".join(parts)
         for i, (band, interp) in enumerate(zip(self.bands, names, strict=True), start=1):
             parts.append(f'<VRTRasterBand dataType="{gdal_type}" band="{i}">'
                          f"<ColorInterp>{interp}</ColorInterp>{simple(band)}</VRTRasterBand>")
@@ -240,6 +252,19 @@ def _describe(path: Path, ds: rasterio.io.DatasetReader, crs: str | None,
     return Source(path=path, width=ds.width, height=ds.height, dtype=dtype, bands=bands,
                   crs=src_crs, transform=transform, georef_from=how, gcps=list(gcps or []),
                   has_mask=has_mask, band_count=ds.count)
+
+
+def as_elevation(source: Source) -> Source:
+    """The source as heights: its first band as float32, nodata carried as the mask.
+
+    Float32 whatever the input type, so the bilinear warp and the averaging overviews keep
+    fractions of a metre (an int16 SRTM tile averaged in int16 would round every level);
+    a file of several colour bands is a picture, not heights, and is refused.
+    """
+    if len(source.bands) > 1:
+        raise SourceError(f"{source.name}: an elevation layer needs heights in one band; "
+                          f"this file has {len(source.bands)} colour bands (a picture?)")
+    return replace(source, dtype="float32", heights=True)
 
 
 DAMAGED = "the file is cut short or corrupt"

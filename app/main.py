@@ -31,7 +31,6 @@ from app.previews.router import router as previews_router
 from app.routing.lane_router import install_lane
 from app.routing.router import include_routing
 from app.settings import get_settings
-from app.terrain.router import router as terrain_router
 from app.tiles.router import router as tiles_router
 from app.web.router import include_web
 
@@ -80,7 +79,7 @@ def create_app() -> FastAPI:
     # Every endpoint refuses a repeated query parameter; routing does it with OSRM's code.
     single = [Depends(single_valued_query)]
     for router in (landing.router, document.router, health_router, jobs_router, tiles_router,
-                   labels_router, previews_router, terrain_router):
+                   labels_router, previews_router):
         app.include_router(router, dependencies=single)
     include_network(app, single)
     include_routing(app)

@@ -1,4 +1,5 @@
-"""HTTP routes: ``/tiles/{slug}/{z}/{x}/{y}[@2x].{png,jpg,webp}``, ``/layers``, TileJSON.
+"""HTTP routes: ``/tiles/{slug}/{z}/{x}/{y}[@2x].{png,jpg,webp}``, ``/layers``, TileJSON, and
+an elevation layer's heights at points (``/layers/{slug}/elevation``).
 
 Caching (:mod:`app.tiles.versioned`): the TileJSON's tile URLs carry the layer's version
 token (``?v=``); a tile asked for with the current token is immutable for a year, any other
@@ -14,6 +15,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Request, Response
+from fastapi import Query as QueryParam
 from fastapi.responses import FileResponse, RedirectResponse
 
 from app import errors
@@ -24,6 +26,8 @@ from app.db.session import get_engine
 from app.errors import InvalidParameterValueError, LayerNotFoundError, NotFoundError
 from app.grid import parse_tile, tile_bounds
 from app.params import LayerSlug, Shape, TileXY, TileZ
+from app.routing.options import parse_points
+from app.terrain.heights import heights_at
 from app.tiles import catalog
 from app.tiles.cache import tile_cache
 from app.tiles.elevation import RENDERS, relief_renders
@@ -44,6 +48,8 @@ TileName = Annotated[str, Shape(pattern=rf"^[0-9]{{1,8}}(@2x)?\.({'|'.join(FORMA
                                 description="{y}[@2x].{format}")]
 SourceId = Annotated[str, Shape(pattern=r"^[0-9]{1,18}$")]
 CACHE_CONTROL = "public, max-age=60"
+#: Points one heights request may ask for (a dense route's waypoints fit; a grid does not).
+MAX_HEIGHT_POINTS = 10_000
 Render = Annotated[str | None, Shape(enum=list(RENDERS))]
 
 
@@ -166,6 +172,20 @@ def tilejson(slug: LayerSlug, request: Request, response: Response,
         "bounds": bounds,
         "center": [(bounds[0] + bounds[2]) / 2, (bounds[1] + bounds[3]) / 2, center_zoom],
     }
+
+
+@router.get("/layers/{slug}/elevation", responses=LAYER_ERRORS,
+            dependencies=[only_query("points")])
+def elevation(slug: LayerSlug,
+              points: Annotated[str, QueryParam(description="lon,lat;lon,lat;...")]
+              ) -> dict[str, Any]:
+    """Heights of an elevation layer in metres at each point, in order (bilinear); ``null``
+    where the layer has no data (outside it, or next to nodata)."""
+    lonlats = parse_points(points, MAX_HEIGHT_POINTS)
+    with get_engine().connect() as conn:
+        heights = heights_at(conn, slug, lonlats)
+    return {"layer": slug, "heights": [None if h is None else round(h, 3) for h in heights],
+            "points": [list(p) for p in lonlats]}
 
 
 @router.get("/tiles/{slug}/{z}/{x}/{tile}", response_model=None,

@@ -9,6 +9,12 @@ next one straight away with :class:`~app.errors.ServiceBusyError` (503 with ``Re
 rather than letting it pile up: a client learns within milliseconds, the work in progress
 finishes sooner, and light requests (tiles, single items, ``/healthz``) keep their threads.
 
+The kinds also share ``total`` slots (one by default): on this 2-core box six heavy requests
+at once in a worker (one per kind) held the GIL so much that a single feature took 1.2 s at the
+99th percentile and a 503 came after more than a second; one at a time per worker leaves the
+worker's event loop its share, and the cores are as busy with one per worker (measured with
+``bench/heavy_mix.py``, docs/performance.md).
+
 A lane belongs to the event loop it is used on (one per worker; tests start several): asyncio's
 semaphore may only be awaited on one loop.
 """
@@ -17,7 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import weakref
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from functools import lru_cache
 from typing import Literal
@@ -36,6 +42,7 @@ class LaneSettings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="UGVMAP_HEAVY_", extra="ignore")
 
     running: int = Field(default=1, ge=1)  # at once; more only helps with more cores
+    total: int = Field(default=1, ge=1)  # at once, all kinds together
     waiting: int = Field(default=4, ge=0)  # queued for a slot; beyond them: 503
     retry_after_s: int = Field(default=2, ge=1)  # the 503's Retry-After
 
@@ -47,43 +54,78 @@ def lane_settings() -> LaneSettings:
 
 
 class Lane:
-    """One kind's slots and queue on one event loop."""
+    """One kind's slots and queue on one event loop; a slot also takes one of the slots all
+    kinds of the loop share (``shared``; by default the lane's own)."""
 
-    def __init__(self, kind: Kind, settings: LaneSettings) -> None:
+    def __init__(self, kind: Kind, settings: LaneSettings,
+                 shared: asyncio.Semaphore | None = None) -> None:
         self.kind = kind
+        self._shared = asyncio.Semaphore(settings.total) if shared is None else shared
         self.running = settings.running
         self.capacity = settings.waiting
         self.retry_after_s = settings.retry_after_s
         self._slots = asyncio.Semaphore(settings.running)
         self.waiting = 0
 
-    @asynccontextmanager
-    async def slot(self) -> AsyncIterator[None]:
-        """Hold one of the lane's slots for the block; queue for one when all are taken and
-        the queue has room, else raise :class:`ServiceBusyError` at once."""
+    def refuse_when_full(self) -> None:
+        """Raise :class:`ServiceBusyError` when every slot is taken and the queue is full."""
         if self._slots.locked() and self.waiting >= self.capacity:
             raise ServiceBusyError(
                 f"the server is busy with {self.kind} requests ({self.running} running, "
                 f"{self.waiting} waiting): try again in {self.retry_after_s} s",
                 retry_after_s=self.retry_after_s)
+
+    @asynccontextmanager
+    async def slot(self) -> AsyncIterator[None]:
+        """Hold one of the lane's slots for the block; queue for one when all are taken and
+        the queue has room, else raise :class:`ServiceBusyError` at once."""
+        self.refuse_when_full()
         self.waiting += 1
         try:
             await self._slots.acquire()
+            try:
+                await self._shared.acquire()
+            except BaseException:
+                self._slots.release()
+                raise
         finally:
             self.waiting -= 1
         try:
             yield
         finally:
+            self._shared.release()
             self._slots.release()
 
 
-_LANES: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, dict[Kind, Lane]] = \
+class _Lanes:
+    """The lanes of one event loop and the slots they share."""
+
+    def __init__(self, settings: LaneSettings) -> None:
+        self.settings = settings
+        self.shared = asyncio.Semaphore(settings.total)
+        self.by_kind: dict[Kind, Lane] = {}
+
+
+_LANES: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, _Lanes] = \
     weakref.WeakKeyDictionary()
 
 
 def lane(kind: Kind) -> Lane:
     """The lane of ``kind`` on the running event loop (made on first use)."""
-    lanes = _LANES.setdefault(asyncio.get_running_loop(), {})
-    if kind not in lanes:
-        lanes[kind] = Lane(kind, lane_settings())
-    return lanes[kind]
+    loop = asyncio.get_running_loop()
+    lanes = _LANES.get(loop)
+    if lanes is None:
+        lanes = _LANES[loop] = _Lanes(lane_settings())
+    if kind not in lanes.by_kind:
+        lanes.by_kind[kind] = Lane(kind, lanes.settings, lanes.shared)
+    return lanes.by_kind[kind]
+
+
+def refuse_when_full(kind: Kind) -> Callable[[], Awaitable[None]]:
+    """A route dependency refusing a request of ``kind`` while its lane is full, before the
+    request's body is validated: the slot itself is taken later, when the work starts (the
+    lane may fill meanwhile, and the request is refused then)."""
+    async def lane_has_room() -> None:
+        lane(kind).refuse_when_full()
+
+    return lane_has_room

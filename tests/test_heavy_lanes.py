@@ -5,6 +5,7 @@ Lanelet2 map is built once per network version."""
 from __future__ import annotations
 
 import asyncio
+import gzip
 import threading
 import time
 from collections.abc import Iterator
@@ -14,6 +15,7 @@ import psycopg
 import pytest
 
 from app.errors import ServiceBusyError
+from app.lanelet2 import cache
 from app.lanes import Lane, LaneSettings
 from testkit import synthetic
 from testkit.network_helpers import bearer
@@ -63,6 +65,40 @@ def test_a_lane_runs_some_queues_some_and_refuses_the_rest_at_once() -> None:
     asyncio.run(scenario())
 
 
+def test_kinds_share_the_workers_heavy_slots() -> None:
+    """Six kinds each with a slot of its own ran six heavy requests at once per worker and
+    starved its event loop (issue 33): with one shared slot, a table waits while a match runs,
+    counted as waiting in its own lane, and goes on when the match is done."""
+    async def scenario() -> None:
+        settings = LaneSettings(running=1, waiting=1, total=1)
+        shared = asyncio.Semaphore(settings.total)
+        match, table = Lane("match", settings, shared), Lane("table", settings, shared)
+        inside, release = asyncio.Event(), asyncio.Event()
+        order: list[str] = []
+
+        async def work(lane: Lane, name: str) -> None:
+            async with lane.slot():
+                order.append(name)
+                inside.set()
+                await release.wait()
+
+        first = asyncio.create_task(work(match, "match"))
+        await inside.wait()
+        second = asyncio.create_task(work(table, "table"))
+        while table.waiting == 0:
+            await asyncio.sleep(0)
+        await asyncio.sleep(0.05)
+        assert order == ["match"]  # the table's own slot is free, the shared one is not
+        with pytest.raises(ServiceBusyError):  # its queue (1) is full
+            async with table.slot():
+                pass
+        release.set()
+        await asyncio.gather(first, second)
+        assert order == ["match", "table"] and table.waiting == 0
+
+    asyncio.run(scenario())
+
+
 def test_a_full_lane_is_a_503_with_retry_after_while_light_requests_go_on(
         client, street, heavy, monkeypatch: pytest.MonkeyPatch) -> None:
     """A table held in its planner fills the ``table`` lane (1 running, none waiting): the next
@@ -89,6 +125,9 @@ def test_a_full_lane_is_a_503_with_retry_after_while_light_requests_go_on(
         assert busy.headers["retry-after"] == "4"
         osrm = client.get(f"/networks/{street['name']}/table/v1/driving/{street['points']}")
         assert (osrm.status_code, osrm.json()["code"]) == (503, "ServiceBusy")
+        # A POST is refused before its body is validated (its points were parsed first).
+        posted = client.post(f"/networks/{street['name']}/table", json={"points": "none"})
+        assert (posted.status_code, posted.json()["code"]) == (503, "ServiceBusy"), posted.text
         assert client.get(f"/networks/{street['name']}/route?points={street['points']}"
                           ).status_code == 200
         assert client.get(f"/networks/{street['name']}/tiles/14/8260/6041.mvt"
@@ -128,6 +167,24 @@ def test_the_whole_network_map_is_built_once_per_version(
     changed = client.get(url)
     assert changed.status_code == 200 and len(builds) == 3
     assert 'k="name" v="Edited"' in changed.text and 'v="Edited"' not in first.text
+
+
+def test_the_whole_network_map_is_sent_as_stored_gzip(client, street) -> None:
+    """A client that accepts gzip is sent the map's gzip file as it was stored (compressing
+    a 40 MB map chunk by chunk on the event loop for every download starved light requests,
+    issue 33); one that does not is sent the plain map; both are the same map."""
+    url = f"/networks/{street['name']}/lanelet2.osm"
+    plain = client.get(url, headers={"Accept-Encoding": "identity"})
+    assert plain.status_code == 200 and "content-encoding" not in plain.headers
+    packed = client.get(url, headers={"Accept-Encoding": "gzip"})
+    assert packed.status_code == 200, packed.text
+    assert packed.headers["content-encoding"] == "gzip"
+    assert "Accept-Encoding" in packed.headers["vary"]
+    assert packed.headers["x-lanelet2-origin"] == plain.headers["x-lanelet2-origin"]
+    assert packed.content == plain.content  # httpx decoded it
+    stored = next(cache.cache_dir().glob(f"{street['id']}-v*.osm.gz")).read_bytes()
+    assert int(packed.headers["content-length"]) == len(stored)
+    assert gzip.decompress(stored) == plain.content
 
 
 @pytest.mark.parametrize("stage", ["legs", "isochrone"])

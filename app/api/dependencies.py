@@ -11,9 +11,10 @@ from typing import Annotated
 
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from app.db.models import TOKEN_ROLES
-from app.db.session import get_session
+from app.db.session import get_session, session_scope
 from app.errors import ForbiddenError
 from app.network.tokens import Principal, authenticate
 from app.settings import get_settings
@@ -21,9 +22,26 @@ from app.settings import get_settings
 SessionDep = Annotated[Session, Depends(get_session)]
 
 
-def read_access(request: Request, session: SessionDep) -> None:
+async def read_access(request: Request) -> None:
     """Router dependency for reads: public unless ``UGVMAP_NETWORK_READ_ROLE`` names the least
-    role a reader needs (roles rank viewer < editor < admin)."""
+    role a reader needs (roles rank viewer < editor < admin).
+
+    Asynchronous, with a session of its own only when a role is needed: as a synchronous
+    dependency taking a session it cost every read two thread-pool hops before the route's own
+    work, and under load (issue 33's heavy mix) a request waited seconds for them before it
+    reached its lane and was told 503."""
+    if get_settings().network_read_role is None:
+        return
+
+    def check() -> None:
+        with session_scope() as session:
+            check_read_role(request, session)
+
+    await run_in_threadpool(check)
+
+
+def check_read_role(request: Request, session: Session) -> None:
+    """Refuse a reader without the role ``UGVMAP_NETWORK_READ_ROLE`` names (none: anyone)."""
     least = get_settings().network_read_role
     if least is not None:
         allowed = TOKEN_ROLES[TOKEN_ROLES.index(least):]

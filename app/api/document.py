@@ -22,7 +22,7 @@ from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.openapi.utils import get_openapi
 from fastapi.responses import HTMLResponse, JSONResponse
 
-from app.api.dependencies import SessionDep, read_access
+from app.api.dependencies import SessionDep, check_read_role
 from app.api.landing import OPENAPI_30
 from app.api.openapi30 import document_30
 from app.errors import UgvmapError
@@ -121,7 +121,7 @@ def with_collections(doc: dict[str, Any], found: list[colls.Collection]) -> dict
 def openapi_document(request: Request, session: SessionDep) -> JSONResponse:
     """The API document, with the collections the caller may read."""
     try:
-        read_access(request, session)
+        check_read_role(request, session)
         found = colls.list_collections(session)
     except UgvmapError:  # reads need a token this caller lacks: no collection names
         found = []

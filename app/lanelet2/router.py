@@ -16,7 +16,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import FileResponse
 from pydantic_settings import BaseSettings, SettingsConfigDict
 from sqlalchemy import Connection, text
@@ -73,6 +73,7 @@ SELECT n.id, n.version, (SELECT count(*) FROM road_segments s
                        **responses(InvalidParameterValueError, NotFoundError,
                                    ResponseTooLargeError, ServiceBusyError)})
 async def lanelet2_map(
+    request: Request,
     name: NetworkName,
     bbox: Annotated[str | None, Query(description="W,S,E,N (degrees): only the segments "
                                                   "meeting it, whole")] = None,
@@ -83,8 +84,9 @@ async def lanelet2_map(
     load with lanelet2's ``UtmProjector`` around the origin in ``X-Lanelet2-Origin``.
 
     The whole network's map is built once per network version (and origin) and kept
-    (:mod:`app.lanelet2.cache`); building one, or the map of a bbox, waits for a slot of the
-    ``lanelet2`` lane (:mod:`app.lanes`), 503 ``ServiceBusy`` when its queue is full."""
+    (:mod:`app.lanelet2.cache`), and sent as its stored gzip file to a client that accepts
+    gzip; building one, or the map of a bbox, waits for a slot of the ``lanelet2`` lane
+    (:mod:`app.lanes`), 503 ``ServiceBusy`` when its queue is full."""
     area = parse_area(bbox)
     try:
         map_origin = parse_origin(origin)
@@ -93,11 +95,14 @@ async def lanelet2_map(
     if area is None:
         network_id, version = await run_in_threadpool(_version, name)
         found = cache.cached(network_id, version, map_origin)
-        if found is not None:
-            return _file(found, name)
-        async with lane("lanelet2").slot():
-            built = await run_in_threadpool(_whole_map, name, map_origin)
-        return _file(built, name)
+        if found is None:
+            async with lane("lanelet2").slot():
+                found = await run_in_threadpool(_whole_map, name, map_origin)
+        gz = found.gzipped
+        if gz is not None and "gzip" in request.headers.get("accept-encoding", ""):
+            return _file(cache.CachedMap(gz, found.origin), name,
+                         headers={"Content-Encoding": "gzip"})
+        return _file(found, name)
     async with lane("lanelet2").slot():
         part, folder = await run_in_threadpool(_area_map, name, area, map_origin)
     return _file(part, name, folder)
@@ -175,11 +180,13 @@ def _area_map(name: str, area: Bbox, origin: tuple[float, float] | None
     return cache.CachedMap(result.path, result.origin), folder
 
 
-def _file(found: cache.CachedMap, name: str, folder: Path | None = None) -> FileResponse:
+def _file(found: cache.CachedMap, name: str, folder: Path | None = None,
+          headers: dict[str, str] | None = None) -> FileResponse:
     """The map as a download, with its origin; ``folder`` is removed once it is sent."""
     lat, lon = found.origin
     return FileResponse(found.path, media_type=OSM_XML, filename=f"{name}.lanelet2.osm",
                         headers={"X-Lanelet2-Origin": f"{lat},{lon}",
-                                 "Cache-Control": "no-cache"},
+                                 "Cache-Control": "no-cache", "Vary": "Accept-Encoding",
+                                 **(headers or {})},
                         background=None if folder is None else
                         BackgroundTask(shutil.rmtree, folder, ignore_errors=True))

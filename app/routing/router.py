@@ -36,8 +36,7 @@ from app.api.errors import (
     responses,
 )
 from app.api.query import only_query
-from app.db.session import session_scope
-from app.lanes import Kind, lane
+from app.lanes import Kind, lane, refuse_when_full
 from app.routing import params
 from app.routing.bodies import ServiceBody, body_model
 from app.routing.graph import RoadGraph
@@ -58,27 +57,11 @@ from app.routing.reads import ReadAhead, version_reader
 from app.routing.service_options import parse_match, parse_nearest, parse_table, parse_trip
 from app.routing.services import plan_match, plan_nearest, plan_table, plan_trip
 from app.routing.settings import routing_settings
-from app.settings import get_settings
-
-
-async def network_read_access(request: Request) -> None:
-    """:func:`read_access` for the routing services, without its database session when reads
-    are public (the default): as a synchronous dependency with a session it cost every
-    request three thread-pool hops, more than a city route's search and shaping together."""
-    if get_settings().network_read_role is None:
-        return
-
-    def check() -> None:
-        with session_scope() as session:
-            read_access(request, session)
-
-    await run_in_threadpool(check)
-
 
 # What any routing operation may answer besides 200: OSRM's 400 codes, the read role, an
 # unknown network, the body limit, value rules, unreachable points and the output caps.
 router = APIRouter(prefix="/networks", tags=["routing"],
-                   dependencies=[Depends(network_read_access)],
+                   dependencies=[Depends(read_access)],
                    responses=responses(
                        errors.InvalidParameterValueError, errors.InvalidQueryError,
                        errors.InvalidOptionsError, errors.TooBigError, errors.InvalidUrlError,
@@ -367,8 +350,12 @@ for _service in SERVICES:
                          openapi_extra=_service_doc(_service, "osrm"))
 # The POST bodies after the GETs: FastAPI tries a router's routes in order, and every GET of
 # OSRM's URL shape (most requests) would otherwise be matched against these first.
-for _service in ("route", "table", "match", "trip"):
-    router.add_api_route(f"/{{name}}/{_service}", _post_endpoint(_service), methods=["POST"])
+# A heavy service's POST is refused while its lane is full before its body is validated
+# (5,000 points took the event loop ~50 ms each, only to be told 503; issue 33).
+router.add_api_route("/{name}/route", _post_endpoint("route"), methods=["POST"])
+for _heavy in ("table", "match", "trip"):
+    router.add_api_route(f"/{{name}}/{_heavy}", _post_endpoint(_heavy), methods=["POST"],
+                         dependencies=[Depends(refuse_when_full(_heavy))])
 
 
 @router.get("/{name}/{service}/{version}/{profile}", include_in_schema=False)

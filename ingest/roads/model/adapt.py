@@ -132,7 +132,9 @@ def fit_correction(x: np.ndarray, offset: np.ndarray, y: np.ndarray, weight: np.
     the correction's weights decayed towards 0 (so no evidence means no change)."""
     mean = x.mean(axis=0)
     scale = x.std(axis=0) + 1e-6
-    xs = (x - mean) / scale
+    # float64 once: every product with the float64 weights would otherwise cast it again.
+    xs = ((x - mean) / scale).astype(np.float64)
+    offset = offset.astype(np.float64)
     c, h = x.shape[1], params.hidden
     shapes: list[tuple[int, ...]] = [(c, h), (h,), (h,), ()] if h else [(c,), ()]
     rng = np.random.default_rng(seed)

@@ -57,3 +57,30 @@ def write_dem(path: Path, surface: Surface, crs: CRS | None, transform: Affine, 
     with rasterio.open(path, "w", **profile) as ds:
         ds.write(z, 1)
     return z
+
+
+def ridge_with_pass(origin: tuple[float, float], ridge_x: float = 750.0,
+                    pass_y: float = -850.0) -> Surface:
+    """A plain at 100 m crossed north-south by a ridge 80 m high at ``ridge_x`` m east of
+    ``origin`` (its flanks ~50 degrees), lowered to 8 m (~8 degrees) at a pass ``pass_y`` m
+    north of it (negative: south)."""
+    e0, n0 = origin
+
+    def surface(east: np.ndarray, north: np.ndarray) -> np.ndarray:
+        x, y = east - e0, north - n0
+        height = 80 * (1 - 0.9 * np.exp(-((y - pass_y) / 90.0) ** 2))
+        return 100 + height * np.exp(-((x - ridge_x) / 45.0) ** 2)
+    return surface
+
+
+def disk_mask(path: Path, crs: CRS, transform: Affine, width: int, height: int,
+              centre: tuple[float, float], radius_m: float) -> np.ndarray:
+    """A uint8 GeoTIFF, 1 inside a disk (map coordinates) and 0 elsewhere: a lake to forbid."""
+    cols, rows = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    east = transform.c + cols * transform.a
+    north = transform.f + rows * transform.e
+    lake = (np.hypot(east - centre[0], north - centre[1]) <= radius_m).astype(np.uint8)
+    with rasterio.open(path, "w", driver="GTiff", width=width, height=height, count=1,
+                       dtype="uint8", crs=crs, transform=transform) as ds:
+        ds.write(lake, 1)
+    return lake

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import polyline
 
+from app.db.models import SLUG_RE
 from app.errors import (
     InvalidOptionsError,
     InvalidQueryError,
@@ -26,7 +27,7 @@ from app.errors import (
 )
 from app.routing import params
 from app.routing.costs import Cost
-from app.routing.profiles import DEFAULT, VehicleProfile, profile_named
+from app.routing.profiles import DEFAULT, OffroadSettings, VehicleProfile, profile_named
 from app.routing.settings import routing_settings
 
 GEOMETRIES = ("geojson", "polyline", "polyline6")
@@ -71,6 +72,18 @@ class PointOptions:
     approach: str = "unrestricted"
 
 
+@dataclass(frozen=True)
+class OffroadRequest:
+    """What ``offroad=true`` asks (issue 37): the elevation layer driven on (the DTM), the
+    vehicle's off-road settings (its profile's, with ``max_slope=`` / ``max_step=``
+    applied), the DSM whose height above the DTM is a step, and the layers that forbid."""
+
+    elevation: str
+    settings: OffroadSettings
+    surface: str | None = None
+    forbid: tuple[str, ...] = ()
+
+
 @dataclass
 class RouteOptions:
     """A route request's options, shared by the query string, the POST body and the CLI."""
@@ -92,6 +105,7 @@ class RouteOptions:
     spacing_m: float = 1.0
     radius_m: float | None = None  # default snap radius for points without radiuses=
     points: tuple[PointOptions, ...] = ()  # one per input point, filled by :func:`parse`
+    offroad: OffroadRequest | None = None  # offroad=true (our URL and the CLI only)
 
     def point(self, i: int) -> PointOptions:
         """Point ``i``'s snap options (the request-wide radius when none were given)."""
@@ -134,9 +148,10 @@ SERVICE_OPTIONS: dict[Service, tuple[str, ...]] = {
 }
 # Ours only: the points (the path on OSRM's URLs), and dense waypoints instead of OSRM's answer.
 # The vehicle profile is OSRM's path segment on its URLs, ``profile=`` on ours.
+OFFROAD_OPTIONS = ("offroad", "elevation", "surface", "forbid", "max_slope", "max_step")
 OWN_URL_OPTIONS: dict[Service, tuple[str, ...]] = {
-    "route": ("points", "profile", "format", "spacing"), "nearest": ("point", "profile"),
-    "table": ("points", "profile"), "match": ("points", "profile"),
+    "route": ("points", "profile", "format", "spacing", *OFFROAD_OPTIONS),
+    "nearest": ("point", "profile"), "table": ("points", "profile"), "match": ("points", "profile"),
     "trip": ("points", "profile")}
 
 
@@ -171,6 +186,14 @@ DOCS: dict[str, str] = {
     "waypoints": "not implemented (400 NotImplemented): every point ends a leg",
     "format": "osrm | waypoints (dense points in a local metric frame)",
     "spacing": "metres between dense waypoints (format=waypoints)",
+    "offroad": "true | false (default): points farther than the snap radius from every road "
+               "get off-road legs over elevation= (docs/terrain.md)",
+    "elevation": "offroad=true: the elevation layer (DTM) the vehicle drives on",
+    "surface": "offroad=true: the elevation layer (DSM) whose height above elevation= is a step",
+    "forbid": "offroad=true: raster layers, comma-separated, whose pixels above 0 are never "
+              "driven (water, buildings)",
+    "max_slope": "offroad=true: the steepest slope driven, degrees (default: the profile's)",
+    "max_step": "offroad=true: the highest step crossed, metres (default: the profile's)",
     "point": "lon,lat",
     "number": "how many nearest segments (1..max_nearest_number)",
     "sources": "all | i;j;...: indices of the points the rows start from",
@@ -382,12 +405,37 @@ def parse(raw: Mapping[str, str], family: UrlFamily, n_points: int,
                       else limits.max_snap_radius_m if service == "nearest"
                       else limits.snap_radius_m)
     opts.points = _points(raw, n_points, default_radius)
+    opts.offroad = _offroad(raw, driver)
     given = set(raw) & (OSRM_SHAPE if opts.format == "waypoints" else {"spacing"})
     if given:
         raise InvalidOptionsError(f"{sorted(given)[0]} does not apply to format={opts.format}")
     if service == "route":
         opts.check(n_points)
     return opts
+
+
+def _offroad(raw: Mapping[str, str], driver: VehicleProfile) -> OffroadRequest | None:
+    """``offroad=true`` and the options that go with it (given without it: refused)."""
+    if not params.boolean("offroad", raw.get("offroad", "false")):
+        given = sorted(set(raw) & set(OFFROAD_OPTIONS[1:]))
+        if given:
+            raise InvalidOptionsError(f"{given[0]} applies to offroad=true only")
+        return None
+    if not raw.get("elevation"):
+        raise InvalidOptionsError("offroad=true needs elevation=SLUG: the elevation layer "
+                                  "(DTM) the vehicle drives on")
+    settings = driver.offroad
+    if "max_slope" in raw:
+        settings = replace(settings, max_slope_deg=params.number_in(
+            "max_slope", raw["max_slope"], 0.0, 89.0, open_low=True))
+    if "max_step" in raw:
+        settings = replace(settings, max_step_m=params.number_in(
+            "max_step", raw["max_step"], 0.0, 100.0))
+    forbid = tuple(p for p in raw.get("forbid", "").split(",") if p)
+    for slug in forbid:
+        if not re.fullmatch(SLUG_RE, slug):
+            raise InvalidQueryError(f"forbid: {slug[:40]!r} is not a layer slug")
+    return OffroadRequest(raw["elevation"], settings, raw.get("surface") or None, forbid)
 
 
 ISOCHRONE_OPTIONS = ("point", "profile", "seconds", "meters", "avoid", "exclude", "radius")

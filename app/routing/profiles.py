@@ -16,17 +16,19 @@ difference: ``track`` is allowed (unpaved tracks are where ground vehicles work;
 leaves them out). A class no profile names (a custom class of a GeoJSON import) is drivable:
 the lists say what is *forbidden*, so unknown data is never silently unroutable.
 
-This module is where a vehicle is described. Issue 37 (terrain) extends :class:`VehicleProfile`
-with what the vehicle can climb and how fast it goes off road (maximum slope and step, off-road
-speed as a function of slope, the layers that forbid), and may let a network override a
-profile's numbers; the routing code reads a profile only through :meth:`VehicleProfile.forbids`
-and :attr:`VehicleProfile.forbidden`, so those additions change no caller.
+This module is where a vehicle is described. Off road (issue 37, :class:`OffroadSettings`) it
+says what the vehicle can climb and how fast it goes there (maximum slope and step, off-road
+speed as a function of slope); a request may override the numbers (``max_slope=``,
+``max_step=``) and name the layers that forbid (``forbid=``). The road routing code reads a
+profile only through :meth:`VehicleProfile.forbids` and :attr:`VehicleProfile.forbidden`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+
+import numpy as np
 
 from app.errors import InvalidValueError
 
@@ -37,12 +39,44 @@ _NOT_FOR_CARS = ("footway", "cycleway", "path", "pedestrian", "steps", "bridlewa
 
 
 @dataclass(frozen=True)
+class OffroadSettings:
+    """What a vehicle can drive off road (issue 37): the steepest slope it climbs (or
+    descends), the highest step it crosses, and its speed as a function of slope.
+
+    ``speeds`` are (slope in degrees, km/h) stops, linear between them and flat beyond the
+    last up to ``max_slope_deg``; steeper is never driven. A step is an object on the ground
+    (DSM - DTM, where the surface layer is given) or, from a DEM alone, a cell's height
+    above or below the median of its 3 x 3 neighbourhood (a boulder, a bank, a ditch), which
+    is 0 on any plane however steep. Speeds depend on the slope's size only, not on the
+    direction of travel, so a route costs the same both ways.
+    """
+
+    max_slope_deg: float
+    max_step_m: float
+    speeds: tuple[tuple[float, float], ...]
+
+    def speed_kph(self, slope_deg: np.ndarray) -> np.ndarray:
+        """Off-road speed at each slope (NaN slope: 0); 0 beyond :attr:`max_slope_deg`."""
+        stops = np.array([s for s, _ in self.speeds])
+        kph = np.array([v for _, v in self.speeds])
+        speed = np.interp(np.nan_to_num(slope_deg, nan=np.inf), stops, kph)
+        return np.where(np.nan_to_num(slope_deg, nan=np.inf) <= self.max_slope_deg, speed, 0.0)
+
+    def key(self) -> tuple[float, float, tuple[tuple[float, float], ...]]:
+        """What a cost surface depends on (its cache key)."""
+        return (self.max_slope_deg, self.max_step_m, self.speeds)
+
+
+@dataclass(frozen=True)
 class VehicleProfile:
-    """One kind of vehicle: its name, what it is, and the road classes it never drives."""
+    """One kind of vehicle: its name, what it is, the road classes it never drives, and what
+    it can drive off road."""
 
     name: str
     title: str  # in words, for lists and the web map
     forbidden: frozenset[str]  # road_class values this vehicle never drives
+    offroad: OffroadSettings = OffroadSettings(20.0, 0.3, ((0.0, 20.0), (10.0, 12.0),
+                                                           (20.0, 4.0)))
 
     def forbids(self, road_class: str) -> bool:
         """Whether this vehicle may never drive a segment of ``road_class``."""
@@ -53,12 +87,16 @@ class VehicleProfile:
         return f"{self.name}: {self.title}; never on {', '.join(sorted(self.forbidden))}"
 
 
+# Off road, a car-sized UGV climbs 20 degrees (a 36 % grade: what 4x4 tracks are built to)
+# and crosses 0.3 m steps, at 20 km/h on the flat; the sidewalk robot 12 degrees (a 21 %
+# grade, steeper than any accessible ramp) and 0.1 m (a kerb) at walking pace.
 CAR = VehicleProfile(
     "car", "a road vehicle (OSRM's car profile)", frozenset(_NOT_FOR_CARS))
 SIDEWALK = VehicleProfile(
     "sidewalk", "a small wheeled robot that drives on sidewalks, footways and quiet streets",
     frozenset({"motorway", "motorway_link", "trunk", "trunk_link", "steps", "busway",
-               "bus_guideway", "raceway", "escape"}))
+               "bus_guideway", "raceway", "escape"}),
+    OffroadSettings(12.0, 0.1, ((0.0, 5.0), (12.0, 2.0))))
 PROFILES: dict[str, VehicleProfile] = {p.name: p for p in (CAR, SIDEWALK)}
 # Other names clients send for the same vehicles: OSRM's demo server and its clients (Leaflet
 # Routing Machine, routingpy) ask for ``driving``.

@@ -38,7 +38,7 @@ def dense_waypoints(graph: RoadGraph, legs: list[Leg], spacing_m: float) -> dict
             ys.append(np.asarray(y))
     if frame is None:  # start and end coincide
         start = location(graph, legs[0].start)
-        return {"frame": _frame_doc(start), "spacing_m": spacing_m, "points": []}
+        return {"frame": frame_doc(start), "spacing_m": spacing_m, "points": []}
     # Each piece contributes its edges; consecutive pieces share their joining vertex.
     x = np.concatenate([xs[0][:1], *[a[1:] for a in xs]])
     y = np.concatenate([ys[0][:1], *[a[1:] for a in ys]])
@@ -69,11 +69,12 @@ def dense_waypoints(graph: RoadGraph, legs: list[Leg], spacing_m: float) -> dict
             "speed_kph": float(g.speed_kph[r]),
             "lanes": int(s.lanes_forward[r] if forward else s.lanes_backward[r]),
         })
-    return {"frame": _frame_doc(origin), "spacing_m": spacing_m,
+    return {"frame": frame_doc(origin), "spacing_m": spacing_m,
             "length_m": float(along[-1]), "points": points}
 
 
-def _frame_doc(origin: Any) -> dict[str, Any]:
+def frame_doc(origin: Any) -> dict[str, Any]:
+    """The ``frame`` of dense waypoints: the aeqd frame at ``origin`` (lon, lat)."""
     lon0, lat0 = float(origin[0]), float(origin[1])
     return {"type": "aeqd", "origin": [lon0, lat0], "axes": ["east", "north"], "units": "m",
             "proj": f"+proj=aeqd +lat_0={lat0} +lon_0={lon0} +ellps=WGS84 +units=m"}

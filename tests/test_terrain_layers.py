@@ -4,26 +4,21 @@ points over HTTP, and bad input refused in our words."""
 
 from __future__ import annotations
 
-import subprocess
 import uuid
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rasterio
 from pyproj import Transformer
 from rasterio.transform import from_origin
-from scipy.ndimage import map_coordinates
 from sqlalchemy import text
 
 from app.db.session import get_engine
-from app.grid import tile_bounds
 from app.terrain.relief import hillshade, slope_degrees, terrarium_decode, terrarium_encode
-from app.tiles.catalog import tile_sources
-from app.tiles.elevation import slope_grid
 from ingest.raster.job import ingest_raster
 from ingest.raster.sources import SourceError
 from testkit.raster_synth import TMS, UTM33, decode_rgba, grid_transform, utm_origin, write_tif
+from testkit.terrain_checks import slope_tiles_vs_gdaldem
 from testkit.terrain_synth import hills, plane, write_dem
 
 SRTM = Path(__file__).resolve().parents[1].parent / "shared/data/terrain/topotoolbox_srtm30m/" \
@@ -93,45 +88,11 @@ def test_terrarium_tiles_decode_to_the_dem_within_a_centimetre(client, tmp_path)
     assert resp.status_code == 400 and "lossless PNG" in resp.json()["message"]
 
 
-def _gdaldem_slope_at(dem: Path, tmp_path: Path, lonlats: np.ndarray) -> np.ndarray:
-    out = tmp_path / f"{dem.stem}-slope.tif"
-    subprocess.run(["gdaldem", "slope", "-q", str(dem), str(out)], check=True)
-    with rasterio.open(out) as ds:
-        xs, ys = Transformer.from_crs("EPSG:4326", ds.crs, always_xy=True).transform(
-            lonlats[:, 0], lonlats[:, 1])
-        slope = ds.read(1, masked=True).filled(np.nan).astype(np.float64)
-        cols, rows = ~ds.transform @ (np.asarray(xs), np.asarray(ys))
-    # Bilinear between gdaldem's pixel centres (NaN near its nodata and edges).
-    return map_coordinates(slope, [rows - 0.5, cols - 0.5], order=1, cval=np.nan)
-
-
 def _slope_tiles_vs_gdaldem(dem: Path, tmp_path: Path, name: str) -> float:
-    """Median |our slope tile - gdaldem slope| in degrees over the layer's native-zoom tiles,
-    compared at our tile pixels' centres (gdaldem's value of the pixel they fall in)."""
-    engine = get_engine()
-    with engine.connect() as conn:
-        zoom, bounds = conn.execute(text(
-            "SELECT maxzoom, ARRAY[ST_XMin(bounds), ST_YMin(bounds), ST_XMax(bounds), "
-            "ST_YMax(bounds)] FROM layers WHERE slug = :s"), {"s": name}).one()
-        west, south, east, north = bounds
-        got, where = [], []
-        for t in TMS.tiles(west, south, east, north, [zoom]):
-            bbox = tile_bounds(zoom, t.x, t.y)
-            query = tile_sources(conn, name, bbox)
-            assert query is not None
-            slope = slope_grid(query.sources, bbox, 256)
-            res = (bbox[2] - bbox[0]) / 256
-            cols, rows = np.meshgrid(np.arange(256) + 0.5, np.arange(256) + 0.5)
-            keep = np.isfinite(slope)
-            got.append(slope[keep])
-            where.append(np.stack([bbox[0] + cols[keep] * res, bbox[3] - rows[keep] * res], 1))
-    mx, my = np.concatenate(where).T
-    lon, lat = Transformer.from_crs("EPSG:3857", "EPSG:4326", always_xy=True).transform(mx, my)
-    ref = _gdaldem_slope_at(dem, tmp_path, np.stack([lon, lat], 1))
-    ours = np.concatenate(got)
-    both = np.isfinite(ref)
-    assert both.sum() > 10_000
-    return float(np.median(np.abs(ours[both] - ref[both])))
+    with get_engine().connect() as conn:
+        median, compared = slope_tiles_vs_gdaldem(conn, name, dem, tmp_path)
+    assert compared > 10_000
+    return median
 
 
 def test_slope_tiles_agree_with_gdaldem_on_a_utm_dem(database_url, tmp_path) -> None:

@@ -36,6 +36,8 @@ from app.terrain.roads import Roads
 from app.terrain.surface import Surface
 
 Cell = tuple[int, int]
+NO_PATH = ("no off-road path joins the points over the elevation layer (slopes, steps or "
+           "forbidden areas close every way)")
 START, END = "start", "end"
 
 
@@ -87,13 +89,6 @@ def check_point(surface: Surface, i: int, point: tuple[float, float], layer: str
     return cell
 
 
-def _search(cost: np.ndarray, cell_m: float, start: Cell, end: Cell
-            ) -> tuple[MCP_Geometric, np.ndarray]:
-    mcp = MCP_Geometric(cost, fully_connected=True, sampling=(cell_m, cell_m))
-    cumulative, _ = mcp.find_costs([start], [end])
-    return mcp, cumulative
-
-
 def _offroad(surface: Surface, mcp: MCP_Geometric, cumulative: np.ndarray, to: Cell,
              first: tuple[float, float] | None, last: tuple[float, float] | None,
              reverse: bool = False) -> Part:
@@ -110,12 +105,24 @@ def _offroad(surface: Surface, mcp: MCP_Geometric, cumulative: np.ndarray, to: C
 def plan_leg(surface: Surface, roads: Roads, a: Cell, b: Cell, pa: tuple[float, float],
              pb: tuple[float, float]) -> list[Part]:
     """The fastest way from ``a`` to ``b`` (module docstring), as its parts in order."""
-    cell_m = surface.grid.cell_m
-    mcp_a, from_a = _search(roads.cost, cell_m, a, b)
+    with roads.searchers() as (mcp_a, mcp_b):
+        from_a, _ = mcp_a.find_costs([a], [b])
+        joins = roads.joins()
+        if not joins:  # no road to join: the search from b would be wasted
+            if not np.isfinite(from_a[b]):
+                raise NoRouteError(NO_PATH)
+            return [_offroad(surface, mcp_a, from_a, b, pa, pb)]
+        from_b, _ = mcp_b.find_costs([b], [a])
+        return _joined(surface, roads, joins, mcp_a, from_a, mcp_b, from_b, a, b, pa, pb)
+
+
+def _joined(surface: Surface, roads: Roads, joins: list[tuple[object, Cell]],
+            mcp_a: MCP_Geometric, from_a: np.ndarray, mcp_b: MCP_Geometric,
+            from_b: np.ndarray, a: Cell, b: Cell, pa: tuple[float, float],
+            pb: tuple[float, float]) -> list[Part]:
     direct = float(from_a[b])
-    mcp_b, from_b = _search(roads.cost, cell_m, b, a)
     g = nx.DiGraph(roads.graph)
-    for node, cell in roads.joins():
+    for node, cell in joins:
         if from_a[cell] < direct:
             g.add_edge(START, node, seconds=float(from_a[cell]))
         if from_b[cell] < direct:
@@ -126,8 +133,7 @@ def plan_leg(surface: Surface, roads: Roads, a: Cell, b: Cell, pa: tuple[float, 
     except nx.NetworkXNoPath:
         total, path = np.inf, []
     if not np.isfinite(min(direct, total)):
-        raise NoRouteError("no off-road path joins the points over the elevation layer "
-                           "(slopes, steps or forbidden areas close every way)")
+        raise NoRouteError(NO_PATH)
     if direct <= total:
         return [_offroad(surface, mcp_a, from_a, b, pa, pb)]
     u, v = path[1], path[-2]

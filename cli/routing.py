@@ -58,7 +58,6 @@ def route(network: str, points: str, profile: str, cost: str, avoid: str, optimi
     # Here, not at the top: the planner loads routing's compiled kernels (numba), which every
     # other command (`ugvmap --help`, `db start`...) would pay for at start-up.
     from app.routing.planner import plan_route
-    from app.terrain.route import plan_offroad_route
 
     raw = {"profile": profile, "cost": cost, "avoid": avoid,
            "optimize": "true" if optimize else "false"}
@@ -75,10 +74,9 @@ def route(network: str, points: str, profile: str, cost: str, avoid: str, optimi
         raw["offroad"] = "true"
     pts = parse_points(points)  # option errors (UgvmapError): one line from cli.main
     opts = parse(raw, "ugvmap", len(pts))
-    plan = plan_offroad_route if opts.offroad is not None else plan_route
     try:
         with read_connection() as conn:
-            body = plan(conn, network, pts, opts)
+            body = plan_route(conn, network, pts, opts)
     except DatabaseUnavailableError as exc:  # said like every other command says it
         raise click.ClickException(f"cannot reach the database ({exc.message}); "
                                    "`ugvmap db start`?") from exc

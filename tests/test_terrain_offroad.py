@@ -184,3 +184,20 @@ def test_the_road_is_joined_where_the_total_time_is_least(client, scene) -> None
     ca, cb = surface.grid.cell_of(*a), surface.grid.cell_of(*b)
     assert ca is not None and cb is not None
     assert r["duration"] == pytest.approx(brute_force_join(surface, roads, ca, cb), abs=0.15)
+
+
+def test_the_command_line_plans_the_same_off_road_route(client, scene, far_road) -> None:
+    from click.testing import CliRunner
+
+    from cli.main import main
+
+    a, b = scene.lonlat(200, 500), scene.lonlat(1300, 500)
+    pts = f"{a[0]:.7f},{a[1]:.7f};{b[0]:.7f},{b[1]:.7f}"
+    out = CliRunner().invoke(main, ["route", far_road, "--points", pts, "--offroad",
+                                    "--elevation", scene.dem])
+    assert out.exit_code == 0, out.output
+    http = route(client, far_road, scene, [a, b]).json()["routes"][0]
+    assert f"offroad {http['distance']:.0f} m" in out.output
+    steep = CliRunner().invoke(main, ["route", far_road, "--points", pts, "--offroad",
+                                      "--elevation", scene.dem, "--max-slope", "5"])
+    assert steep.exit_code == 1 and "NoRoute" in steep.output

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from app.db.session import get_engine
 from app.routing import engine
 from app.routing.alternatives import alternatives
 from app.routing.engine import Leg
@@ -23,6 +24,7 @@ from app.routing.snap import Snap, snap_points
 from app.routing.table import matrices
 from app.routing.waypoints import dense_waypoints
 from app.settings import get_settings
+from app.terrain.route import add_heights, plan_offroad_route
 
 # A route is quick (answered on the event loop, without a worker thread: app.routing.router)
 # when it is a few points on a network whose longest route is shaped in a few milliseconds,
@@ -49,7 +51,7 @@ def quick_route(graph: RoadGraph, n_points: int, opts: RouteOptions) -> bool:
     :data:`QUICK_MAX_POINTS`): no alternatives, optimisation or straight-on constraint, which
     run several searches, and the OSRM answer (dense waypoints may be many)."""
     if (n_points > QUICK_MAX_POINTS or opts.alternatives or opts.optimize
-            or opts.continue_straight or opts.format != "osrm"
+            or opts.continue_straight or opts.format != "osrm" or opts.offroad is not None
             or len(graph.segs) > QUICK_MAX_SEGMENTS):
         return False
     cg = graph.built(opts.cost, opts.avoid)
@@ -66,8 +68,13 @@ def visit_order(router: engine.Router) -> list[int]:
 def plan_route(reads: Reads, network: str, points: list[tuple[float, float]],
                opts: RouteOptions) -> dict[str, Any]:
     """Snap the points, search the graph that contains every edit the snap saw, and shape the OSRM
-    (or waypoints) response."""
+    (or waypoints) response. With ``offroad=true``, points far from every road get off-road
+    legs (:mod:`app.terrain.route`); when none is, the road route's waypoints get heights."""
     opts.check(len(points))
+    if opts.offroad is not None:
+        offroad = plan_offroad_route(reads, network, points, opts, graph_at)
+        if offroad is not None:
+            return offroad
     n = len(points)
     graph, snaps = snap_points(reads, network, points, [opts.point(i) for i in range(n)],
                                opts.avoid, graph_at)
@@ -77,7 +84,11 @@ def plan_route(reads: Reads, network: str, points: list[tuple[float, float]],
     seq = order or list(range(n))
     legs = router.legs(seq, opts.continue_straight)
     if opts.format == "waypoints":
-        return {"code": "Ok", **dense_waypoints(graph, legs, opts.spacing_m), "order": seq}
+        dense = dense_waypoints(graph, legs, opts.spacing_m)
+        if opts.offroad is not None:
+            with get_engine().connect() as conn:
+                add_heights(conn, opts.offroad.elevation, dense["points"])
+        return {"code": "Ok", **dense, "order": seq}
     routes: list[list[Leg]] = [legs]
     if opts.alternatives and n == 2:
         routes += [[alt] for alt in alternatives(graph, cg, snaps, legs[0], opts.alternatives)]

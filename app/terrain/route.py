@@ -1,5 +1,6 @@
 """``route`` with ``offroad=true``: a request end to end (snap or not, the cost surface, the
-legs, the answer), shared by our URL and the CLI like :func:`app.routing.planner.plan_route`.
+legs, the answer), which :func:`app.routing.planner.plan_route` (our URL and the CLI) hands
+over to.
 
 When every point is within the snap radius of a road the answer is the road route's, as
 without ``offroad`` (with ``z`` and grade in ``format=waypoints``). Otherwise each leg is
@@ -11,6 +12,7 @@ that are off road or on the road.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -19,9 +21,9 @@ from sqlalchemy import Connection
 from app.db.session import get_engine
 from app.errors import NoSegmentError, ResponseTooLargeError
 from app.routing.geometry import local_frame
+from app.routing.graph import RoadGraph
 from app.routing.options import RouteOptions
 from app.routing.osrm import encode
-from app.routing.planner import graph_at, plan_route
 from app.routing.reads import Reads
 from app.routing.settings import routing_settings
 from app.routing.snap import network_graph, snap_on
@@ -33,23 +35,19 @@ from app.terrain.surface import Surface, surface_for
 
 
 def plan_offroad_route(reads: Reads, network: str, points: list[tuple[float, float]],
-                       opts: RouteOptions) -> dict[str, Any]:
-    """The route through ``points`` allowed to leave the road (module docstring)."""
+                       opts: RouteOptions, graph_at: Callable[[int, int], RoadGraph]
+                       ) -> dict[str, Any] | None:
+    """The route through ``points`` allowed to leave the road (module docstring); None when
+    every point is within the snap radius of a road (the road route is the answer)."""
     off = opts.offroad
     assert off is not None
-    opts.check(len(points))
     graph = network_graph(reads, network, graph_at)
     try:
         snap_on(graph, points, [opts.point(i) for i in range(len(points))], opts.avoid)
-        on_roads = True
+        return None
     except NoSegmentError:
-        on_roads = False
+        pass
     with get_engine().connect() as conn:
-        if on_roads:
-            body = plan_route(reads, network, points, opts)
-            if opts.format == "waypoints":
-                add_heights(conn, off.elevation, body["points"])
-            return body
         surface = surface_for(conn, off.elevation, off.settings, off.surface, off.forbid)
         cells = [check_point(surface, i, p, off.elevation, off.settings, opts.vehicle.name)
                  for i, p in enumerate(points)]
@@ -99,7 +97,8 @@ def _response(surface: Surface, legs: list[list[Part]], points: list[tuple[float
         "duration": round(duration, 1), "weight": round(duration, 1),
         "weight_name": "offroad_time", "geometry": encode(coords, opts.geometries),
         "parts": ranges, "legs": out_legs}],
-        "waypoints": [{"location": list(p), "name": "", "offroad": True} for p in points]}
+        "waypoints": [{"location": list(p), "name": "", "offroad": True, "waypoint_index": i}
+                      for i, p in enumerate(points)]}
 
 
 def add_heights(conn: Connection, layer: str, points: list[dict[str, Any]]) -> None:

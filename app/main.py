@@ -26,6 +26,7 @@ from app.api.request_log import RequestLogMiddleware
 from app.health.router import router as health_router
 from app.jobs.router import router as jobs_router
 from app.labels.router import router as labels_router
+from app.network.resurvey.router import router as changes_router
 from app.network.router import include_network
 from app.previews.router import router as previews_router
 from app.routing.lane_router import install_lane
@@ -79,7 +80,7 @@ def create_app() -> FastAPI:
     # Every endpoint refuses a repeated query parameter; routing does it with OSRM's code.
     single = [Depends(single_valued_query)]
     for router in (landing.router, document.router, health_router, jobs_router, tiles_router,
-                   labels_router, previews_router):
+                   labels_router, previews_router, changes_router):
         app.include_router(router, dependencies=single)
     include_network(app, single)
     include_routing(app)

@@ -19,6 +19,7 @@ from app.errors import UserError
 from app.network.settings import DEFAULT_SPEEDS_KPH, AttributeRules
 from app.routing.profiles import usage_report
 from cli.jobs import absolute, enqueue_job, queue_option
+from cli.resurvey import change_set_line, check_update, update_options
 from cli.rules import given_rules, rule_options
 
 
@@ -26,12 +27,20 @@ from cli.rules import given_rules, rule_options
 @click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--network", "network", required=True, help="Network name (slug).")
 @click.option("--replace", is_flag=True, help="Replace the network's segments if it exists.")
+@update_options
 @queue_option
-def ingest_network(file: Path, network: str, replace: bool, queued: bool) -> None:
-    """Import a GeoJSON / GeoPackage / OSM (.osm, .osm.pbf) road FILE as a network."""
+def ingest_network(file: Path, network: str, replace: bool, update: bool,
+                   tolerances: dict[str, float], queued: bool) -> None:
+    """Import a GeoJSON / GeoPackage / OSM (.osm, .osm.pbf) road FILE as a network, or with
+    --update match it against the network and propose the changes as a change set."""
+    check_update(replace, update, tolerances)
     if queued:
         enqueue_job("ingest-network",
-                    {"file": absolute(file), "network": network, "replace": replace})
+                    {"file": absolute(file), "network": network, "replace": replace,
+                     "update": update, "tolerances": tolerances})
+        return
+    if update:
+        _update_from_file(file, network, tolerances)
         return
     from app.db.session import session_scope
     from app.jobs.recorder import JobRecorder, Throttle
@@ -57,6 +66,16 @@ def ingest_network(file: Path, network: str, replace: bool, queued: bool) -> Non
                f"({summary.crossings_noded} crossings noded, "
                f"{summary.duplicates_dropped} duplicates dropped)")
     click.echo(usage_report(classes))  # every way is kept; which vehicle may drive which
+
+
+def _update_from_file(file: Path, network: str, tolerances: dict[str, float]) -> None:
+    from app.db.session import session_scope
+    from app.network.resurvey.matching import Tolerances
+    from ingest.network.update import update_from_file
+
+    with session_scope() as session:
+        proposed = update_from_file(session, file, network, tol=Tolerances(**tolerances))
+    click.echo(change_set_line(proposed))
 
 
 @click.group("export")
@@ -128,6 +147,38 @@ def network_list() -> None:
     for r in rows:
         click.echo(f"{r.name}\t{r.segments} segments\t{r.nodes} nodes\tv{r.version}"
                    f"\t{r.updated_at:%Y-%m-%d %H:%M}\t{r.title or ''}")
+
+
+@network.command("changes")
+@click.argument("name")
+@click.argument("change_set", type=int, required=False)
+@click.option("--json", "as_json", is_flag=True, help="Print JSON (a change set: GeoJSON).")
+def changes(name: str, change_set: int | None, as_json: bool) -> None:
+    """List NAME's change sets (what each re-survey proposed and what was decided), or show
+    one CHANGE_SET's proposals. Review them in the web map or over the HTTP API."""
+    from app.db.session import session_scope
+    from app.network.resurvey import changes as sets
+
+    with session_scope() as session:
+        if change_set is None:
+            rows = sets.change_sets(session, name)
+        else:
+            rows = [sets.change_set(session, name, change_set)]
+    if as_json:
+        click.echo(json.dumps(rows if change_set is None else rows[0], indent=1))
+        return
+    if not rows:
+        click.echo(f"network {name} has no change sets")
+    for row in rows:
+        decided = ", ".join(f"{n} {k}" for k, n in sorted(row["proposals"].items()))
+        click.echo(f"{row['id']}\t{row['created_at'][:16]}\t{row['status']}\t{row['source']}"
+                   f"\t{row['created_by']}\t{decided or 'nothing proposed'}")
+    if change_set is not None:
+        for feature in rows[0]["features"]:
+            p = feature["properties"]
+            what = f"segment {p['segment_id']}" if p["segment_id"] else "new road"
+            click.echo(f"  change {feature['id']}: {p['kind']} {what} ({p['status']})"
+                       + (" edited by a person" if p["edited"] else ""))
 
 
 @network.command("validate")

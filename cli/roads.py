@@ -20,6 +20,7 @@ from app.errors import UserError
 from app.road_tuning import RoadTuning, SampleWidth
 from cli.fields import field_option, model_options
 from cli.jobs import absolute, enqueue_job, queue_option
+from cli.resurvey import check_update, update_options
 from cli.rules import RULE_OPTIONS, given_rules, rule_options
 
 if TYPE_CHECKING:
@@ -171,10 +172,12 @@ def _lonlat_box(ctx: click.Context, param: click.Parameter, values: tuple[str, .
               help="Leave out the review of the networks extracted from the layer (deleted "
                    "extracted segments: not road; drawn, moved or edited ones: road).")
 @click.option("--replace", is_flag=True, help="Replace the network if it exists.")
+@update_options
 @queue_option
 def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: list,
                  train_lines: Path | None, line_width: float, use_labels: bool,
-                 use_review: bool, replace: bool, queued: bool, **options: Any) -> None:
+                 use_review: bool, replace: bool, update: bool, tolerances: dict[str, float],
+                 queued: bool, **options: Any) -> None:
     """Extract the roads of raster layer SLUG into road network NETWORK (PostGIS).
 
     The road model runs zero-shot without a sample and adapts to one when given; on an
@@ -184,11 +187,13 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
     speed, junctions, confidence) follow the network's rules (`ugvmap network settings`),
     overridden for this job by the rule options.
     """
+    check_update(replace, update, tolerances)
     rules = given_rules(options)
     tuning = {k: v for k, v in options.items() if k not in RULE_OPTIONS}
     if queued:
         enqueue_job("ingest-roads", {
-            "layer": slug, "network": network, "replace": replace, "train_boxes": train_boxes,
+            "layer": slug, "network": network, "replace": replace, "update": update,
+            "tolerances": tolerances, "train_boxes": train_boxes,
             "not_road_boxes": not_road_boxes, "train_lines": absolute(train_lines),
             "line_width": line_width, "labels": use_labels, "review_labels": use_review,
             "rules": rules.overrides(), **tuning})
@@ -206,7 +211,8 @@ def ingest_roads(slug: str, network: str, train_boxes: list, not_road_boxes: lis
             done = ingest_layer_roads(session, slug, network, sample, extract_params(**tuning),
                                       rules=rules, replace=replace,
                                       progress=sys.stderr.isatty(), labels=use_labels,
-                                      review_labels=use_review)
+                                      review_labels=use_review, update=update,
+                                      tolerances=tolerances)
     for line in done.lines():
         click.echo(line)
 

@@ -116,6 +116,9 @@ class NetworkParams(JobParams):
     file: ServerPath
     network: Slug
     replace: bool = False
+    update: bool = False
+    """Propose the file's changes as a change set (``--update``) instead of importing it."""
+    tolerances: dict[str, float] = Field(default_factory=dict, max_length=20)
 
     @property
     def target(self) -> str:
@@ -130,6 +133,9 @@ class RoadsParams(JobParams, RoadTuning, SampleWidth):
     layer: Slug
     network: Slug
     replace: bool = False
+    update: bool = False
+    """Propose the extraction's changes as a change set (``--update``)."""
+    tolerances: dict[str, float] = Field(default_factory=dict, max_length=20)
     train_boxes: list[LonLatBox] = Field(default_factory=list, max_length=1000)
     not_road_boxes: list[LonLatBox] = Field(default_factory=list, max_length=1000)
     train_lines: ServerPath | None = None

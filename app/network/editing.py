@@ -34,7 +34,7 @@ HISTORY: dict[colls.Kind, tuple[str, str]] = {"segments": ("segment_edits", "seg
                                               "nodes": ("node_edits", "node_id")}
 # Edits a revert may undo: attribute and geometry changes. A split, merge or node move
 # changed the topology (restoring one segment's old line would detach it from its nodes).
-REVERTIBLE = ("update", "replace", "revert")
+REVERTIBLE = ("update", "replace", "revert", "resurvey", "resurvey-revert")
 
 
 def unprocessable(errors: dict[str, str]) -> InvalidValueError:
@@ -106,10 +106,12 @@ def lock_feature(session: Session, c: colls.Collection, fid: int,
 
 def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
                  new: dict[str, Any], principal: Principal, action: str, *,
-                 conditional: bool = True) -> dict[str, Any]:
+                 conditional: bool = True, note: dict[str, Any] | None = None
+                 ) -> dict[str, Any]:
     """Apply full new values of changed columns (``geometry`` as lon/lat GeoJSON; a segment's
     ends are set onto its nodes' geometries as stored, and its length follows) as one new
-    version, and log it."""
+    version, and log it (with ``note`` in the history row's ``new``: why, e.g. the change
+    set an accepted re-survey change came from)."""
     props = feature["properties"]
     old = {k: (feature["geometry"] if k == "geometry" else props[k]) for k in new}
     changed = {k: v for k, v in new.items() if old[k] != v}
@@ -136,7 +138,8 @@ def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
         {**params, "who": principal.name, "id": feature["id"],
          "version": props["version"]}).scalar_one()
     log_edit(session, c, feature["id"], action, props["version"], version, principal,
-             {k: old[k] for k in changed}, changed, conditional=conditional)
+             {k: old[k] for k in changed}, {**changed, **(note or {})},
+             conditional=conditional)
     return colls.get_item(session, c, feature["id"])
 
 

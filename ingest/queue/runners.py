@@ -30,6 +30,15 @@ def ingest_network(job_id: int, params: NetworkParams) -> None:
     from ingest.network import import_network
 
     with Lease(get_engine(), job_id), session_scope() as session:
+        if params.update:
+            from app.network.resurvey.matching import Tolerances
+            from ingest.network.update import update_from_file
+
+            proposed = update_from_file(session, Path(params.file), params.network,
+                                        tol=Tolerances(**params.tolerances))
+            succeed_in(session.connection(), job_id,
+                       f"change set {proposed['id']}: {proposed['counts']}")
+            return
         summary = import_network(session, Path(params.file), params.network,
                                  replace=params.replace)
         succeed_in(session.connection(), job_id,
@@ -50,6 +59,7 @@ def ingest_roads(job_id: int, params: RoadsParams) -> None:
     with Lease(get_engine(), job_id), session_scope() as session:
         done = ingest_layer_roads(session, params.layer, params.network, sample, tuning,
                                   rules=params.rules, replace=params.replace,
+                                  update=params.update, tolerances=params.tolerances,
                                   labels=params.labels, review_labels=params.review_labels)
         succeed_in(session.connection(), job_id, "; ".join(done.lines()))
 

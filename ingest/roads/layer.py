@@ -28,6 +28,7 @@ import dataclasses
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import rasterio
@@ -37,6 +38,8 @@ from rasterio.merge import merge
 from shapely.geometry import box
 from sqlalchemy.orm import Session
 
+from app.network.resurvey.changes import coverage_of_layer
+from app.network.resurvey.matching import Tolerances
 from app.network.settings import AttributeRules
 from app.road_tuning import Classifier
 from app.tiles.catalog import get_layer
@@ -44,6 +47,7 @@ from app.tiles.store import open_store
 from ingest.ipm.trajectory import layer_trajectories
 from ingest.network import ImportSummary, RoadAttributes, RoadLine, write_network
 from ingest.network.osm_tags import BOTH_WAYS_TAG
+from ingest.network.update import update_from_lines
 from ingest.raster.footprint import connected_areas
 from ingest.roads import RoadsInputError
 from ingest.roads.attributes import segment_attributes
@@ -168,6 +172,8 @@ class LayerExtraction:
     """The attributes of the lines written (one per extracted edge)."""
     taught: Taught
     """The layer's labels and review labels the sample held."""
+    change_set: dict[str, Any] | None = None
+    """With ``--update``: the change set proposed (id, counts) instead of a written network."""
 
     def lines(self) -> list[str]:
         """The CLI's report: what was written, from what, and the attributes it got."""
@@ -178,6 +184,12 @@ class LayerExtraction:
         areas = (f" in {len(self.classifiers)} separate areas"
                  if len(self.classifiers) > 1 else "")
         used = self.taught.describe()
+        if self.change_set is not None:
+            c = self.change_set
+            return [f"change set {c['id']} for network {c['network']} from layer {self.layer} "
+                    f"({len(self.stored)} lines extracted): " + ", ".join(
+                        f"{n} {kind}" for kind, n in c["counts"].items()),
+                    f"review it: ugvmap network changes {c['network']} {c['id']}"]
         return [
             f"network {s.network}: {s.segments} segments, {s.nodes} nodes, "
             f"{s.total_length_m / 1000:.3f} km extracted from layer {self.layer}{areas} "
@@ -246,7 +258,8 @@ def _area_labels(image: Image, sample: GeoSample, area: Sequence[LayerSource], a
 def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSample | None,
                        params: ExtractParams, *, rules: AttributeRules | None = None,
                        replace: bool = False, progress: bool = False, labels: bool = True,
-                       review_labels: bool = True) -> LayerExtraction:
+                       review_labels: bool = True, update: bool = False,
+                       tolerances: dict[str, float] | None = None) -> LayerExtraction:
     """Extract layer ``slug``'s roads into network ``network`` in the caller's transaction,
     each connected area of its sources as one mosaic (:func:`source_areas`).
 
@@ -254,8 +267,13 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
     zero-shot. The layer's stored labels (``labels``) and the review of the networks
     extracted from it (``review_labels``) are added to it (:mod:`ingest.roads.taught`),
     read before anything is written (``replace`` clears the network's edit history).
-    ``rules`` override the network's attribute rules for this job.
+    ``rules`` override the network's attribute rules for this job. ``update``: the network
+    is not written but matched with the extraction, whose changes are proposed as a change
+    set (:mod:`ingest.network.update`, with ``tolerances`` overriding the matching's); the
+    layer row stays share-locked from the start, so
+    a re-ingest of the layer waits for the update instead of changing its imagery under it.
     """
+    layer_area = coverage_of_layer(session, slug) if update else None
     kind, sources = _layer_sources(session, slug)
     team = taught(session, slug, labels=labels, review=review_labels)
     used = ["given"] if sample is not None else []
@@ -297,6 +315,13 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
     if not lines:
         raise RoadsInputError(_no_road(slug, "/".join(dict.fromkeys(classifiers)),
                                        " + ".join(used) or "none"))
+    if layer_area is not None:
+        area, layer_id, version = layer_area
+        proposed = update_from_lines(session, network, lines, f"layer:{slug}", area,
+                                     (layer_id, version), tol=Tolerances(**(tolerances or {})))
+        summary = ImportSummary(network, 0, 0, 0, 0.0, len(lines))
+        return LayerExtraction(slug, classifiers, summary, " + ".join(used) or "none",
+                               applied, [line.attributes for line in lines], team, proposed)
     summary = write_network(session, network, lines, replace=replace, node_crossings=False)
     return LayerExtraction(slug, classifiers, summary, " + ".join(used) or "none", applied,
                            [line.attributes for line in lines], team)

@@ -25,7 +25,7 @@ class LocalFrame:
         (x0, y0), (x1, y1) = xy.min(0), xy.max(0)
         return cls((x0 + x1) / 2, (y0 + y1) / 2)
 
-    def metres(self, lonlat: Sequence[Sequence[float]]) -> np.ndarray:
+    def metres(self, lonlat: Sequence[Sequence[float]] | np.ndarray) -> np.ndarray:
         """(n, 2) metres of lon/lat positions."""
         a = np.asarray(lonlat, float)
         x, y = self._to.transform(a[:, 0], a[:, 1])

@@ -101,16 +101,16 @@ def test_a_resurvey_proposes_and_accepting_it_keeps_a_persons_edit(
     listed = client.get(f"/networks/{name}/changes").json()
     assert [(s["id"], s["status"], s["counts"]) for s in listed] == [
         (set_id, "open", {"unchanged": 9, "moved": 2, "new": 1, "missing": 1, "unseen": 0})]
-    shown = client.get(f"/networks/{name}/changes/{set_id}").json()
+    shown = client.get(f"/change-sets/{set_id}").json()
     kinds = {(f["properties"]["kind"], f["properties"]["segment_id"],
               f["properties"]["edited"]) for f in shown["features"]}
     assert kinds == {("moved", edited, True), ("moved", plain, False),
                      ("missing", grid["gone"], False), ("new", None, False)}
     by_kind = {f["properties"]["segment_id"] or "new": f["id"] for f in shown["features"]}
 
-    assert client.post(f"/networks/{name}/changes/{set_id}/accept",
+    assert client.post(f"/change-sets/{set_id}/accept",
                        json={"all": True}).status_code == 401
-    done = client.post(f"/networks/{name}/changes/{set_id}/accept", json={"all": True},
+    done = client.post(f"/change-sets/{set_id}/accept", json={"all": True},
                        headers=editor).json()
     assert done == {"accepted": 3, "edited": 1, "stale": 0, "refused": 0}
     kept = rows("SELECT name, version, ST_AsText(geom) AS g FROM road_segments WHERE id = :s",
@@ -130,11 +130,11 @@ def test_a_resurvey_proposes_and_accepting_it_keeps_a_persons_edit(
     assert routed.json()["routes"][0]["distance"] > 300
     assert CliRunner().invoke(main, ["network", "validate", name]).exit_code == 0
 
-    one = client.post(f"/networks/{name}/changes/{set_id}/accept",
+    one = client.post(f"/change-sets/{set_id}/accept",
                       json={"changes": [by_kind[edited]]}, headers=editor).json()
     assert one["accepted"] == 1  # looked at alone, a person's segment may change too
 
-    reverted = client.post(f"/networks/{name}/changes/{set_id}/revert", headers=editor).json()
+    reverted = client.post(f"/change-sets/{set_id}/revert", headers=editor).json()
     assert reverted == {"reverted": 4, "gone": 0}
     after = [wkt.loads(r.g) for r in rows("SELECT ST_AsText(geom) AS g FROM road_segments "
                                           "WHERE network_id = :n", n=grid["id"])]
@@ -142,7 +142,7 @@ def test_a_resurvey_proposes_and_accepting_it_keeps_a_persons_edit(
     assert all(any(wkt.loads(b.g).equals(a) for a in after) for b in before)
     assert rows("SELECT name FROM road_segments WHERE id = :s", s=edited)[0].name == "Mill Lane"
     assert client.get(f"/networks/{name}/changes").json()[0]["status"] == "reverted"
-    again = client.post(f"/networks/{name}/changes/{set_id}/accept", json={"all": True},
+    again = client.post(f"/change-sets/{set_id}/accept", json={"all": True},
                         headers=editor)
     assert again.status_code == 409
     assert CliRunner().invoke(main, ["network", "validate", name]).exit_code == 0
@@ -154,7 +154,7 @@ def test_reject_by_kind_and_box_changes_nothing(client, grid: dict[str, Any],
                                                 tmp_path: Path) -> None:
     name, editor = grid["name"], bearer("editor")
     set_id = update(survey(tmp_path / "survey.geojson"), name)
-    url = f"/networks/{name}/changes/{set_id}"
+    url = f"/change-sets/{set_id}"
     box = [10.0, 49.9999, 10.0011, 50.0001]  # Row 0's west block only
     assert client.post(url + "/reject", json={"bbox": box, "kind": "missing"},
                        headers=editor).json() == {"rejected": 1}
@@ -165,7 +165,7 @@ def test_reject_by_kind_and_box_changes_nothing(client, grid: dict[str, Any],
                        headers=editor).status_code == 422
     assert client.post(url + "/reject", json={"all": True, "kind": "new"},
                        headers=editor).status_code == 422
-    assert client.get(f"/networks/{name}/changes/{set_id + 1000}").status_code == 404
+    assert client.get(f"/change-sets/{set_id + 1000}").status_code == 404
 
 
 def test_a_second_update_at_once_and_a_survey_elsewhere_are_refused(

@@ -88,6 +88,16 @@ def network(session: Session, name: str) -> colls.Collection:
     return colls.Collection(name, row.id, "segments", row.title)
 
 
+def network_of(session: Session, set_id: int) -> str:
+    """The name of the network change set ``set_id`` belongs to; 404 if there is none."""
+    name: str | None = session.execute(text(
+        "SELECT n.name FROM change_sets c JOIN networks n ON n.id = c.network_id "
+        "WHERE c.id = :id"), {"id": set_id}).scalar()
+    if name is None:
+        raise NotFoundError(f"no change set {set_id} (see GET /networks/NAME/changes)")
+    return name
+
+
 SEGMENTS = (
     "SELECT s.id, ST_AsGeoJSON(s.geom, 9)::json->'coordinates' AS coords, s.version, "
     "  EXISTS (SELECT 1 FROM segment_edits e WHERE e.network_id = s.network_id "
@@ -359,14 +369,16 @@ def revert(session: Session, name: str, set_id: int, principal: Principal) -> di
 
 
 CHANGE_SETS = (
-    "SELECT c.id, c.source, c.status, c.created_by, c.created_at, c.counts, c.layer_version, "
+    "SELECT c.id, w.name AS network, c.source, c.status, c.created_by, c.created_at, "
+    "  c.counts, c.layer_version, "
     "  (SELECT json_object_agg(k, n) FROM (SELECT kind || ':' || status AS k, count(*) AS n "
     "     FROM proposed_changes p WHERE p.change_set_id = c.id GROUP BY 1) t) AS decided "
-    "FROM change_sets c WHERE c.network_id = :n {where} ORDER BY c.id")
+    "FROM change_sets c JOIN networks w ON w.id = c.network_id "
+    "WHERE c.network_id = :n {where} ORDER BY c.id")
 
 
 def _summary(row: Any) -> dict[str, Any]:
-    return {"id": row.id, "source": row.source, "status": row.status,
+    return {"id": row.id, "network": row.network, "source": row.source, "status": row.status,
             "created_by": row.created_by, "created_at": row.created_at.isoformat(),
             "counts": row.counts, "layer_version": row.layer_version,
             "proposals": row.decided or {}}

@@ -1,7 +1,11 @@
-"""``/networks/{name}/changes``: the change sets re-surveys proposed for a network, read
-publicly (as the network is), decided by an editor: accept or reject proposals one by one
-(``changes``), by box (``bbox``), by kind (``kind``) or all (``all``), and revert a whole
-change set in one step."""
+"""Change sets: ``/networks/{name}/changes`` lists those re-surveys proposed for a network,
+``/change-sets/{id}`` reads one (public, as the network is); an editor accepts or rejects its
+proposals one by one (``changes``), by box (``bbox``), by kind (``kind``) or all (``all``),
+and reverts a whole change set in one step.
+
+Why a path of their own for one set (as ``/jobs/{id}``): a set's id is unique across
+networks, and under ``/networks/{name}/`` a five-part path is OSRM's
+(``{service}/{version}/{profile}``), which would also answer ``.../changes/1/accept``."""
 
 from __future__ import annotations
 
@@ -22,6 +26,7 @@ router = APIRouter(tags=["road network"], responses=responses(
 EditorDep = Annotated[Principal, Depends(require_role("editor", "admin"))]
 SetId = Annotated[int, Int("change set id", low=1, high=2**63 - 1)]
 CHANGES = "/networks/{name}/changes"
+SET = "/change-sets/{set_id}"
 JSON = ("application/json",)
 WRITE_ERRORS = responses(errors.UnauthorizedError, errors.ForbiddenError,
                          errors.InvalidValueError, errors.ConflictError, PayloadTooLargeError,
@@ -74,42 +79,43 @@ def list_change_sets(name: NetworkName, session: SessionDep) -> list[dict[str, A
     return changes.change_sets(session, name)
 
 
-@router.get(CHANGES + "/{set_id}")
-def read_change_set(name: NetworkName, set_id: SetId, session: SessionDep) -> dict[str, Any]:
-    """One change set and its proposals (GeoJSON: the proposed line of a moved or new road,
-    the line of a missing one; kind, status, segment, whether a person edited it)."""
-    return changes.change_set(session, name, set_id)
+@router.get(SET)
+def read_change_set(set_id: SetId, session: SessionDep) -> dict[str, Any]:
+    """One change set (its network, source, status, counts) and its proposals (GeoJSON: the
+    proposed line of a moved or new road, the line of a missing one; kind, status, segment,
+    whether a person edited it)."""
+    return changes.change_set(session, changes.network_of(session, set_id), set_id)
 
 
-@router.post(CHANGES + "/{set_id}/accept", openapi_extra=_body_doc(SELECTION_BODY, JSON),
+@router.post(SET + "/accept", openapi_extra=_body_doc(SELECTION_BODY, JSON),
              responses=WRITE_ERRORS)
-async def accept(name: NetworkName, set_id: SetId, request: Request,
-                 principal: EditorDep) -> dict[str, int]:
+async def accept(set_id: SetId, request: Request, principal: EditorDep) -> dict[str, int]:
     """Accept proposals: each becomes an edit of the network (history action ``resurvey``
     naming the change set), seen by routing at once. Counts accepted, edited (left for a look
     one by one), stale (the segment changed since) and refused."""
     chosen = selection(await json_body(request, JSON))
     result: dict[str, int] = await _in_session(
-        lambda s: changes.accept(s, name, set_id, chosen, principal))
+        lambda s: changes.accept(s, changes.network_of(s, set_id), set_id, chosen,
+                                 principal))
     return result
 
 
-@router.post(CHANGES + "/{set_id}/reject", openapi_extra=_body_doc(SELECTION_BODY, JSON),
+@router.post(SET + "/reject", openapi_extra=_body_doc(SELECTION_BODY, JSON),
              responses=WRITE_ERRORS)
-async def reject(name: NetworkName, set_id: SetId, request: Request,
-                 principal: EditorDep) -> dict[str, int]:
+async def reject(set_id: SetId, request: Request, principal: EditorDep) -> dict[str, int]:
     """Reject proposals: the network is not changed."""
     chosen = selection(await json_body(request, JSON))
     result: dict[str, int] = await _in_session(
-        lambda s: changes.reject(s, name, set_id, chosen, principal))
+        lambda s: changes.reject(s, changes.network_of(s, set_id), set_id, chosen,
+                                 principal))
     return result
 
 
-@router.post(CHANGES + "/{set_id}/revert", openapi_extra={"security": [{"bearer": []}]},
+@router.post(SET + "/revert", openapi_extra={"security": [{"bearer": []}]},
              responses=WRITE_ERRORS)
-async def revert(name: NetworkName, set_id: SetId, principal: EditorDep) -> dict[str, int]:
+async def revert(set_id: SetId, principal: EditorDep) -> dict[str, int]:
     """Undo every accepted change of the set (newest first, history action
     ``resurvey-revert``) and close it."""
     result: dict[str, int] = await _in_session(
-        lambda s: changes.revert(s, name, set_id, principal))
+        lambda s: changes.revert(s, changes.network_of(s, set_id), set_id, principal))
     return result

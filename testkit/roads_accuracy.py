@@ -17,8 +17,10 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import rasterio.features
 import shapely
-from shapely.geometry import LineString, box
+from shapely.geometry import LineString, shape
+from shapely.geometry.base import BaseGeometry
 
 from ingest.roads import RoadsInputError
 from ingest.roads.classify import NOT_ROAD, ROAD
@@ -145,10 +147,14 @@ class Evaluation:
     seconds: float
 
 
-def _clip_lines(lines: list[np.ndarray], region_box: tuple[float, float, float, float],
-                scale: float) -> list[np.ndarray]:
-    """Polylines (pixels) minus the training quadrant, in metres."""
-    cut = box(*region_box)
+def region_shape(region: np.ndarray) -> BaseGeometry:
+    """The True pixels of ``region`` as one (multi)polygon in pixel-corner coordinates."""
+    return shapely.union_all([shape(g) for g, _ in rasterio.features.shapes(
+        region.astype(np.uint8), mask=region)])
+
+
+def _clip_lines(lines: list[np.ndarray], cut: BaseGeometry, scale: float) -> list[np.ndarray]:
+    """Polylines (pixels) minus what the sample labelled (``cut``), in metres."""
     out = []
     for line in lines:
         if len(line) < 2:
@@ -168,10 +174,11 @@ def score_lines(truth: Truth, pred_lines: list[np.ndarray], seconds: float = 0.0
     res = truth.resolution_m
     scores = buffer_scores(pred, truth.centerline, [r / res for r in radii_m], res,
                            region=~truth.region)
-    rows, cols = np.nonzero(truth.region)
-    train_box = (cols.min(), rows.min(), cols.max() + 1, rows.max() + 1)
-    connectivity = apls(_clip_lines(truth.lines, train_box, res),
-                        _clip_lines(pred_lines, train_box, res), snap_radius=APLS_SNAP_M)
+    # APLS on the graphs outside the labelled region itself: its bounding box was the whole
+    # image for a sample of lines and boxes spread over it, and every APLS 0.
+    cut = region_shape(truth.region)
+    connectivity = apls(_clip_lines(truth.lines, cut, res),
+                        _clip_lines(pred_lines, cut, res), snap_radius=APLS_SNAP_M)
     return Evaluation(scores, connectivity, seconds)
 
 

@@ -137,3 +137,22 @@ def test_the_threshold_is_where_the_sample_separates() -> None:
     apart = np.r_[np.full(50, 0.99), np.full(50, 0.01)]
     assert best_threshold(apart, road, np.ones(100), 0.3) == 0.3
     assert best_threshold(prob, np.ones(100, bool), np.ones(100), 0.3) == 0.3
+
+
+def test_apls_of_a_scattered_sample_is_scored_outside_its_labels_not_its_bounding_box(
+        ) -> None:
+    """A person's sample (lines and boxes spread over the image) was cut from the APLS graphs
+    by its bounding box, the whole image, so every APLS was 0: a perfect result scores 1
+    outside two corner boxes."""
+    from testkit.roads_accuracy import Truth, rasterize_lines, score_lines
+
+    size = 200
+    lines = [np.array([[0.0, y], [size, y]]) for y in (50.5, 150.5)] + \
+        [np.array([[x, 0.0], [x, size]]) for x in (50.5, 150.5)]
+    centerline = rasterize_lines(lines, (size, size))
+    region = np.zeros((size, size), bool)
+    region[:20, :20] = region[-20:, -20:] = True  # two labelled corners, no road in them
+    truth = Truth(centerline, centerline, lines, np.zeros((size, size), np.uint8), region, 1.0)
+    scored = score_lines(truth, lines)
+    assert scored.apls > 0.95
+    assert scored.scores[1].precision == scored.scores[1].recall == 1.0

@@ -123,25 +123,31 @@ def _ratio(a: int, b: int) -> float:
     return a / b if b else 1.0
 
 
-def score(segments: list[OldSegment], survey: Survey, result: Matching,
-          near_m: float = 5.0) -> list[Score]:
-    """Per kind: of the segments proposed as moved / missing / unchanged, how many truly are
-    (precision), and of those that truly are, how many were proposed (recall). A proposed new
-    road is right when most of it lies within ``near_m`` of a true new road; a true new road
-    is found when most of it lies within ``near_m`` of proposed ones."""
-    truth = {s.id: "missing" if s.id in survey.removed else
-             "moved" if s.id in survey.moved else "unchanged" for s in segments}
+def outcomes(result: Matching) -> tuple[dict[int, str], list[LineString]]:
+    """What a matching said of each segment (by id) and its new roads, as :func:`score`
+    takes them."""
     said = {**{sid: "unchanged" for sid in result.unchanged},
             **{m.segment_id: "moved" for m in result.moved},
             **{m.segment_id: "missing" for m in result.missing}}
+    return said, [LineString(r.coords) for r in result.new]
+
+
+def score(segments: list[OldSegment], survey: Survey, said: dict[int, str],
+          pieces: list[LineString], near_m: float = 5.0) -> list[Score]:
+    """Per kind: of the segments proposed as moved / missing / unchanged (``said``; a segment
+    not in it is unchanged), how many truly are (precision), and of those that truly are, how
+    many were proposed (recall). A proposed new road (``pieces``) is right when most of it
+    lies within ``near_m`` of a true new road; a true new road is found when most of it lies
+    within ``near_m`` of proposed ones."""
+    truth = {s.id: "missing" if s.id in survey.removed else
+             "moved" if s.id in survey.moved else "unchanged" for s in segments}
     scores = []
     for kind in ("unchanged", "moved", "missing"):
-        proposed = {sid for sid, k in said.items() if k == kind}
+        proposed = {sid for sid in truth if said.get(sid, "unchanged") == kind}
         true = {sid for sid, k in truth.items() if k == kind}
         scores.append(Score(kind, len(proposed), len(true),
                             _ratio(len(proposed & true), len(proposed)),
                             _ratio(len(proposed & true), len(true))))
-    pieces = [LineString(r.coords) for r in result.new]
     truth_zone = unary_union(survey.new).buffer(near_m) if survey.new else None
     found_zone = unary_union(pieces).buffer(near_m) if pieces else None
     right = sum(1 for p in pieces if truth_zone is not None

@@ -190,3 +190,19 @@ def test_a_second_update_at_once_and_a_survey_elsewhere_are_refused(
     bad = CliRunner().invoke(main, ["ingest", "network", str(path), "--network", grid["name"],
                                     "--update", "--tolerance", "match_m=-2"])
     assert bad.exit_code == 2 and "match_m must be a positive number" in bad.output
+
+
+def test_a_new_road_joining_a_persons_road_waits_for_a_look(client, grid: dict[str, Any],
+                                                           tmp_path: Path) -> None:
+    name, editor = grid["name"], bearer("editor")
+    joined = segment_at(grid["id"], 10.0005, 50.002)  # the new road joins its side
+    assert client.patch(f"/collections/{name}-segments/items/{joined}",
+                        json={"surface": "gravel"}, headers=editor).status_code == 200
+    set_id = update(survey(tmp_path / "survey.geojson"), name)
+    [new] = [f for f in client.get(f"/change-sets/{set_id}").json()["features"]
+             if f["properties"]["kind"] == "new"]
+    assert new["properties"]["edited"] and new["properties"]["detail"]["joins"][0] == joined
+    done = client.post(f"/change-sets/{set_id}/accept", json={"kind": "new"},
+                       headers=editor).json()
+    assert done["accepted"] == 0 and done["edited"] == 1
+    assert rows("SELECT version FROM road_segments WHERE id = :s", s=joined)[0].version == 2

@@ -11,8 +11,9 @@ set is undone by editing back (action ``resurvey-revert``).
 A segment a person created or edited (a history row with an action other than the machine's
 own: an accepted preview, an accepted or reverted re-survey change) is never changed without
 a look at it alone: its proposals carry ``edited`` and are left out of every bulk accept (by
-box, by kind, all). An accept never applies a proposal to a segment edited since it was made
-(its version changed): that one is reported ``stale`` and stays proposed.
+box, by kind, all); so is a new road that joins such a segment (joining its side splits it).
+An accept never applies a proposal to a segment edited since it was made (its version
+changed): that one is reported ``stale`` and stays proposed.
 
 Two updates of one network at once: the second is refused at once (409 ``Conflict``), not
 queued behind the first, since it would propose against a network the first is about to
@@ -134,7 +135,7 @@ def propose(session: Session, name: str, lines: Sequence[SurveyLine], *, source:
     frame = LocalFrame.around([line.coords for line in lines])
     new = [frame.metres(line.coords) for line in lines]
     if coverage is None:
-        coverage_m = shapely.convex_hull(shapely.multilinestrings(new)).buffer(tol.match_m)
+        coverage_m = shapely.MultiPoint(np.concatenate(new)).convex_hull.buffer(tol.match_m)
     else:
         coverage_m = transform(lambda x, y: tuple(frame.metres(np.column_stack([x, y])).T),
                                coverage)
@@ -165,8 +166,11 @@ def propose(session: Session, name: str, lines: Sequence[SurveyLine], *, source:
         proposals.append({"kind": "missing", "sid": gone.segment_id, "edited": gone.edited,
                           "coords": geometry[gone.segment_id], "attributes": None,
                           "detail": {"seen_share": gone.seen_share}})
+    edited = {r.id for r in rows if r.edited}
     for road in result.new:
-        proposals.append({"kind": "new", "sid": None, "edited": False,
+        # Joining a road's side splits it: a person's road is then changed too.
+        proposals.append({"kind": "new", "sid": None,
+                          "edited": bool(edited & set(road.joins)),
                           "coords": frame.lonlat(road.coords),
                           "attributes": lines[road.line].attributes,
                           "detail": {"joins": list(road.joins)}})
@@ -413,10 +417,11 @@ def change_set(session: Session, name: str, set_id: int) -> dict[str, Any]:
 def coverage_of_layer(session: Session, slug: str) -> tuple[BaseGeometry, int, int]:
     """(the union of a layer's source footprints in lon/lat, its id, its version), the row
     share-locked so the layer cannot be re-ingested until the transaction ends."""
-    row = session.execute(text(
-        "SELECT l.id, l.version, ST_AsGeoJSON(ST_Transform(ST_Union(s.footprint), 4326)) AS g "
-        "FROM layers l JOIN raster_sources s ON s.layer_id = l.id WHERE l.slug = :slug "
-        "GROUP BY l.id FOR SHARE OF l"), {"slug": slug}).first()
-    if row is None:
-        raise NotFoundError(f"no raster layer {slug!r} with sources")
-    return shape(json.loads(row.g)), int(row.id), int(row.version)
+    layer = session.execute(text("SELECT id, version FROM layers WHERE slug = :slug "
+                                 "FOR SHARE"), {"slug": slug}).first()
+    outline: str | None = None if layer is None else session.execute(text(
+        "SELECT ST_AsGeoJSON(ST_Transform(ST_Union(footprint), 4326)) FROM raster_sources "
+        "WHERE layer_id = :id"), {"id": layer.id}).scalar()
+    if layer is None or outline is None:
+        raise NotFoundError(f"no raster layer {slug!r} with sources (see `ugvmap layers list`)")
+    return shape(json.loads(outline)), int(layer.id), int(layer.version)

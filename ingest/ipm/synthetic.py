@@ -2,9 +2,11 @@
 
 A vehicle drives at constant speed along a circular arc (a right-hand bend) on a textured
 ground plane: grass, a 7 m road with edge lines and a dashed centre line, and coloured
-discs (markers) at known lon/lat. Its roof-mounted panoramic camera (a lever arm and a
-tilted mount) sees the ground and the car's red roof. The renderer deliberately shares no
-code with the IPM pipeline: it builds the camera rotation with SciPy's Euler angles from
+discs (markers) at known lon/lat. With :class:`LanePaint` the road is a multi-lane one (lanes of
+their own widths each way, edge lines, a solid centre line, dashed lane lines, a stop line) and
+:meth:`Drive.truth` is the painted truth the lane-marking extraction is scored against.
+Its roof-mounted panoramic camera (a lever arm and a tilted mount) sees the ground and the car's
+red roof. The renderer deliberately shares no code with the IPM pipeline: it builds the camera rotation with SciPy's Euler angles from
 the documented composition order, follows each pixel's ray to the roof or the ground, and
 places the ground in an azimuthal-equidistant frame (not UTM), so a mistake in the
 pipeline's geometry cannot cancel out against the same mistake here.
@@ -28,6 +30,7 @@ from scipy.spatial.transform import Rotation
 
 MARKER_RGB = {"red": (225, 25, 25), "blue": (25, 60, 225), "magenta": (215, 30, 215),
               "yellow": (235, 215, 15)}
+PAINT_RGB = {"white": (235, 235, 235), "yellow": (230, 185, 40)}
 ROOF_RGB = (225, 25, 25)  # the markers' red: an unmasked roof would be seen as markers
 SKY_TOP, SKY_HORIZON = np.array([70, 120, 200.0]), np.array([190, 210, 235.0])
 #: Local metres or degrees: one point (float) or many (array), returned in the same form.
@@ -67,6 +70,40 @@ class Camera:
 
 
 @dataclass(frozen=True)
+class LanePaint:
+    """A multi-lane road's paint, across the road from its right edge to its left edge as seen
+    in the drive's direction (right-hand traffic: the ``forward`` lanes first). Widths differ
+    on purpose, so a road model of equal lanes cannot score well by accident."""
+
+    widths_m: tuple[float, ...] = (3.5, 3.0, 3.25, 3.75)
+    forward: int = 2
+    """Lanes in the vehicle's direction (the right-hand ones); the rest go the other way."""
+    centre_colour: str = "yellow"
+    line_width_m: float = 0.15
+    dash_m: tuple[float, float] = (3.0, 6.0)
+    """Dash and gap length of the lane lines (metres along the line)."""
+    stop_at_m: float | None = 30.0
+    """Distance along the vehicle's path of a stop line across the forward lanes (None: none)."""
+    stop_width_m: float = 0.4
+    shoulder_m: float = 0.4
+    """Asphalt beyond each edge line."""
+
+    def boundaries_m(self) -> np.ndarray:
+        """Offsets of the lane boundaries (edge, lane lines, edge) from the road's right edge
+        line."""
+        return np.concatenate([[0.0], np.cumsum(self.widths_m)])
+
+    def line_kind(self, i: int) -> tuple[str, str]:
+        """(kind, colour) of boundary ``i``: edge lines are road edges, the line between the
+        directions is solid, the others dashed."""
+        if i in (0, len(self.widths_m)):
+            return "road_edge", "white"
+        if i == self.forward:
+            return "solid", self.centre_colour
+        return "dashed", "white"
+
+
+@dataclass(frozen=True)
 class Drive:
     """The bend: centre (aeqd origin) at lon0/lat0, the vehicle on a circle of ``radius_m``
     driving clockwise from azimuth ``start_deg`` (seen from the centre)."""
@@ -84,6 +121,22 @@ class Drive:
         ("yellow", 29.0, -4.5), ("magenta", 33.0, 3.8)))
     """(colour, distance along the path from the start, metres left (+) of the path)."""
     marker_radius_m: float = 0.3
+    lanes: LanePaint | None = None
+    """A multi-lane road instead of the 7 m two-lane one (see :meth:`in_lane`)."""
+
+    @classmethod
+    def in_lane(cls, lanes: LanePaint, lane: int = 1, **kwargs: object) -> Drive:
+        """A drive on ``lanes`` in the middle of lane ``lane`` (0: the rightmost)."""
+        b = lanes.boundaries_m()
+        offset = float(b[-1] / 2 - (b[lane] + b[lane + 1]) / 2)
+        return cls(lanes=lanes, road_offset_m=offset, **kwargs)  # type: ignore[arg-type]
+
+    def _line_radius(self, offset_m: float) -> float:
+        """Radius of the line ``offset_m`` left of the paint's right edge line (the bend's
+        centre is on the vehicle's right, so left is outwards)."""
+        assert self.lanes is not None
+        return self.radius_m + self.road_offset_m - float(self.lanes.boundaries_m()[-1]) / 2 \
+            + offset_m
 
     def _aeqd(self) -> str:
         return f"+proj=aeqd +lat_0={self.lat0} +lon_0={self.lon0} +ellps=WGS84 +units=m"
@@ -163,14 +216,20 @@ class Drive:
                         55 + 20 * np.cos(north / 0.9)], axis=-1)
         r = np.hypot(east, north)
         centre = self.radius_m + self.road_offset_m
-        road = np.abs(r - centre) <= 3.5
+        half = 3.5 if self.lanes is None else \
+            float(self.lanes.boundaries_m()[-1]) / 2 + self.lanes.shoulder_m
+        road = np.abs(r - centre) <= half
         asphalt = (108 + 14 * np.sin(east[road] / 0.8) * np.sin(north[road] / 1.0)
                    + 8 * np.cos((east[road] - north[road]) / 0.6))
         rgb[road] = np.stack([asphalt, asphalt, asphalt + 5], axis=-1)
-        along = np.arctan2(east, north) * centre
-        lines = ((np.abs(r - (centre - 3.35)) < 0.075) | (np.abs(r - (centre + 3.35)) < 0.075)
-                 | ((np.abs(r - centre) < 0.075) & (np.mod(along, 6.0) < 3.0)))
-        rgb[lines] = 235.0
+        if self.lanes is None:
+            along = np.arctan2(east, north) * centre
+            lines = ((np.abs(r - (centre - 3.35)) < 0.075)
+                     | (np.abs(r - (centre + 3.35)) < 0.075)
+                     | ((np.abs(r - centre) < 0.075) & (np.mod(along, 6.0) < 3.0)))
+            rgb[lines] = 235.0
+        else:
+            self._paint(rgb, east, north)
         for colour, me, mn in self.marker_points():
             near = (np.abs(east - me) <= self.marker_radius_m) \
                 & (np.abs(north - mn) <= self.marker_radius_m)
@@ -178,6 +237,74 @@ class Drive:
             disc[near] = np.hypot(east[near] - me, north[near] - mn) <= self.marker_radius_m
             rgb[disc] = MARKER_RGB[colour]
         return rgb
+
+
+    def _paint(self, rgb: np.ndarray, east: np.ndarray, north: np.ndarray) -> None:
+        """Draw :attr:`lanes`' lines and stop line into ``rgb`` (in place)."""
+        lanes = self.lanes
+        assert lanes is not None
+        r = np.hypot(east, north)
+        azimuth = np.arctan2(east, north)
+        for i, offset in enumerate(lanes.boundaries_m()):
+            kind, colour = lanes.line_kind(i)
+            radius = self._line_radius(float(offset))
+            on = np.abs(r - radius) < lanes.line_width_m / 2
+            if kind == "dashed":
+                on &= np.mod(azimuth * radius, sum(lanes.dash_m)) < lanes.dash_m[0]
+            rgb[on] = PAINT_RGB[colour]
+        if lanes.stop_at_m is not None:
+            stop = self.stop_line()
+            rgb[shapely.dwithin(stop, shapely.points(east, north), lanes.stop_width_m / 2)] = \
+                PAINT_RGB["white"]
+
+    def stop_line(self) -> shapely.LineString:
+        """The stop line's centre line (local metres), across the forward lanes."""
+        lanes = self.lanes
+        assert lanes is not None and lanes.stop_at_m is not None
+        az = math.radians(self.start_deg) + lanes.stop_at_m / self.radius_m
+        b = lanes.boundaries_m()
+        r0, r1 = self._line_radius(float(b[0])), self._line_radius(float(b[lanes.forward]))
+        return shapely.LineString([(r0 * math.sin(az), r0 * math.cos(az)),
+                                   (r1 * math.sin(az), r1 * math.cos(az))])
+
+    def truth(self, step_deg: float = 0.2) -> dict:
+        """The painted truth as a GeoJSON FeatureCollection in lon/lat: every marking line
+        (``kind``, ``colour``, ``width_m``; a dashed line whole, across its gaps, as an
+        extraction should join it) around the full circle, the stop line, and each lane
+        (``lane`` index from the right edge, ``direction`` forward/backward, ``width_m``)."""
+        lanes = self.lanes
+        if lanes is None:
+            raise ValueError("the drive has no lane paint")
+        azimuth = np.radians(np.arange(0.0, 360.0 + step_deg / 2, step_deg))
+
+        def ring(radius: float) -> list[list[float]]:
+            lon, lat = self.to_lonlat(radius * np.sin(azimuth), radius * np.cos(azimuth))
+            return np.column_stack([lon, lat]).tolist()
+
+        features = []
+        b = lanes.boundaries_m()
+        for i, offset in enumerate(b):
+            kind, colour = lanes.line_kind(i)
+            features.append({"type": "Feature", "properties": {
+                "feature": "marking", "kind": kind, "colour": colour,
+                "width_m": lanes.line_width_m, "boundary": i},
+                "geometry": {"type": "LineString", "coordinates": ring(
+                    self._line_radius(float(offset)))}})
+        if lanes.stop_at_m is not None:
+            xy = np.asarray(self.stop_line().coords)
+            lon, lat = self.to_lonlat(xy[:, 0], xy[:, 1])
+            features.append({"type": "Feature", "properties": {
+                "feature": "marking", "kind": "stop_line", "colour": "white",
+                "width_m": lanes.stop_width_m},
+                "geometry": {"type": "LineString",
+                             "coordinates": np.column_stack([lon, lat]).tolist()}})
+        for i, width in enumerate(lanes.widths_m):
+            features.append({"type": "Feature", "properties": {
+                "feature": "lane", "lane": i, "width_m": width,
+                "direction": "forward" if i < lanes.forward else "backward"},
+                "geometry": {"type": "LineString", "coordinates": ring(
+                    self._line_radius(float(b[i] + b[i + 1]) / 2))}})
+        return {"type": "FeatureCollection", "features": features}
 
 
 @lru_cache(maxsize=4)
@@ -273,7 +400,37 @@ def write_drive(folder: Path, drive: Drive, camera: Camera, times: np.ndarray,
     cv2.imwrite(str(folder / "mask.png"), roof_mask(camera))
     calib = folder / "calib.json"
     calib.write_text(json.dumps(camera.calibration(), indent=1))
-    return {"frames": frames, "poses": poses, "calib": calib, "mask": folder / "mask.png"}
+    written = {"frames": frames, "poses": poses, "calib": calib, "mask": folder / "mask.png"}
+    if drive.lanes is not None:
+        written["truth"] = folder / "lanes_truth.geojson"
+        written["truth"].write_text(json.dumps(drive.truth()))
+    return written
+
+
+def _widths(value: str) -> tuple[float, ...]:
+    """``--lanes``: comma-separated lane widths, each a plausible lane (2–6 m)."""
+    import argparse
+
+    try:
+        widths = tuple(float(v) for v in value.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{value!r} is not lane widths like 3.5,3.0") from None
+    if not widths or not all(2.0 <= w <= 6.0 for w in widths):
+        raise argparse.ArgumentTypeError(f"{value!r}: every lane must be 2 to 6 m wide")
+    return widths
+
+
+def _size(value: str) -> tuple[int, int]:
+    """``--size WxH`` of the panorama (2:1, as an equirectangular panorama is)."""
+    import argparse
+
+    try:
+        width, height = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{value!r} is not WxH") from None
+    if width != 2 * height or width < 256:
+        raise argparse.ArgumentTypeError(f"{value!r}: a panorama is 2:1 and at least 256x128")
+    return width, height
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -290,10 +447,33 @@ def main(argv: list[str] | None = None) -> None:
                                                "calib.json and mask.png into")
     parser.add_argument("--frames", type=int, default=36,
                         help="frames at 7 Hz (default 36, about 5 s of driving)")
+    parser.add_argument("--lanes", metavar="W,W,...", type=_widths,
+                        help="a multi-lane road: lane widths in metres from the right edge "
+                             "(e.g. 3.5,3.0,3.25,3.75), with edge lines, a solid centre line, "
+                             "dashed lane lines and a stop line; writes lanes_truth.geojson")
+    parser.add_argument("--forward", type=int, help="lanes in the driving direction (the "
+                        "right-hand ones; default half of --lanes, rounded up)")
+    parser.add_argument("--lane", type=int, default=None,
+                        help="the lane the vehicle drives in, 0 = rightmost (default: the "
+                             "leftmost forward lane)")
+    parser.add_argument("--centre-colour", choices=sorted(PAINT_RGB), default="yellow",
+                        help="colour of the solid line between the directions")
+    parser.add_argument("--size", type=_size, default=Camera().image_size,
+                        metavar="WxH", help="panorama size (default 1024x512)")
     args = parser.parse_args(argv)
     if args.frames < 2:
         parser.error("--frames must be at least 2")
-    written = write_drive(args.out, Drive(), Camera(), frame_times(args.frames))
+    drive = Drive()
+    if args.lanes:
+        forward = args.forward if args.forward is not None else (len(args.lanes) + 1) // 2
+        lane = args.lane if args.lane is not None else forward - 1
+        if not 1 <= forward <= len(args.lanes) or not 0 <= lane < len(args.lanes):
+            parser.error("--forward and --lane must name lanes of --lanes")
+        drive = Drive.in_lane(LanePaint(args.lanes, forward, args.centre_colour), lane)
+    elif args.forward is not None or args.lane is not None:
+        parser.error("--forward and --lane need --lanes")
+    written = write_drive(args.out, drive, Camera(image_size=args.size),
+                          frame_times(args.frames))
     for what, path in written.items():
         print(f"{what}: {path}")
 

@@ -56,11 +56,13 @@ def ingest() -> None:
 def _register_capabilities() -> None:
     """Each capability owns its commands; this is the table of contents (one line each)."""
     from cli import backup, db, demo, ipm, jobs, layers, network, roads, routing, tokens, vehicle
+    from cli.lanes import extract_lanes
 
     for command in (db.db, backup.backup, backup.restore, demo.demo, demo.serve,
                     jobs.jobs, jobs.worker, tokens.tokens, network.export, network.network,
                     layers.layers, routing.route,
-                    roads.extract_roads, roads.evaluate_roads, roads.roads):
+                    roads.extract_roads, roads.evaluate_roads, roads.roads,
+                    extract_lanes):
         main.add_command(command)
     for command in (network.ingest_network, layers.ingest_raster_cmd, roads.ingest_roads,
                     ipm.ingest_ipm_cmd):

@@ -1,0 +1,49 @@
+"""``ugvmap extract-lanes``: painted lane markings of one image into GeoJSON (no database).
+
+Heavy imports (OpenCV, scikit-image) happen inside the command so ``ugvmap --help`` stays
+instant; user mistakes (imagery too coarse, no georeference and no --resolution) are
+:class:`~app.errors.UserError`, shown as one line by the CLI root.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+
+import click
+
+from app.errors import UserError
+
+
+@click.command("extract-lanes")
+@click.argument("image", type=click.Path(path_type=Path, dir_okay=False))
+@click.option("--resolution", type=float,
+              help="Metres per pixel (required without georeference; at most 0.2).")
+@click.option("--out", "out_path", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="Output GeoJSON (LineStrings with kind, colour, width_m, confidence).")
+def extract_lanes(image: Path, resolution: float | None, out_path: Path) -> None:
+    """Extract the painted lane markings of IMAGE into GeoJSON.
+
+    Each marking is a line with a kind (solid, dashed, stop_line, road_edge, other), a colour
+    (white, yellow, unknown), its width and a confidence; a dashed line is one line across its
+    gaps. Coordinates are the image's CRS, or source pixels when it has no georeference.
+    """
+    from ingest.lanes import check_resolution
+    from ingest.lanes.extract import extract_markings, markings_geojson
+    from ingest.roads.georef import read_image
+
+    if resolution is not None:
+        check_resolution(resolution)
+    try:
+        img = read_image(image, resolution)
+    except MemoryError as exc:
+        raise UserError(f"{image}: too big to read into memory") from exc
+    markings = extract_markings(img)
+    try:
+        out_path.write_text(json.dumps(markings_geojson(markings, img)))
+    except OSError as exc:
+        raise UserError(f"cannot write {out_path}: {exc.strerror}") from exc
+    kinds = Counter(m.kind for m in markings)
+    summary = ", ".join(f"{n} {kind}" for kind, n in kinds.most_common()) or "no marking found"
+    click.echo(f"{len(markings)} markings ({summary}) -> {out_path}")

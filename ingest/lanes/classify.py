@@ -1,0 +1,272 @@
+"""Pieces of paint -> marking lines with a kind, a colour, a width and a confidence.
+
+Thin pieces are chained end to end where the next one carries on the same line: the gap is
+short enough for a dash pattern, and the chord across it turns from each end's direction by
+about the same angle (what a line of constant curvature does; a dash of the neighbouring lane
+is offset sideways, so its chord turns one way from one end and the other way from the other).
+A chain with real gaps and little paint is ``dashed``; otherwise ``solid``, and a solid line
+with asphalt on one side and something else (grass, kerb, verge) on the other is the
+``road_edge``. Wide bars across the lines around them are ``stop_line``s; wide bars along
+them (zebra stripes, hatching) and wide blobs (arrows) are ``other``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import shapely
+
+from ingest.lanes.trace import Piece
+
+Kind = str  # solid | dashed | stop_line | road_edge | other
+
+
+@dataclass(frozen=True)
+class ClassifyParams:
+    """Thresholds in metres and degrees."""
+
+    thick_m: float = 0.3
+    """Pieces wider than this (and 2.5 pixels) are bars (stop lines, zebra) or symbols."""
+    min_length_m: float = 0.5
+    min_elongation: float = 3.0
+    max_gap_m: float = 12.0
+    """Longest gap between dashes that is joined."""
+    max_turn_deg: float = 12.0
+    """Largest angle between an end's direction and the chord across the gap."""
+    max_asymmetry_deg: float = 5.0
+    """Largest difference between the chord's turn from either end (constant curvature)."""
+    dash_gap_m: float = 1.0
+    """Gaps shorter than this are worn paint in a solid line, not a dash pattern."""
+    dashed_paint_share: float = 0.75
+    """A chain painted over less than this share of its length (gaps real) is dashed."""
+    lone_dash_m: float = 6.0
+    """A single piece shorter than this is a dash of a line whose other dashes were not seen."""
+    side_m: tuple[float, float] = (0.5, 1.5)
+    """Band beside a solid line whose colour says road or not."""
+    edge_saturation: float = 0.12
+    """Difference of mean saturation across a line that makes it a road edge."""
+    stop_angle_deg: float = 60.0
+    """A bar this far from the direction of the lines near it crosses them: a stop line."""
+
+
+@dataclass
+class Marking:
+    """One marking line in pixel coordinates (x = column, y = row)."""
+
+    coords: np.ndarray
+    kind: Kind
+    colour: str
+    width_m: float
+    length_m: float
+    confidence: float
+    pieces: int = 1
+    painted_share: float = 1.0
+    members: list[Piece] = field(default_factory=list, repr=False)
+
+
+def colour_of(hsv: np.ndarray) -> str:
+    """``white``, ``yellow`` or ``unknown`` from paint pixels' HSV (H in degrees, S and V in
+    [0, 1], as OpenCV gives for float input): the median, so edge pixels mixed with asphalt
+    do not decide."""
+    if len(hsv) == 0:
+        return "unknown"
+    h, s = float(np.median(hsv[:, 0])), float(np.median(hsv[:, 1]))
+    if s < 0.22:
+        return "white"
+    if 25.0 <= h <= 70.0 and s >= 0.3:
+        return "yellow"
+    return "unknown"
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Signed angle from direction a to direction b, degrees."""
+    return math.degrees(math.atan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1]))
+
+
+def _flip(p: Piece) -> Piece:
+    return Piece(p.coords[::-1].copy(), p.length_px, p.width_px, p.rows, p.cols)
+
+
+def _link_cost(a: Piece, b: Piece, res: float, params: ClassifyParams) -> float | None:
+    """Cost of continuing ``a`` (at its end) with ``b`` (at its start); None if not a line."""
+    gap = b.coords[0] - a.coords[-1]
+    gap_px = float(np.hypot(*gap))
+    if gap_px * res > params.max_gap_m:
+        return None
+    reach = 2.0 / res
+    da, db = a.direction(True, reach), b.direction(False, reach)
+    if gap_px < 1.5:  # touching: only the directions can say
+        turn = abs(_angle(da, db))
+        return gap_px * res + turn / 10 if turn <= params.max_turn_deg else None
+    chord = gap / gap_px
+    ta, tb = _angle(da, chord), _angle(chord, db)
+    if max(abs(ta), abs(tb)) > params.max_turn_deg or abs(ta - tb) > params.max_asymmetry_deg:
+        return None
+    return gap_px * res + (abs(ta) + abs(tb)) / 10
+
+
+def chain(thin: list[Piece], res: float, params: ClassifyParams) -> list[list[Piece]]:
+    """Thin pieces joined end to end across gaps, greedily by cost, each piece once and each
+    end linked at most once (a piece may be turned round to fit)."""
+    n = len(thin)
+    ends = [np.array([p.coords[0], p.coords[-1]]) for p in thin]
+    starts = np.array([e[0] for e in ends]) if n else np.zeros((0, 2))
+    stops = np.array([e[1] for e in ends]) if n else np.zeros((0, 2))
+    points = np.vstack([starts, stops])
+    tree = shapely.STRtree(shapely.points(points)) if n else None
+    links = []
+    for i in range(n):
+        for side_i in (0, 1):  # 1: leave i from its end, 0: from its start (i turned round)
+            here = ends[i][side_i]
+            near = tree.query(shapely.Point(here), predicate="dwithin",
+                              distance=params.max_gap_m / res) if tree else []
+            for k in near:
+                j, side_j = int(k) % n, int(k) // n  # side_j 0: enter j at its start
+                if j == i:
+                    continue
+                a = thin[i] if side_i == 1 else _flip(thin[i])
+                b = thin[j] if side_j == 0 else _flip(thin[j])
+                cost = _link_cost(a, b, res, params)
+                if cost is not None:
+                    links.append((cost, i, side_i, j, side_j))
+    links.sort()
+    used: set[tuple[int, int]] = set()
+    parent = list(range(n))
+
+    def root(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    neighbour: dict[tuple[int, int], tuple[int, int]] = {}
+    for _, i, si, j, sj in links:
+        if (i, si) in used or (j, sj) in used or root(i) == root(j):
+            continue
+        used.update({(i, si), (j, sj)})
+        parent[root(i)] = root(j)
+        neighbour[(i, si)] = (j, sj)
+        neighbour[(j, sj)] = (i, si)
+    chains, seen = [], set()
+    for start in range(n):
+        if start in seen:
+            continue
+        # Walk to one free end, then collect along the chain.
+        i, side = start, 0
+        guard = 0
+        while (i, side) in neighbour and guard <= n:
+            i, side = neighbour[(i, side)]
+            side = 1 - side
+            guard += 1
+        out, enter = [], side  # enter i at `enter`: its other end leads on
+        while True:
+            seen.add(i)
+            out.append(thin[i] if enter == 0 else _flip(thin[i]))
+            leave = 1 - enter
+            if (i, leave) not in neighbour:
+                break
+            i, enter = neighbour[(i, leave)]
+        chains.append(out)
+    return chains
+
+
+def _sides_differ(coords: np.ndarray, hsv: np.ndarray, res: float,
+                  params: ClassifyParams) -> bool:
+    """Whether the bands either side of a line differ in saturation (road on one side)."""
+    line = shapely.LineString(coords)
+    near, far = (m / res for m in params.side_m)
+    means = []
+    for sign in (1, -1):
+        band = shapely.buffer(line.offset_curve(sign * (near + far) / 2), (far - near) / 2,
+                              cap_style="flat")
+        if band.is_empty:
+            return False
+        mask = np.zeros(hsv.shape[:2], np.uint8)
+        polys = getattr(band, "geoms", [band])
+        cv2.fillPoly(mask, [np.round(np.asarray(p.exterior.coords)).astype(np.int32)
+                            for p in polys], 1)
+        if not mask.any():
+            return False
+        means.append(float(hsv[..., 1][mask > 0].mean()))
+    return abs(means[0] - means[1]) > params.edge_saturation
+
+
+def _confidence(pieces: list[Piece], hat: np.ndarray, length_m: float) -> float:
+    """Paint contrast (a top-hat of 80 is clear paint) times a length term (a short blob
+    may be anything)."""
+    contrast = float(np.median(np.concatenate([hat[p.rows, p.cols] for p in pieces])))
+    return round(min(contrast / 80.0, 1.0) * (1 - math.exp(-length_m / 1.5)), 3)
+
+
+def classify(all_pieces: list[Piece], hsv: np.ndarray, hat: np.ndarray, res: float,
+             params: ClassifyParams = ClassifyParams()) -> list[Marking]:
+    """Marking lines from the pieces of one image (``res`` metres per pixel)."""
+    thick_px = max(params.thick_m / res, 2.5)
+    thin: list[Piece] = []
+    bars: list[Piece] = []
+    for p in all_pieces:
+        if p.length_px * res < params.min_length_m:
+            continue
+        if p.width_px > thick_px:
+            bars.append(p)
+        elif p.length_px >= params.min_elongation * p.width_px:
+            thin.append(p)  # thin and short: a speck, a leaf, a marker disc
+    out: list[Marking] = []
+    for group in chain(thin, res, params):
+        coords = np.vstack([p.coords for p in group])
+        line = shapely.LineString(coords)
+        length_m = line.length * res
+        painted = sum(p.length_px for p in group) * res
+        share = min(painted / max(length_m, 1e-9), 1.0)
+        gaps = [float(np.hypot(*(b.coords[0] - a.coords[-1]))) * res
+                for a, b in itertools.pairwise(group)]
+        real_gaps = [g for g in gaps if g >= params.dash_gap_m]
+        if (real_gaps and share < params.dashed_paint_share) or (
+                len(group) == 1 and length_m < params.lone_dash_m):
+            kind = "dashed"
+        elif _sides_differ(coords, hsv, res, params):
+            kind = "road_edge"
+        else:
+            kind = "solid"
+        rows = np.concatenate([p.rows for p in group])
+        cols = np.concatenate([p.cols for p in group])
+        width = sum(p.width_px * p.length_px for p in group) / sum(p.length_px for p in group)
+        out.append(Marking(coords, kind, colour_of(hsv[rows, cols]), round(width * res, 3),
+                           round(length_m, 2), _confidence(group, hat, length_m), len(group),
+                           round(share, 3), group))
+    lines = [m for m in out if m.length_m >= 3.0]
+    for p in bars:
+        length_m = p.length_px * res
+        kind = "other"
+        if length_m >= 1.5 and p.length_px >= params.min_elongation * p.width_px:
+            kind = "stop_line" if _crosses(p, lines, res, params) else "other"
+        out.append(Marking(p.coords, kind, colour_of(hsv[p.rows, p.cols]),
+                           round(p.width_px * res, 3), round(length_m, 2),
+                           _confidence([p], hat, length_m), 1, 1.0, [p]))
+    return out
+
+
+def _crosses(bar: Piece, lines: list[Marking], res: float, params: ClassifyParams) -> bool:
+    """A bar crosses the road when the lines within 10 m of it run at least
+    ``stop_angle_deg`` from its direction (none near: taken as a stop line)."""
+    shape = shapely.LineString(bar.coords)
+    d = bar.coords[-1] - bar.coords[0]
+    d = d / max(float(np.hypot(*d)), 1e-9)
+    angles = []
+    for m in lines:
+        line = shapely.LineString(m.coords)
+        if line.distance(shape) * res > 10.0:
+            continue
+        at = line.project(shape.centroid)
+        a, b = line.interpolate(max(at - 1.0 / res, 0)), line.interpolate(at + 1.0 / res)
+        v = np.array([b.x - a.x, b.y - a.y])
+        v = v / max(float(np.hypot(*v)), 1e-9)
+        angles.append(abs(_angle(d, v)) % 180)
+    if not angles:
+        return True
+    turn = float(np.median([min(a, 180 - a) for a in angles]))
+    return turn >= params.stop_angle_deg

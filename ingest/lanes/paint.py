@@ -1,0 +1,71 @@
+"""Where paint is: pixels brighter than their surroundings within a marking's width.
+
+A white top-hat (the image minus its morphological opening with a disc wider than any
+marking) keeps what is narrow and bright — lines, dashes, stop lines — and drops what is wide
+(the asphalt, its slow shading, shadows as a whole). Brightness is each pixel's largest
+channel, so yellow paint (bright red and green, little blue) stands out as strongly as white.
+Hysteresis keeps a worn line whole: weak pixels count where they touch strong ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from skimage.filters import apply_hysteresis_threshold
+
+from ingest.roads.clean import metres_to_px
+
+
+@dataclass(frozen=True)
+class PaintParams:
+    """Thresholds in metres and in brightness steps of 0-255."""
+
+    widest_m: float = 0.8
+    """Widest marking (a stop line is 0.3-0.6 m): the opening disc's diameter."""
+    low: float = 18.0
+    """Top-hat contrast a pixel needs when it touches a strong one."""
+    high: float = 40.0
+    """Top-hat contrast that makes a pixel paint on its own."""
+    bar_m: float = 0.28
+    """Paint that holds a disc this wide is a bar (stop line, zebra) or a symbol, not a line."""
+
+
+def brightness(rgb: np.ndarray) -> np.ndarray:
+    """(rows, cols) uint8 largest channel of an RGB image in [0, 1] (float) or 0-255."""
+    top = rgb.max(axis=2) if rgb.ndim == 3 else rgb
+    if top.dtype != np.uint8:
+        top = np.clip(top * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return top
+
+
+def top_hat(grey: np.ndarray, resolution_m: float, valid: np.ndarray | None,
+            params: PaintParams = PaintParams()) -> np.ndarray:
+    """(rows, cols) float32 contrast of narrow bright things. Pixels outside ``valid`` count
+    as bright for the opening (so the edge of the coverage is not a bright line) and as no
+    paint in the result."""
+    size = max(3, metres_to_px(params.widest_m, resolution_m))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    filled = grey if valid is None else np.where(valid, grey, 255).astype(np.uint8)
+    hat = cv2.subtract(filled, cv2.morphologyEx(filled, cv2.MORPH_OPEN, disc))
+    if valid is not None:
+        hat[~valid] = 0
+    return hat.astype(np.float32)
+
+
+def paint_mask(hat: np.ndarray, params: PaintParams = PaintParams()) -> np.ndarray:
+    """Bool mask of paint from the top-hat contrast (hysteresis between low and high)."""
+    return apply_hysteresis_threshold(hat, params.low, params.high)
+
+
+def split_bars(mask: np.ndarray, resolution_m: float,
+               params: PaintParams = PaintParams()) -> tuple[np.ndarray, np.ndarray]:
+    """(lines, bars): paint too wide for a lane line (an opening with a ``bar_m`` disc) apart
+    from the rest, so a stop line that touches the lane lines at its ends is traced on its own
+    and does not turn a lane line's blob into one long bent piece."""
+    size = max(3, metres_to_px(params.bar_m, resolution_m))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    bars = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, disc).astype(bool)
+    near_bar = cv2.dilate(bars.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    return mask & ~near_bar, bars

@@ -1,0 +1,100 @@
+"""Painted blobs -> measured pieces of line.
+
+Each connected blob of paint is thinned, and its skeleton's longest geodesic path (two
+Dijkstra passes over the 8-connected skeleton pixels) is the piece's line: a dash, a stretch
+of solid line, a stop line or an arrow's shaft. Its width is the blob's area over that length,
+which stays right for lines one or two pixels wide where a distance transform cannot.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import shapely
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from ingest.roads.skeleton import thin
+
+_OFFSETS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 2**0.5), (1, -1, 2**0.5))
+
+
+@dataclass(frozen=True)
+class Piece:
+    """One blob of paint as a line, in pixel coordinates (x = column, y = row, corners at
+    integers)."""
+
+    coords: np.ndarray
+    """(N, 2) the line through the blob, simplified."""
+    length_px: float
+    width_px: float
+    rows: np.ndarray
+    cols: np.ndarray
+    """The blob's pixels (colour and contrast are read there)."""
+
+    def direction(self, at_end: bool, reach_px: float) -> np.ndarray:
+        """Unit direction of travel at the end (``at_end``) or the start, averaged over the
+        last ``reach_px`` of the line (a dash is short: often its whole length)."""
+        line = shapely.LineString(self.coords)
+        if at_end:
+            a = line.interpolate(max(line.length - reach_px, 0.0))
+            b = shapely.Point(self.coords[-1])
+        else:
+            a = shapely.Point(self.coords[0])
+            b = line.interpolate(min(reach_px, line.length))
+        d = np.array([b.x - a.x, b.y - a.y])
+        return d / max(float(np.hypot(*d)), 1e-9)
+
+
+def _longest_path(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Indices into rows/cols of the longest shortest path through the skeleton pixels."""
+    n = len(rows)
+    r0, c0 = rows.min(), cols.min()
+    grid = np.full((rows.max() - r0 + 3, cols.max() - c0 + 3), -1, np.int64)
+    grid[rows - r0 + 1, cols - c0 + 1] = np.arange(n)
+    src, dst, weight = [], [], []
+    for dr, dc, w in _OFFSETS:
+        other = grid[rows - r0 + 1 + dr, cols - c0 + 1 + dc]
+        hit = other >= 0
+        src.append(np.flatnonzero(hit))
+        dst.append(other[hit])
+        weight.append(np.full(int(hit.sum()), w))
+    graph = coo_matrix((np.concatenate(weight), (np.concatenate(src), np.concatenate(dst))),
+                       shape=(n, n)).tocsr()
+    far = dijkstra(graph, directed=False, indices=0)
+    a = int(np.argmax(np.where(np.isfinite(far), far, -1)))
+    dist, pred = dijkstra(graph, directed=False, indices=a, return_predecessors=True)
+    b = int(np.argmax(np.where(np.isfinite(dist), dist, -1)))
+    path = [b]
+    while path[-1] != a:
+        path.append(int(pred[path[-1]]))
+    return np.array(path[::-1])
+
+
+def pieces(mask: np.ndarray, min_area_px: int = 4, simplify_px: float = 0.6) -> list[Piece]:
+    """One :class:`Piece` per 8-connected blob of ``mask`` with at least ``min_area_px``
+    pixels."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8),
+                                                                 connectivity=8)
+    skel = thin(mask)
+    out = []
+    for label in range(1, count):
+        x, y, w, h, area = stats[label]
+        if area < min_area_px:
+            continue
+        blob = labels[y:y + h, x:x + w] == label
+        sr, sc = np.nonzero(skel[y:y + h, x:x + w] & blob)
+        if len(sr) == 0:
+            continue
+        path = _longest_path(sr, sc)
+        if len(path) < 2:
+            continue  # a dot: no direction, no marking
+        xy = np.column_stack([sc[path] + x + 0.5, sr[path] + y + 0.5]).astype(float)
+        length = float(np.hypot(*np.diff(xy, axis=0).T).sum()) + 1.0
+        line = shapely.LineString(xy).simplify(simplify_px)
+        br, bc = np.nonzero(blob)
+        out.append(Piece(np.asarray(line.coords), length, float(area) / length,
+                         br + y, bc + x))
+    return out

@@ -1,0 +1,158 @@
+"""Lane-marking extraction (ingest.lanes, ``ugvmap extract-lanes``) on synthetic top-down scenes
+with known paint: the multi-lane road of :class:`ingest.ipm.synthetic.LanePaint` seen from above,
+and a worn line drawn here."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import shapely
+from click.testing import CliRunner
+
+from cli.main import main
+from ingest.ipm.synthetic import Drive, LanePaint
+from ingest.lanes import LanesInputError
+from ingest.lanes.classify import Marking
+from ingest.lanes.extract import extract_markings
+from ingest.roads.georef import as_image
+
+RES = 0.05
+DRIVE = Drive.in_lane(LanePaint(), markers=())
+
+
+def top_down(drive: Drive, s: float, half_m: float = 12.0) -> tuple[np.ndarray, tuple]:
+    """RGB uint8 image (north up, RES m/px) centred on the vehicle's position after ``s`` m,
+    and what maps its pixels back to local metres."""
+    east0, north0, _ = drive.local_pose(s)
+    ticks = np.arange(-half_m, half_m, RES) + RES / 2
+    east, north = np.meshgrid(east0 + ticks, north0 - ticks)
+    rgb = drive.texture(east, north)
+    return np.clip(rgb + 0.5, 0, 255).astype(np.uint8), (east0 - half_m, north0 + half_m)
+
+
+def markings(rgb: np.ndarray, res: float = RES) -> list[Marking]:
+    return extract_markings(as_image(np.moveaxis(rgb, 2, 0).copy(), None, None, None, res))
+
+
+def local(m: Marking, origin: tuple) -> shapely.LineString:
+    x0, y0 = origin
+    return shapely.LineString(np.column_stack([x0 + m.coords[:, 0] * RES,
+                                               y0 - m.coords[:, 1] * RES]))
+
+
+def near_truth(found: list[Marking], origin: tuple, line: shapely.Geometry,
+               within_m: float = 0.25) -> list[Marking]:
+    """Markings lying (90 % of their length) within ``within_m`` of a truth line."""
+    zone = line.buffer(within_m)
+    return [m for m in found
+            if local(m, origin).intersection(zone).length >= 0.9 * local(m, origin).length]
+
+
+def truth_lines(drive: Drive) -> list[tuple[dict, shapely.Geometry]]:
+    """(properties, line in local metres) of the drive's painted truth."""
+    out = []
+    for f in drive.truth()["features"]:
+        lonlat = np.asarray(f["geometry"]["coordinates"])
+        east, north = drive.to_local(lonlat[:, 0], lonlat[:, 1])
+        out.append((f["properties"], shapely.LineString(np.column_stack([east, north]))))
+    return out
+
+
+def test_dashed_solid_edges_and_colours_of_a_four_lane_road() -> None:
+    rgb, origin = top_down(DRIVE, 8.0)
+    found = markings(rgb)
+    for props, line in truth_lines(DRIVE):
+        if props["feature"] != "marking" or props["kind"] == "stop_line":
+            continue
+        on = near_truth(found, origin, line)
+        assert on, f"nothing found on boundary {props['boundary']} ({props['kind']})"
+        longest = max(on, key=lambda m: m.length_m)
+        assert longest.kind == props["kind"], (props, longest)
+        assert longest.colour == props["colour"], (props, longest)
+        assert longest.length_m > 15.0, "a line crossing the 24 m view is found whole"
+        assert abs(longest.width_m - props["width_m"]) < 0.06
+        if props["kind"] == "dashed":
+            assert longest.pieces >= 2, "dashes are joined across their gaps"
+    assert not [m for m in found if m.kind == "stop_line"], "no stop line in this view"
+
+
+def test_stop_line_across_the_forward_lanes() -> None:
+    assert DRIVE.lanes is not None and DRIVE.lanes.stop_at_m is not None
+    rgb, origin = top_down(DRIVE, DRIVE.lanes.stop_at_m)
+    found = markings(rgb)
+    stops = [m for m in found if m.kind == "stop_line"]
+    assert len(stops) == 1
+    truth = DRIVE.stop_line()
+    assert local(stops[0], origin).hausdorff_distance(truth) < 0.3
+    assert 0.3 <= stops[0].width_m <= 0.5
+
+
+def test_a_worn_solid_line_stays_one_solid_line() -> None:
+    """A white line on asphalt with paint flaked off in patches and faded to half contrast:
+    one solid line the length of the image, not dashes."""
+    rng = np.random.default_rng(3)
+    size = 400  # 20 m
+    grey = (100 + rng.normal(0, 6, (size, size))).astype(np.float32)
+    line = np.zeros((size, size), bool)
+    cv2.line(line.view(np.uint8), (20, 40), (380, 360), 1, thickness=3)
+    worn = np.zeros((size, size), bool)
+    for _ in range(25):
+        cx, cy = rng.integers(20, 380, 2)
+        cv2.circle(worn.view(np.uint8), (int(cx), int(cy)), int(rng.integers(2, 6)), 1, -1)
+    paint = line & ~worn
+    grey[paint] = 100 + 60 * rng.uniform(0.5, 1.0, int(paint.sum()))
+    rgb = np.repeat(np.clip(grey, 0, 255).astype(np.uint8)[..., None], 3, axis=2)
+    found = [m for m in markings(rgb) if m.length_m > 2]
+    assert len(found) == 1, [(m.kind, m.length_m) for m in found]
+    assert found[0].kind == "solid"
+    assert found[0].length_m > 0.9 * math.hypot(360, 320) * RES
+
+
+def test_coarse_imagery_is_refused() -> None:
+    rgb, _ = top_down(DRIVE, 8.0, half_m=4.0)
+    with pytest.raises(LanesInputError, match="too coarse"):
+        markings(rgb, res=0.3)
+
+
+def test_cli_writes_pixel_geojson_and_refuses_coarse_imagery(tmp_path: Path) -> None:
+    rgb, _ = top_down(DRIVE, 8.0, half_m=6.0)
+    image = tmp_path / "road.png"
+    cv2.imwrite(str(image), rgb[..., ::-1])
+    out = tmp_path / "lanes.geojson"
+    result = CliRunner().invoke(main, ["extract-lanes", str(image), "--resolution", str(RES),
+                                       "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(out.read_text())
+    assert doc["coordinate_space"] == "pixel"
+    kinds = {f["properties"]["kind"] for f in doc["features"]}
+    assert {"solid", "dashed", "road_edge"} <= kinds
+    xy = np.concatenate([np.asarray(f["geometry"]["coordinates"]) for f in doc["features"]])
+    assert xy.min() >= 0 and xy.max() <= rgb.shape[0]
+    coarse = tmp_path / "coarse.geojson"
+    result = CliRunner().invoke(main, ["extract-lanes", str(image), "--resolution", "0.5",
+                                       "--out", str(coarse)])
+    assert result.exit_code != 0
+    assert "too coarse for lane markings" in result.output
+    assert not coarse.exists()
+
+
+def test_synthetic_drive_writes_its_painted_truth(tmp_path: Path) -> None:
+    from ingest.ipm.synthetic import main as synthetic
+
+    synthetic([str(tmp_path), "--frames", "2", "--size", "256x128", "--lanes", "3.5,3.0,3.25,3.75"])
+    truth = json.loads((tmp_path / "lanes_truth.geojson").read_text())
+    kinds = [f["properties"].get("kind") for f in truth["features"]
+             if f["properties"]["feature"] == "marking"]
+    assert kinds == ["road_edge", "dashed", "solid", "dashed", "road_edge", "stop_line"]
+    drive = Drive.in_lane(LanePaint(), 1)
+    lines = {p.get("boundary"): line for p, line in truth_lines(drive)
+             if p["feature"] == "marking"}
+    for i, width in enumerate(LanePaint().widths_m):  # lane widths as painted
+        assert lines[i].distance(lines[i + 1]) == pytest.approx(width, abs=0.01)
+    frames = sorted((tmp_path / "frames").glob("*.jpg"))
+    assert len(frames) == 2 and cv2.imread(str(frames[0])).shape == (128, 256, 3)

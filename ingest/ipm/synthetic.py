@@ -6,10 +6,10 @@ discs (markers) at known lon/lat. With :class:`LanePaint` the road is a multi-la
 their own widths each way, edge lines, a solid centre line, dashed lane lines, a stop line) and
 :meth:`Drive.truth` is the painted truth the lane-marking extraction is scored against.
 Its roof-mounted panoramic camera (a lever arm and a tilted mount) sees the ground and the car's
-red roof. The renderer deliberately shares no code with the IPM pipeline: it builds the camera rotation with SciPy's Euler angles from
-the documented composition order, follows each pixel's ray to the roof or the ground, and
-places the ground in an azimuthal-equidistant frame (not UTM), so a mistake in the
-pipeline's geometry cannot cancel out against the same mistake here.
+red roof. The renderer deliberately shares no code with the IPM pipeline: it builds the camera
+rotation with SciPy's Euler angles from the documented composition order, follows each pixel's
+ray to the roof or the ground, and places the ground in an azimuthal-equidistant frame (not
+UTM), so a mistake in the pipeline's geometry cannot cancel out against the same mistake here.
 """
 
 from __future__ import annotations

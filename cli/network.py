@@ -94,8 +94,11 @@ def export() -> None:
 @click.option("--bbox", help="W,S,E,N in degrees: only the segments meeting it (whole).")
 @click.option("--origin", help="lanelet2: LAT,LON of the map origin (default: the centre of "
                                "the exported roads, rounded to 1e-4°).")
+@click.option("--elevation-layer", metavar="SLUG",
+              help="lanelet2: the elevation layer whose heights are the nodes' ele "
+                   "(default: ele 0).")
 def export_network(name: str, fmt: str, out: Path, bbox: str | None,
-                   origin: str | None) -> None:
+                   origin: str | None, elevation_layer: str | None) -> None:
     """Export network NAME losslessly (import of the file gives the same network; for
     GeoJSON, import the .segments file: its .nodes file is read with it), or as a lane-level
     Lanelet2 map (every lanelet tagged segment_id) for Autoware-style stacks."""
@@ -103,10 +106,10 @@ def export_network(name: str, fmt: str, out: Path, bbox: str | None,
 
     area = parse_area(bbox)
     if fmt == "lanelet2":
-        _export_lanelet2(name, out, area, parse_origin(origin))
+        _export_lanelet2(name, out, area, parse_origin(origin), elevation_layer)
         return
-    if origin is not None:
-        raise UserError("--origin applies to --format lanelet2 only")
+    if origin is not None or elevation_layer is not None:
+        raise UserError("--origin and --elevation-layer apply to --format lanelet2 only")
     from app.db.session import session_scope
     from ingest.network.exporter import export_network as export_file
 
@@ -117,13 +120,14 @@ def export_network(name: str, fmt: str, out: Path, bbox: str | None,
 
 
 def _export_lanelet2(name: str, out: Path, area: tuple[float, float, float, float] | None,
-                     origin: tuple[float, float] | None) -> None:
+                     origin: tuple[float, float] | None, elevation_layer: str | None) -> None:
     from app.lanelet2.export import export_lanelet2
     from app.lanelet2.roads import snapshot
     from cli.vehicle import lanelet2_report, progress_bar
 
     with progress_bar(f"lanelet2 {name}") as progress, snapshot() as conn:
-        result = export_lanelet2(conn, name, out, bbox=area, origin=origin, progress=progress)
+        result = export_lanelet2(conn, name, out, bbox=area, origin=origin, progress=progress,
+                                 elevation_layer=elevation_layer)
     for line in lanelet2_report(result):
         click.echo(line)
 

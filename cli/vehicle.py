@@ -65,8 +65,10 @@ def lanelet2_report(result: Lanelet2Export, folder: str | None = None) -> list[s
 @click.option("--maxzoom", type=int, help="Largest raster zoom (default: each layer's).")
 @click.option("--max-tiles", type=int, default=200_000, show_default=True,
               help="Refuse a package with more tiles than this.")
+@click.option("--elevation-layer", metavar="SLUG",
+              help="The elevation layer whose heights are the Lanelet2 map's ele (default 0).")
 def export_package(bbox: str, layers: str, network: str, out: Path, minzoom: int | None,
-                   maxzoom: int | None, max_tiles: int) -> None:
+                   maxzoom: int | None, max_tiles: int, elevation_layer: str | None) -> None:
     """Everything a vehicle needs offline for an area: raster layers as MBTiles, the network
     as GeoPackage, vector tiles and Lanelet2 (with map_projector_info.yaml), a manifest."""
     from sqlalchemy.orm import Session
@@ -80,7 +82,7 @@ def export_package(bbox: str, layers: str, network: str, out: Path, minzoom: int
     slugs = [s.strip() for s in layers.split(",") if s.strip()]
     with snapshot() as conn:
         plan = plan_package(conn, area, slugs, network, minzoom=minzoom, maxzoom=maxzoom,
-                            max_tiles=max_tiles)
+                            max_tiles=max_tiles, elevation_layer=elevation_layer)
         click.echo(f"packaging {plan.tile_count} tiles ("
                    + ", ".join([f"{p.slug} z{p.minzoom}-{p.maxzoom}: {len(p.tiles)}"
                                 for p in plan.layers]

@@ -178,3 +178,64 @@ def test_bad_dems_are_refused_in_our_words_and_nothing_is_stored(database_url, t
     with get_engine().connect() as conn:
         assert conn.execute(text("SELECT count(*) FROM layers WHERE slug = :s"),
                             {"s": name}).scalar() == 0
+
+
+def test_lanelet2_and_package_take_ele_from_an_elevation_layer(database_url, tmp_path) -> None:
+    import json
+    import xml.etree.ElementTree as ET
+
+    from click.testing import CliRunner
+
+    from app.db.session import session_scope
+    from cli.main import main
+    from ingest.network import RoadAttributes, RoadLine, write_network
+
+    origin = utm_origin(15.35, 48.45)
+    transform = from_origin(round(origin[0]), round(origin[1]), 1.0, 1.0)
+    surface = plane((transform.c, transform.f), 0.04, 0.01, 612.0)
+    write_dem(tmp_path / "plane.tif", surface, UTM33, transform, 300, 300)
+    name = slug()
+    ingest_raster([tmp_path / "plane.tif"], name, kind="elevation")
+    to_lonlat = Transformer.from_crs(UTM33, "EPSG:4326", always_xy=True)
+    road = [to_lonlat.transform(transform.c + e, transform.f - n) for e, n in
+            [(50, 150), (150, 140), (250, 160)]]
+    net = f"ele-{uuid.uuid4().hex[:8]}"
+    with session_scope() as session:
+        write_network(session, net, [RoadLine(road, RoadAttributes(1, 1, 30.0))])
+    to_utm = Transformer.from_crs("EPSG:4326", UTM33, always_xy=True)
+
+    def eles(osm: Path) -> tuple[np.ndarray, np.ndarray]:
+        nodes = ET.parse(osm).getroot().findall("node")
+        lon = np.array([float(n.get("lon")) for n in nodes])
+        lat = np.array([float(n.get("lat")) for n in nodes])
+        got = np.array([float(n.find("tag[@k='ele']").get("v")) for n in nodes])
+        e, n = to_utm.transform(lon, lat)
+        return got, surface(np.asarray(e), np.asarray(n))
+
+    runner = CliRunner()
+    out = runner.invoke(main, ["export", "network", net, "--format", "lanelet2", "--out",
+                               str(tmp_path / "map.osm"), "--elevation-layer", name])
+    assert out.exit_code == 0, out.output
+    got, truth = eles(tmp_path / "map.osm")
+    assert len(got) > 4 and np.abs(got - truth).max() < 0.05  # lanes are within the DEM
+    flat = runner.invoke(main, ["export", "network", net, "--format", "lanelet2", "--out",
+                                str(tmp_path / "flat.osm")])
+    assert flat.exit_code == 0 and (eles(tmp_path / "flat.osm")[0] == 0).all()
+    wrong = runner.invoke(main, ["export", "network", net, "--format", "geojson", "--out",
+                                 str(tmp_path / "x.geojson"), "--elevation-layer", name])
+    assert wrong.exit_code == 1 and "lanelet2 only" in wrong.output
+
+    w, s = (min(p[i] for p in road) - 0.001 for i in (0, 1))
+    e, n = (max(p[i] for p in road) + 0.001 for i in (0, 1))
+    pkg = runner.invoke(main, ["export", "package", "--bbox", f"{w},{s},{e},{n}", "--network",
+                               net, "--out", str(tmp_path / "pkg"), "--elevation-layer", name])
+    assert pkg.exit_code == 0, pkg.output
+    manifest = json.loads((tmp_path / "pkg" / "manifest.json").read_text())
+    assert manifest["network"]["lanelet2"]["ele"] == f"heights of elevation layer {name}"
+    got, truth = eles(tmp_path / "pkg" / "lanelet2" / "lanelet2_map.osm")
+    assert np.abs(got - truth).max() < 0.05
+    not_heights = runner.invoke(main, ["export", "package", "--bbox", f"{w},{s},{e},{n}",
+                                       "--network", net, "--out", str(tmp_path / "pkg2"),
+                                       "--elevation-layer", "no-such-layer"])
+    assert not_heights.exit_code == 1 and "no raster layer" in not_heights.output
+    assert not (tmp_path / "pkg2").exists()

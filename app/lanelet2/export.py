@@ -10,6 +10,7 @@ comment, and implicitly in every node's ``local_x``/``local_y``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from app.lanelet2.osm_xml import OsmXmlWriter
 from app.lanelet2.roads import NetworkSelection, NodeTable, read_selection
 from app.lanelet2.topology import Defect
 from app.network.ogc_params import parse_bbox
+from app.terrain.heights import ground
 
 Bbox = tuple[float, float, float, float]
 UTM_LATITUDES = (-80.0, 84.0)
@@ -134,9 +136,11 @@ def _comment(sel: NetworkSelection, origin: tuple[float, float], zone: int,
 
 
 def write_lanelet2(sel: NetworkSelection, out: Path, origin: tuple[float, float] | None = None,
-                   progress: Progress | None = None) -> Lanelet2Export:
+                   progress: Progress | None = None,
+                   ground: Callable[[np.ndarray], np.ndarray] | None = None) -> Lanelet2Export:
     """Write the map of ``sel`` to ``out`` (complete or not at all) and its projector file
-    beside it (named as Autoware's map loader expects)."""
+    beside it (named as Autoware's map loader expects); ``ground``: heights at lon/lat rows
+    for the nodes' ``ele`` (an elevation layer's, :func:`app.terrain.heights.ground`)."""
     if not out.parent.is_dir():
         raise UserError(f"{out.parent} is not a directory")
     if not len(sel.roads):
@@ -154,7 +158,8 @@ def write_lanelet2(sel: NetworkSelection, out: Path, origin: tuple[float, float]
     meta = {"format_version": FORMAT_VERSION, "map_version": f"{sel.name}@{sel.version}"}
     # The defects are only known once the map is planned, but the comment heads the file:
     # the writer assembles the header at close, so it is set after the map is written.
-    writer = OsmXmlWriter(out, comment="", meta=meta, bounds=(lo[0], lo[1], hi[0], hi[1]))
+    writer = OsmXmlWriter(out, comment="", meta=meta, bounds=(lo[0], lo[1], hi[0], hi[1]),
+                          ground=ground)
     try:
         summary = write_map(sel, frame, writer, progress)
         summary.defects = outside + summary.defects
@@ -169,8 +174,11 @@ def write_lanelet2(sel: NetworkSelection, out: Path, origin: tuple[float, float]
 
 def export_lanelet2(conn: Connection, network: str, out: Path, *, bbox: Bbox | None = None,
                     origin: tuple[float, float] | None = None,
-                    progress: Progress | None = None) -> Lanelet2Export:
-    """Read network ``network`` (the segments meeting ``bbox``, whole) and write its map."""
+                    progress: Progress | None = None,
+                    elevation_layer: str | None = None) -> Lanelet2Export:
+    """Read network ``network`` (the segments meeting ``bbox``, whole) and write its map,
+    with ``ele`` from ``elevation_layer`` where it has heights (else 0)."""
+    heights = ground(conn, elevation_layer) if elevation_layer else None
     if progress:
         progress("reading the network", 0.0)
-    return write_lanelet2(read_selection(conn, network, bbox), out, origin, progress)
+    return write_lanelet2(read_selection(conn, network, bbox), out, origin, progress, heights)

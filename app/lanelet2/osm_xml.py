@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 import shutil
 import tempfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
 from xml.sax.saxutils import escape
@@ -39,8 +39,10 @@ class OsmXmlWriter:
     """Write nodes, ways and relations to ``path`` (complete only after :meth:`close`)."""
 
     def __init__(self, path: Path, *, comment: str, meta: Mapping[str, str],
-                 bounds: tuple[float, float, float, float]) -> None:
+                 bounds: tuple[float, float, float, float],
+                 ground: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
         self.path = path
+        self.ground = ground  # heights of the ground at lon/lat rows (NaN: none), for ``ele``
         self._dir = tempfile.TemporaryDirectory(dir=path.parent, prefix=f".{path.name}.")
         parts = Path(self._dir.name)
         self._files = [open(parts / name, "w", encoding="utf-8")  # noqa: SIM115 (closed in close)
@@ -64,10 +66,13 @@ class OsmXmlWriter:
     def nodes(self, ids: np.ndarray, lonlat: np.ndarray, local: np.ndarray,
               ele: float | np.ndarray = 0.0) -> None:
         """Points with their lat/lon (1e-9°, 0.1 mm), Autoware's ``local_x``/``local_y`` (mm)
-        and ``ele`` (every node needs one for Autoware)."""
+        and ``ele`` (every node needs one for Autoware): ``ele`` above the ground's height
+        where the writer has one (an elevation layer), else above 0."""
         if not len(ids):
             return
         eles = np.broadcast_to(np.asarray(ele, dtype=np.float64), (len(ids),))
+        if self.ground is not None:
+            eles = eles + np.nan_to_num(self.ground(lonlat), nan=0.0)
         self._files[0].write("".join(
             f'<node id="{i}" visible="true" version="1" lat="{lat:.9f}" lon="{lon:.9f}">'
             f'<tag k="ele" v="{z:.2f}"/><tag k="local_x" v="{x:.3f}"/>'

@@ -9,7 +9,7 @@ them all could be a whole survey).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from pyproj import Transformer
@@ -56,6 +56,18 @@ def bilinear_at(source: TileSource, x: float, y: float) -> float | None:
     top = z[0, 0] * (1 - fx) + z[0, 1] * fx
     bottom = z[1, 0] * (1 - fx) + z[1, 1] * fx
     return float(top * (1 - fy) + bottom * fy)
+
+
+def ground(conn: Connection, slug: str) -> Callable[[np.ndarray], np.ndarray]:
+    """Heights of elevation layer ``slug`` for arrays of lon/lat rows (NaN where it has
+    none), for exports that write a height per point (Lanelet2's ``ele``); the layer is
+    checked at once, so a wrong slug fails before anything is written."""
+    elevation_sources(conn, slug, (0.0, 0.0, 0.0, 0.0))
+
+    def at(lonlat: np.ndarray) -> np.ndarray:
+        found = heights_at(conn, slug, [(float(x), float(y)) for x, y in lonlat])
+        return np.array([np.nan if h is None else h for h in found], np.float64)
+    return at
 
 
 def heights_at(conn: Connection, slug: str,

@@ -40,6 +40,7 @@ from app.lanelet2.roads import AREA_WHERE, read_selection
 from app.network import tilejson
 from app.network.summary import integer_ranges
 from app.network.tiles import NODES_MINZOOM, render_tile
+from app.terrain.heights import ground
 from app.tiles import catalog
 from app.tiles.mosaic import compose_tile
 from ingest.network.exporter import load_network, write_gpkg
@@ -77,6 +78,7 @@ class PackagePlan:
     segments: int
     layers: list[LayerPlan]
     network_tiles: list[morecantile.Tile] = field(default_factory=list)
+    elevation_layer: str | None = None  # whose heights are the Lanelet2 map's ele
 
     @property
     def tile_count(self) -> int:
@@ -101,7 +103,7 @@ def _overlap(a: Bbox, b: Bbox) -> Bbox | None:
 
 def plan_package(conn: Connection, bbox: Bbox, layers: list[str], network: str, *,
                  minzoom: int | None = None, maxzoom: int | None = None,
-                 max_tiles: int = 200_000) -> PackagePlan:
+                 max_tiles: int = 200_000, elevation_layer: str | None = None) -> PackagePlan:
     """Check the request against the store (network and layers exist and have data in the
     area, zooms make sense, the tile count is within ``max_tiles``) and list every tile."""
     row = conn.execute(text(
@@ -128,8 +130,10 @@ def plan_package(conn: Connection, bbox: Bbox, layers: list[str], network: str, 
                                zooms.stop - 1, covered, list(TMS.tiles(*covered, zooms=zooms))))
     hi = max([p.maxzoom for p in plans], default=NETWORK_MAXZOOM)
     network_zooms = range(NODES_MINZOOM, min(hi, NETWORK_MAXZOOM) + 1)
+    if elevation_layer:
+        ground(conn, elevation_layer)  # refused now (unknown, not heights), not mid-package
     plan = PackagePlan(bbox, network, row[0], row[1], plans,
-                       list(TMS.tiles(*bbox, zooms=network_zooms)))
+                       list(TMS.tiles(*bbox, zooms=network_zooms)), elevation_layer)
     if plan.tile_count > max_tiles:
         per_layer = ", ".join(f"{p.slug} z{p.minzoom}-{p.maxzoom}: {len(p.tiles)}" for p in plans)
         raise UserError(f"the package would hold {plan.tile_count} tiles ({per_layer}, network "
@@ -234,8 +238,9 @@ def build_package(session: Session, plan: PackagePlan, out: Path,
         segments, nodes = load_network(session, plan.network, plan.bbox)
         write_gpkg(work / "network" / f"{plan.network}.gpkg", segments, nodes)
         say("Lanelet2 map", 0.93)
+        heights = ground(conn, plan.elevation_layer) if plan.elevation_layer else None
         lanelet2 = write_lanelet2(read_selection(conn, plan.network, plan.bbox),
-                                  work / "lanelet2" / "lanelet2_map.osm")
+                                  work / "lanelet2" / "lanelet2_map.osm", ground=heights)
         manifest = _manifest(plan, version_, len(segments), len(nodes), network_tiles,
                              lanelet2, work)
         (work / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n",
@@ -278,6 +283,8 @@ def _manifest(plan: PackagePlan, network_version: int, segments: int, nodes: int
                                      "maxzoom": max((t.z for t in plan.network_tiles),
                                                     default=None)},
                     "lanelet2": {"file": "lanelet2/lanelet2_map.osm",
+                                 "ele": (f"heights of elevation layer {plan.elevation_layer}"
+                                         if plan.elevation_layer else "0 (no elevation layer)"),
                                  "projector": f"lanelet2/{PROJECTOR_FILE}",
                                  "lanelets": lanelet2.summary.lanelets,
                                  "movements_not_drawn": len(lanelet2.summary.movements_dropped),

@@ -35,6 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import networkx as nx
 import numpy as np
 import rasterio
@@ -42,11 +43,13 @@ from rasterio.transform import from_origin
 from scipy.ndimage import label
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
+from sqlalchemy import Connection, text
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from app.db.session import get_engine, session_scope  # noqa: E402
+from app.grid import tile_bounds  # noqa: E402
 from app.routing.planner import graph_at  # noqa: E402
 from app.routing.profiles import CAR  # noqa: E402
 from app.routing.reads import read_connection  # noqa: E402
@@ -54,8 +57,11 @@ from app.routing.snap import network_graph  # noqa: E402
 from app.terrain.offroad import plan_leg  # noqa: E402
 from app.terrain.roads import Roads, build_roads  # noqa: E402
 from app.terrain.surface import Surface, surface_for  # noqa: E402
+from app.tiles import catalog  # noqa: E402
+from app.tiles.mosaic import compose_tile  # noqa: E402
 from ingest.network import RoadAttributes, RoadLine, write_network  # noqa: E402
 from ingest.raster.job import ingest_raster  # noqa: E402
+from testkit.raster_synth import TMS  # noqa: E402
 from testkit.scratch import bench_database  # noqa: E402
 from testkit.terrain_checks import brute_force_join, slope_tiles_vs_gdaldem  # noqa: E402
 
@@ -206,11 +212,43 @@ def road_join(conn_surface: Surface, tmp: Path) -> bool:
     return ok
 
 
+def write_picture(conn: Connection, slug: str, zoom: int, out: Path) -> None:
+    """The layer's hillshade above its slope ramp at ``zoom``, stitched from served tiles."""
+    west, south, east, north = (float(v) for v in conn.execute(text(
+        "SELECT ST_XMin(bounds), ST_YMin(bounds), ST_XMax(bounds), ST_YMax(bounds) "
+        "FROM layers WHERE slug = :s"), {"s": slug}).one())
+    tiles = list(TMS.tiles(west, south, east, north, [zoom]))
+    xs, ys = sorted({t.x for t in tiles}), sorted({t.y for t in tiles})
+    panels = []
+    for draw in ("hillshade", "slope"):
+        canvas = np.full((len(ys) * 256, len(xs) * 256, 3), 255, np.uint8)
+        for t in tiles:
+            query = catalog.tile_sources(conn, slug, tile_bounds(zoom, t.x, t.y))
+            assert query is not None
+            png = compose_tile(query, zoom, t.x, t.y, "png", draw=draw)
+            bgra = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+            assert bgra is not None
+            if bgra.shape[2] == 4:
+                alpha = bgra[..., 3:] / 255.0
+                bgra = (bgra[..., :3] * alpha + 255 * (1 - alpha)).astype(np.uint8)
+            row, col = ys.index(t.y) * 256, xs.index(t.x) * 256
+            canvas[row:row + 256, col:col + 256] = bgra[..., :3]
+        panels.append(canvas)
+    drawn = np.argwhere((panels[0] < 250).any(axis=2))  # the layer, without the blank tiles
+    (r0, c0), (r1, c1) = drawn.min(axis=0), drawn.max(axis=0) + 1
+    cv2.imwrite(str(out), np.vstack([p[r0:r1, c0:c1] for p in panels]),
+                [cv2.IMWRITE_JPEG_QUALITY, 80])
+    print(f"wrote {out}: hillshade above slope, z{zoom}, {len(tiles)} tiles each")
+
+
 def main() -> None:
     """Run every part and print its verdict."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--routes", type=int, default=50)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--picture", type=Path,
+                    help="also write the SRTM layer's hillshade and slope tiles, stitched, "
+                         "as this JPEG (the docs' picture)")
     args = ap.parse_args()
     for path in (SRTM, DRONE / "dtm.tif", DRONE / "dsm.tif"):
         if not path.is_file():
@@ -222,6 +260,9 @@ def main() -> None:
         ingest_raster([DRONE / "dtm.tif"], "drone-dtm", kind="elevation")
         ingest_raster([DRONE / "dsm.tif"], "drone-dsm", kind="elevation")
         engine = get_engine()
+        if args.picture:
+            with engine.connect() as conn:
+                write_picture(conn, "srtm", 11, args.picture)
         with engine.connect() as conn:
             for slug, dem in (("srtm", SRTM), ("drone-dtm", DRONE / "dtm.tif")):
                 median, compared = slope_tiles_vs_gdaldem(conn, slug, dem, tmp)

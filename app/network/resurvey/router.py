@@ -1,5 +1,6 @@
 """Change sets: ``/networks/{name}/changes`` lists those re-surveys proposed for a network,
-``/change-sets/{id}`` reads one (public, as the network is); an editor accepts or rejects its
+``/change-sets/{id}`` reads one (public unless ``UGVMAP_NETWORK_READ_ROLE`` is set, as
+the network is); an editor accepts or rejects its
 proposals one by one (``changes``), by box (``bbox``), by kind (``kind``) or all (``all``),
 and reverts a whole change set in one step.
 
@@ -14,7 +15,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Request
 
 from app import errors
-from app.api.dependencies import SessionDep, require_role
+from app.api.dependencies import SessionDep, read_access, require_role
 from app.api.errors import PayloadTooLargeError, UnsupportedMediaTypeError, responses
 from app.network.editing_router import _body_doc, _in_session, json_body
 from app.network.resurvey import changes
@@ -72,14 +73,14 @@ def selection(body: Any) -> changes.Selection:
     return changes.Selection(tuple(ids), box, kind)
 
 
-@router.get(CHANGES)
+@router.get(CHANGES, dependencies=[Depends(read_access)])
 def list_change_sets(name: NetworkName, session: SessionDep) -> list[dict[str, Any]]:
     """The network's change sets, oldest first: source, status, counts per outcome, and per
     kind and status how many proposals there are."""
     return changes.change_sets(session, name)
 
 
-@router.get(SET)
+@router.get(SET, dependencies=[Depends(read_access)])
 def read_change_set(set_id: SetId, session: SessionDep) -> dict[str, Any]:
     """One change set (its network, source, status, counts) and its proposals (GeoJSON: the
     proposed line of a moved or new road, the line of a missing one; kind, status, segment,

@@ -3,7 +3,7 @@
 export const TOKEN_KEY = 'ugvmap.token';
 // Network data (lists, TileJSON, styles, MVT tiles, features, routes) may need a reader token
 // (UGVMAP_NETWORK_READ_ROLE); raster layers and tiles never do.
-const GUARDED = /^\/(networks|collections)(\/|$)/;
+const GUARDED = /^\/(networks|collections|change-sets)(\/|$)/;
 let readsNeedToken = false;
 
 /** The token pasted in the panel, kept for this tab only, or ''. */

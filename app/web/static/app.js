@@ -4,6 +4,7 @@ import { BulkEditor } from './bulk.js';
 import { Inspector } from './inspector.js';
 import { Networks, reviewFilter } from './networks.js';
 import { loadRasterLayers } from './rasters.js';
+import { ReviewTool } from './review.js';
 import { RouteTool } from './route.js';
 import { Selection, isMultiClick } from './selection.js';
 import { TeachTool } from './teach.js';
@@ -112,6 +113,7 @@ async function start() {
   };
   const layers = [...document.querySelectorAll('#raster-layers li[data-layer]')].map((li) => li.dataset.layer);
   const teach = new TeachTool({ map, layers, networks, onAccepted: (name) => changed([name]) });
+  const review = new ReviewTool({ map, networks, onChanged: (name) => changed([name]) });
   // The inspector (one segment) and the bulk editor (a selection) share the right dock.
   const layout = () => {
     const docked = !document.getElementById('inspector').hidden || !document.getElementById('bulk').hidden;
@@ -121,7 +123,7 @@ async function start() {
   // A plain click selects one segment, shift-drag boxes and ctrl/shift-clicks add more: one
   // selected segment is shown by the inspector, several by the bulk editor.
   const selection = new Selection({
-    map, networks, paused: () => route.isActive() || teach.isActive(), onChange: (segments) => showSelection(segments),
+    map, networks, paused: () => route.isActive() || teach.isActive() || review.isActive(), onChange: (segments) => showSelection(segments),
   });
   const inspector = new Inspector({
     onSaved: (network) => changed([network]),
@@ -150,6 +152,10 @@ async function start() {
       route.addPoint(ev.lngLat);
       return;
     }
+    if (review.isActive()) {
+      review.click(ev.point);
+      return;
+    }
     const hit = networks.segmentAt(ev.point);
     if (hit && isMultiClick(ev)) selection.toggle(hit);
     else if (hit) selection.set([hit]);
@@ -168,7 +174,7 @@ async function start() {
   const extent = openingView(rasterBounds, networks.extents);
   if (extent && !sharedView) map.fitBounds(extent, { padding: 30, duration: 0, maxZoom: 18 });
   // Exposed for the browser tests and for debugging from the console.
-  window.ugvmap = { map, networks, route, inspector, selection, bulk, teach };
+  window.ugvmap = { map, networks, route, inspector, selection, bulk, teach, review };
   document.body.dataset.ready = 'true';
 }
 

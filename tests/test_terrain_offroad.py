@@ -136,6 +136,12 @@ def test_no_path_and_bad_options_are_refused(client, scene, far_road) -> None:
     no_layer = client.get(f"/networks/{far_road}/route", params={"points": pts,
                                                                     "offroad": "true"})
     assert no_layer.status_code == 400 and "elevation=SLUG" in no_layer.json()["message"]
+    junk = client.get(f"/networks/{far_road}/route", params={"points": pts, "offroad": "true",
+                                                              "elevation": "../Etc"})
+    assert junk.status_code == 400 and "not a layer slug" in junk.json()["message"]
+    missing = route(client, far_road, scene, [scene.lonlat(200, 500), scene.lonlat(300, 500)],
+                    elevation="no-such-dem")
+    assert missing.status_code == 404 and "no-such-dem" in missing.json()["message"]
     stray = client.get(f"/networks/{far_road}/route", params={"points": pts, "max_slope": "5"})
     assert stray.status_code == 400 and "offroad=true only" in stray.json()["message"]
     osrm = client.get(f"/networks/{far_road}/route/v1/driving/{pts}",

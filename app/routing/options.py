@@ -432,10 +432,12 @@ def _offroad(raw: Mapping[str, str], driver: VehicleProfile) -> OffroadRequest |
         settings = replace(settings, max_step_m=params.number_in(
             "max_step", raw["max_step"], 0.0, 100.0))
     forbid = tuple(p for p in raw.get("forbid", "").split(",") if p)
-    for slug in forbid:
-        if not re.fullmatch(SLUG_RE, slug):
-            raise InvalidQueryError(f"forbid: {slug[:40]!r} is not a layer slug")
-    return OffroadRequest(raw["elevation"], settings, raw.get("surface") or None, forbid)
+    surface = raw.get("surface") or None
+    for name, slug in [("elevation", raw["elevation"]), ("surface", surface),
+                       *(("forbid", f) for f in forbid)]:
+        if slug is not None and not re.fullmatch(SLUG_RE, slug):
+            raise InvalidQueryError(f"{name}: {slug[:40]!r} is not a layer slug")
+    return OffroadRequest(raw["elevation"], settings, surface, forbid)
 
 
 ISOCHRONE_OPTIONS = ("point", "profile", "seconds", "meters", "avoid", "exclude", "radius")

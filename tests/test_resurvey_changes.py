@@ -206,3 +206,33 @@ def test_a_new_road_joining_a_persons_road_waits_for_a_look(client, grid: dict[s
                        headers=editor).json()
     assert done["accepted"] == 0 and done["edited"] == 1
     assert rows("SELECT version FROM road_segments WHERE id = :s", s=joined)[0].version == 2
+
+
+def test_ingest_roads_update_from_the_same_imagery_changes_nothing(database_url: str,
+                                                                    tmp_path: Path) -> None:
+    """A layer extracted into a network, then the same layer extracted again with --update:
+    every segment seen unchanged in the layer's coverage, nothing proposed; a network of
+    another place is refused."""
+    from tests.test_road_previews import write_scene
+
+    write_scene(tmp_path / "scene.tif")
+    runner = CliRunner()
+    assert runner.invoke(main, ["ingest", "raster", str(tmp_path / "scene.tif"), "--layer",
+                                "resurvey-scene"]).exit_code == 0
+    first = runner.invoke(main, ["ingest", "roads", "--layer", "resurvey-scene", "--network",
+                                 "resurvey-roads"])
+    assert first.exit_code == 0, first.output
+    segments = int(first.output.split()[2])
+    again = runner.invoke(main, ["ingest", "roads", "--layer", "resurvey-scene", "--network",
+                                 "resurvey-roads", "--update"])
+    assert again.exit_code == 0, again.output
+    assert f"{segments} unchanged, 0 moved, 0 new, 0 missing, 0 unseen" in again.output
+    [listed] = rows("SELECT source, layer_version, ST_Area(coverage) > 0 AS covered "
+                    "FROM change_sets c JOIN networks n ON n.id = c.network_id "
+                    "WHERE n.name = 'resurvey-roads'")
+    assert listed.source == "layer:resurvey-scene" and listed.layer_version == 1 \
+        and listed.covered
+    grid = grid_network()  # around 10 E, 50 N: far from the scene
+    elsewhere = runner.invoke(main, ["ingest", "roads", "--layer", "resurvey-scene",
+                                     "--network", grid.network, "--update"])
+    assert elsewhere.exit_code == 1 and "does not overlap network" in elsewhere.output

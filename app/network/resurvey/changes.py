@@ -31,7 +31,6 @@ import numpy as np
 import shapely
 from shapely.geometry import shape
 from shapely.geometry.base import BaseGeometry
-from shapely.ops import transform
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
@@ -137,8 +136,7 @@ def propose(session: Session, name: str, lines: Sequence[SurveyLine], *, source:
     if coverage is None:
         coverage_m = shapely.MultiPoint(np.concatenate(new)).convex_hull.buffer(tol.match_m)
     else:
-        coverage_m = transform(lambda x, y: tuple(frame.metres(np.column_stack([x, y])).T),
-                               coverage)
+        coverage_m = shapely.transform(coverage, frame.metres)
     old = [OldSegment(r.id, frame.metres(r.coords), r.edited) for r in rows]
     if old and not any(coverage_m.intersects(shapely.linestrings(s.coords)) for s in old):
         raise InvalidValueError(f"{source} does not overlap network {name!r}: nothing of it "

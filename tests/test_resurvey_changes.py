@@ -236,3 +236,13 @@ def test_ingest_roads_update_from_the_same_imagery_changes_nothing(database_url:
     elsewhere = runner.invoke(main, ["ingest", "roads", "--layer", "resurvey-scene",
                                      "--network", grid.network, "--update"])
     assert elsewhere.exit_code == 1 and "does not overlap network" in elsewhere.output
+
+
+def test_a_queued_update_with_a_bad_tolerance_is_refused_when_asked_for(client) -> None:
+    admin = bearer("admin")
+    for tolerances, said in (({"match_m": -1}, "match_m must be a positive number"),
+                             ({"nearness": 3}, "unknown tolerance 'nearness'")):
+        body = {"kind": "ingest-network", "params": {
+            "file": "/x.geojson", "network": "n", "update": True, "tolerances": tolerances}}
+        answer = client.post("/jobs", json=body, headers=admin)
+        assert answer.status_code == 422 and said in answer.text, answer.text

@@ -32,6 +32,7 @@ from pyproj.exceptions import CRSError
 
 from app.db.models import LAYER_KINDS, SLUG_RE
 from app.errors import InvalidValueError
+from app.network.resurvey.matching import Tolerances
 from app.network.settings import AttributeRules
 from app.road_tuning import RoadTuning, SampleWidth
 
@@ -110,6 +111,20 @@ class RasterParams(JobParams):
         return self.layer
 
 
+def _tolerances(values: dict[str, float]) -> dict[str, float]:
+    """Overrides of the re-survey matching's tolerances, checked when the job is asked for
+    (a 422 naming the fault), not when a worker runs it."""
+    unknown = sorted(set(values) - set(Tolerances.__dataclass_fields__))
+    if unknown:
+        raise ValueError(f"unknown tolerance {unknown[0][:40]!r}; known: "
+                         + ", ".join(Tolerances.__dataclass_fields__))
+    Tolerances(**values)
+    return values
+
+
+MatchTolerances = Annotated[dict[str, float], AfterValidator(_tolerances)]
+
+
 class NetworkParams(JobParams):
     """``ingest-network``: a road file imported as a network."""
 
@@ -118,7 +133,7 @@ class NetworkParams(JobParams):
     replace: bool = False
     update: bool = False
     """Propose the file's changes as a change set (``--update``) instead of importing it."""
-    tolerances: dict[str, float] = Field(default_factory=dict, max_length=20)
+    tolerances: MatchTolerances = Field(default_factory=dict, max_length=20)
 
     @property
     def target(self) -> str:
@@ -135,7 +150,7 @@ class RoadsParams(JobParams, RoadTuning, SampleWidth):
     replace: bool = False
     update: bool = False
     """Propose the extraction's changes as a change set (``--update``)."""
-    tolerances: dict[str, float] = Field(default_factory=dict, max_length=20)
+    tolerances: MatchTolerances = Field(default_factory=dict, max_length=20)
     train_boxes: list[LonLatBox] = Field(default_factory=list, max_length=1000)
     not_road_boxes: list[LonLatBox] = Field(default_factory=list, max_length=1000)
     train_lines: ServerPath | None = None

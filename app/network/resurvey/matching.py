@@ -372,8 +372,11 @@ def match(old: Sequence[OldSegment], new: Sequence[Coords],
                                 old_edges, tol)
         return result
     old_samples = _sample(old_edges, tol)
-    inside = (np.ones(len(old_samples.owner), bool) if coverage is None
-              else shapely.covered_by(shapely.points(old_samples.xy), coverage))
+    if coverage is None:
+        inside = np.ones(len(old_samples.owner), bool)
+    else:
+        shapely.prepare(coverage)
+        inside = shapely.intersects_xy(coverage, old_samples.xy[:, 0], old_samples.xy[:, 1])
     sees, dist, feet = _seen(old_samples, old_edges, new_edges, tol)
     for segment, mine in zip(old, _groups(old_samples.owner, len(old)), strict=True):
         covered = mine[inside[mine]]

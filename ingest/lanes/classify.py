@@ -16,7 +16,6 @@ import itertools
 import math
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 import shapely
 
@@ -29,7 +28,7 @@ Kind = str  # solid | dashed | stop_line | road_edge | other
 class ClassifyParams:
     """Thresholds in metres and degrees."""
 
-    thick_m: float = 0.3
+    thick_m: float = 0.36
     """Pieces wider than this (and 2.5 pixels) are bars (stop lines, zebra) or symbols."""
     min_length_m: float = 0.5
     min_elongation: float = 3.0
@@ -45,10 +44,14 @@ class ClassifyParams:
     """A chain painted over less than this share of its length (gaps real) is dashed."""
     lone_dash_m: float = 6.0
     """A single piece shorter than this is a dash of a line whose other dashes were not seen."""
-    side_m: tuple[float, float] = (0.5, 1.5)
-    """Band beside a solid line whose colour says road or not."""
-    edge_saturation: float = 0.12
-    """Difference of mean saturation across a line that makes it a road edge."""
+    side_m: tuple[float, float] = (0.4, 1.2)
+    """Band beside a line whose colour says road or not."""
+    asphalt_saturation: float = 0.25
+    """Road surface is grey: saturation below this (and not dark shadow, value above 0.15)."""
+    on_road: float = 0.6
+    """A marking needs this share of road surface beside it on at least one side."""
+    off_road: float = 0.35
+    """A solid line with less road surface than this on one side is the road's edge."""
     stop_angle_deg: float = 60.0
     """A bar this far from the direction of the lines near it crosses them: a stop line."""
 
@@ -87,18 +90,13 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.atan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1]))
 
 
-def _flip(p: Piece) -> Piece:
-    return Piece(p.coords[::-1].copy(), p.length_px, p.width_px, p.rows, p.cols)
-
-
 def _link_cost(a: Piece, b: Piece, res: float, params: ClassifyParams) -> float | None:
     """Cost of continuing ``a`` (at its end) with ``b`` (at its start); None if not a line."""
     gap = b.coords[0] - a.coords[-1]
     gap_px = float(np.hypot(*gap))
     if gap_px * res > params.max_gap_m:
         return None
-    reach = 2.0 / res
-    da, db = a.direction(True, reach), b.direction(False, reach)
+    da, db = a.heads[1], b.heads[0]
     if gap_px < 1.5:  # touching: only the directions can say
         turn = abs(_angle(da, db))
         return gap_px * res + turn / 10 if turn <= params.max_turn_deg else None
@@ -128,8 +126,8 @@ def chain(thin: list[Piece], res: float, params: ClassifyParams) -> list[list[Pi
                 j, side_j = int(k) % n, int(k) // n  # side_j 0: enter j at its start
                 if j == i:
                     continue
-                a = thin[i] if side_i == 1 else _flip(thin[i])
-                b = thin[j] if side_j == 0 else _flip(thin[j])
+                a = thin[i] if side_i == 1 else thin[i].flipped()
+                b = thin[j] if side_j == 0 else thin[j].flipped()
                 cost = _link_cost(a, b, res, params)
                 if cost is not None:
                     links.append((cost, i, side_i, j, side_j))
@@ -165,7 +163,7 @@ def chain(thin: list[Piece], res: float, params: ClassifyParams) -> list[list[Pi
         out, enter = [], side  # enter i at `enter`: its other end leads on
         while True:
             seen.add(i)
-            out.append(thin[i] if enter == 0 else _flip(thin[i]))
+            out.append(thin[i] if enter == 0 else thin[i].flipped())
             leave = 1 - enter
             if (i, leave) not in neighbour:
                 break
@@ -174,25 +172,29 @@ def chain(thin: list[Piece], res: float, params: ClassifyParams) -> list[list[Pi
     return chains
 
 
-def _sides_differ(coords: np.ndarray, hsv: np.ndarray, res: float,
-                  params: ClassifyParams) -> bool:
-    """Whether the bands either side of a line differ in saturation (road on one side)."""
+def side_means(coords: np.ndarray, fields: np.ndarray, res: float, band_m: tuple[float, float],
+               step_m: float = 0.5) -> np.ndarray:
+    """(2, k) mean of each of ``fields``' k layers in the band ``band_m`` from the line, on its
+    left and on its right (NaN where the band leaves the image): what lies beside a line says
+    whether it is on a road and whether it is the road's edge."""
     line = shapely.LineString(coords)
-    near, far = (m / res for m in params.side_m)
-    means = []
-    for sign in (1, -1):
-        band = shapely.buffer(line.offset_curve(sign * (near + far) / 2), (far - near) / 2,
-                              cap_style="flat")
-        if band.is_empty:
-            return False
-        mask = np.zeros(hsv.shape[:2], np.uint8)
-        polys = getattr(band, "geoms", [band])
-        cv2.fillPoly(mask, [np.round(np.asarray(p.exterior.coords)).astype(np.int32)
-                            for p in polys], 1)
-        if not mask.any():
-            return False
-        means.append(float(hsv[..., 1][mask > 0].mean()))
-    return abs(means[0] - means[1]) > params.edge_saturation
+    along = np.arange(0.0, line.length + 1e-9, max(step_m / res, 1.0))
+    at = shapely.get_coordinates(shapely.line_interpolate_point(line, along))
+    ahead = shapely.get_coordinates(shapely.line_interpolate_point(line, along + 1.0))
+    behind = shapely.get_coordinates(shapely.line_interpolate_point(line, along - 1.0))
+    tangent = ahead - behind
+    tangent /= np.maximum(np.hypot(tangent[:, 0], tangent[:, 1]), 1e-9)[:, None]
+    normal = np.column_stack([tangent[:, 1], -tangent[:, 0]])  # left of travel (y down)
+    offsets = np.linspace(band_m[0], band_m[1], 3) / res
+    rows, cols = fields.shape[:2]
+    out = np.full((2, fields.shape[2]), np.nan)
+    for k, sign in enumerate((1.0, -1.0)):
+        xy = (at[:, None, :] + sign * offsets[None, :, None] * normal[:, None, :]).reshape(-1, 2)
+        c, r = np.floor(xy[:, 0]).astype(int), np.floor(xy[:, 1]).astype(int)
+        inside = (c >= 0) & (c < cols) & (r >= 0) & (r < rows)
+        if inside.any():
+            out[k] = fields[r[inside], c[inside]].mean(axis=0)
+    return out
 
 
 def _confidence(pieces: list[Piece], hat: np.ndarray, length_m: float) -> float:
@@ -215,6 +217,8 @@ def classify(all_pieces: list[Piece], hsv: np.ndarray, hat: np.ndarray, res: flo
             bars.append(p)
         elif p.length_px >= params.min_elongation * p.width_px:
             thin.append(p)  # thin and short: a speck, a leaf, a marker disc
+    surface = np.dstack([(hsv[..., 1] < params.asphalt_saturation) & (hsv[..., 2] > 0.15)]
+                        ).astype(np.float32)
     out: list[Marking] = []
     for group in chain(thin, res, params):
         coords = np.vstack([p.coords for p in group])
@@ -225,10 +229,13 @@ def classify(all_pieces: list[Piece], hsv: np.ndarray, hat: np.ndarray, res: flo
         gaps = [float(np.hypot(*(b.coords[0] - a.coords[-1]))) * res
                 for a, b in itertools.pairwise(group)]
         real_gaps = [g for g in gaps if g >= params.dash_gap_m]
+        road = side_means(coords, surface, res, params.side_m)[:, 0]
+        if not np.nanmax(road, initial=0.0) >= params.on_road:
+            continue  # grass, trees, roofs: texture, not paint on a road
         if (real_gaps and share < params.dashed_paint_share) or (
                 len(group) == 1 and length_m < params.lone_dash_m):
             kind = "dashed"
-        elif _sides_differ(coords, hsv, res, params):
+        elif np.nanmin(road, initial=1.0) < params.off_road:
             kind = "road_edge"
         else:
             kind = "solid"
@@ -240,6 +247,9 @@ def classify(all_pieces: list[Piece], hsv: np.ndarray, hat: np.ndarray, res: flo
                            round(share, 3), group))
     lines = [m for m in out if m.length_m >= 3.0]
     for p in bars:
+        if not np.nanmax(side_means(p.coords, surface, res, params.side_m)[:, 0],
+                         initial=0.0) >= params.on_road:
+            continue
         length_m = p.length_px * res
         kind = "other"
         if length_m >= 1.5 and p.length_px >= params.min_elongation * p.width_px:

@@ -35,7 +35,9 @@ def extract_markings(image: Image, paint: PaintParams | None = None,
     hat = top_hat(brightness(rgb), image.resolution_m, image.valid, paint)
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
     lines, bars = split_bars(paint_mask(hat, paint), image.resolution_m, paint)
-    return classify(pieces(lines) + pieces(bars), hsv, hat, image.resolution_m, params)
+    res, shortest = image.resolution_m, params.min_length_m
+    return classify(pieces(lines, res, shortest) + pieces(bars, res, shortest), hsv, hat, res,
+                    params)
 
 
 def markings_geojson(markings: list[Marking], image: Image) -> dict:

@@ -34,18 +34,24 @@ class Piece:
     cols: np.ndarray
     """The blob's pixels (colour and contrast are read there)."""
 
-    def direction(self, at_end: bool, reach_px: float) -> np.ndarray:
-        """Unit direction of travel at the end (``at_end``) or the start, averaged over the
-        last ``reach_px`` of the line (a dash is short: often its whole length)."""
-        line = shapely.LineString(self.coords)
-        if at_end:
-            a = line.interpolate(max(line.length - reach_px, 0.0))
-            b = shapely.Point(self.coords[-1])
-        else:
-            a = shapely.Point(self.coords[0])
-            b = line.interpolate(min(reach_px, line.length))
-        d = np.array([b.x - a.x, b.y - a.y])
-        return d / max(float(np.hypot(*d)), 1e-9)
+    heads: np.ndarray
+    """(2, 2) unit directions of travel at the start and at the end, over the last ~2 m."""
+
+    def flipped(self) -> Piece:
+        """The same piece travelled the other way."""
+        return Piece(self.coords[::-1].copy(), self.length_px, self.width_px, self.rows,
+                     self.cols, -self.heads[::-1])
+
+
+def _heads(coords: np.ndarray, reach_px: float) -> np.ndarray:
+    """Directions of travel at both ends of a line, each averaged over ``reach_px`` (a dash is
+    short: often its whole length)."""
+    line = shapely.LineString(coords)
+    a = line.interpolate(max(line.length - reach_px, 0.0))
+    b = line.interpolate(min(reach_px, line.length))
+    d = np.array([[b.x - coords[0][0], b.y - coords[0][1]],
+                  [coords[-1][0] - a.x, coords[-1][1] - a.y]])
+    return d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)[:, None]
 
 
 def _longest_path(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -73,16 +79,18 @@ def _longest_path(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     return np.array(path[::-1])
 
 
-def pieces(mask: np.ndarray, min_area_px: int = 4, simplify_px: float = 0.6) -> list[Piece]:
-    """One :class:`Piece` per 8-connected blob of ``mask`` with at least ``min_area_px``
-    pixels."""
+def pieces(mask: np.ndarray, resolution_m: float, min_length_m: float = 0.5,
+           simplify_px: float = 0.6, head_m: float = 2.0) -> list[Piece]:
+    """One :class:`Piece` per 8-connected blob of ``mask`` whose bounding box's diagonal
+    reaches ``min_length_m`` (smaller specks are no marking)."""
+    min_px = min_length_m / resolution_m
     count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8),
                                                                  connectivity=8)
     skel = thin(mask)
     out = []
     for label in range(1, count):
         x, y, w, h, area = stats[label]
-        if area < min_area_px:
+        if w * w + h * h < min_px * min_px:
             continue
         blob = labels[y:y + h, x:x + w] == label
         sr, sc = np.nonzero(skel[y:y + h, x:x + w] & blob)
@@ -95,6 +103,7 @@ def pieces(mask: np.ndarray, min_area_px: int = 4, simplify_px: float = 0.6) -> 
         length = float(np.hypot(*np.diff(xy, axis=0).T).sum()) + 1.0
         line = shapely.LineString(xy).simplify(simplify_px)
         br, bc = np.nonzero(blob)
-        out.append(Piece(np.asarray(line.coords), length, float(area) / length,
-                         br + y, bc + x))
+        coords = np.asarray(line.coords)
+        out.append(Piece(coords, length, float(area) / length, br + y, bc + x,
+                         _heads(coords, head_m / resolution_m)))
     return out

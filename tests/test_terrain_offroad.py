@@ -207,3 +207,12 @@ def test_the_command_line_plans_the_same_off_road_route(client, scene, far_road)
     steep = CliRunner().invoke(main, ["route", far_road, "--points", pts, "--offroad",
                                       "--elevation", scene.dem, "--max-slope", "5"])
     assert steep.exit_code == 1 and "NoRoute" in steep.output
+
+
+def test_a_point_on_a_road_over_a_steep_flank_may_start_there(client, scene) -> None:
+    """The ground under a road is drivable whatever its slope (a road cut into a flank)."""
+    net = network([[scene.lonlat(600, 500), scene.lonlat(900, 500)]])
+    on_flank = scene.lonlat(728, 500)  # on the road, where the ground slopes ~50 degrees
+    resp = route(client, net, scene, [on_flank, scene.lonlat(200, 150)], radius="1")
+    assert resp.status_code == 200, resp.text
+    assert [p["offroad"] for p in resp.json()["routes"][0]["parts"]][-1] is True

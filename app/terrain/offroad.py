@@ -64,15 +64,20 @@ class Part:
                                                      strict=True))
 
 
-def check_point(surface: Surface, i: int, point: tuple[float, float], layer: str,
-                settings: OffroadSettings, profile: str) -> Cell:
+def check_point(surface: Surface, roads: Roads, i: int, point: tuple[float, float],
+                on_road: bool, layer: str, settings: OffroadSettings, profile: str) -> Cell:
     """The cell of input point ``i``, or ``NoSegment`` saying why the vehicle cannot start
-    or end there."""
+    or end there. A point within the snap radius of a road (``on_road``) starts at the
+    road vertex nearest to it, whose cell is drivable whatever the ground's slope."""
     where = f"{params.point(i)} ({point[0]:.6f},{point[1]:.6f})"
     cell = surface.grid.cell_of(*point)
     if cell is None:
         raise NoSegmentError(f"{where} is outside elevation layer {layer} and farther than "
                              "the snap radius from every road")
+    joins = np.array([c for _, c in roads.joins()]).reshape(-1, 2)
+    if on_road and len(joins):
+        nearest = joins[np.argmin(np.hypot(*(joins - np.array(cell)).T))]
+        return int(nearest[0]), int(nearest[1])
     why = surface.costs.why[cell]
     if why == STEEP:
         raise NoSegmentError(

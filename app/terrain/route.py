@@ -42,16 +42,14 @@ def plan_offroad_route(reads: Reads, network: str, points: list[tuple[float, flo
     off = opts.offroad
     assert off is not None
     graph = network_graph(reads, network, graph_at)
-    try:
-        snap_on(graph, points, [opts.point(i) for i in range(len(points))], opts.avoid)
+    on_road = [_snaps(graph, p, opts, i) for i, p in enumerate(points)]
+    if all(on_road):
         return None
-    except NoSegmentError:
-        pass
     with get_engine().connect() as conn:
         surface = surface_for(conn, off.elevation, off.settings, off.surface, off.forbid)
-        cells = [check_point(surface, i, p, off.elevation, off.settings, opts.vehicle.name)
-                 for i, p in enumerate(points)]
         roads = roads_over(graph, surface, opts.avoid, 3.6 / off.settings.speeds[0][1])
+        cells = [check_point(surface, roads, i, p, on_road[i], off.elevation, off.settings,
+                             opts.vehicle.name) for i, p in enumerate(points)]
         legs = [plan_leg(surface, roads, cells[i], cells[i + 1], points[i], points[i + 1])
                 for i in range(len(points) - 1)]
         if opts.format == "waypoints":
@@ -59,6 +57,15 @@ def plan_offroad_route(reads: Reads, network: str, points: list[tuple[float, flo
                                                       opts.spacing_m),
                     "order": list(range(len(points)))}
     return _response(surface, legs, points, opts)
+
+
+def _snaps(graph: RoadGraph, point: tuple[float, float], opts: RouteOptions, i: int) -> bool:
+    """Whether point ``i`` is within its snap radius of a road its vehicle may drive."""
+    try:
+        snap_on(graph, [point], [opts.point(i)], opts.avoid)
+    except NoSegmentError:
+        return False
+    return True
 
 
 def _step(surface: Surface, part: Part, geometries: str) -> dict[str, Any]:

@@ -9,7 +9,8 @@
    >= 0.95), then every proposal accepted in bulk ("all"): ids of the unchanged roads kept
    (target >= 99 %), human edits kept (target 100 %), topology valid; the time of the
    update against the baseline of replacing the network with the same lines (``--replace``,
-   which keeps nothing). ``--seed N`` draws another re-survey.
+   which keeps nothing). ``--seed N`` draws another re-survey. Then the unchanged extract
+   over itself: what a re-survey that changed nothing proposes.
 2. **SpaceNet Vegas, real.** The truth centrelines of the Vegas image as the map, the roads
    extracted from the same image (layer ``vegas``, the road model zero-shot) as the survey
    (``ingest roads --update``): what the matching proposes, and how much of the truth each
@@ -103,6 +104,7 @@ def andorra(seed: int) -> None:
     from ingest.network import RoadLine, import_network, write_network
 
     with session_scope() as session:
+        import_network(session, ANDORRA, "andorra-again")
         summary = import_network(session, ANDORRA, "andorra")
         segments, frame, pairs = stored_segments(session, summary.network_id)
         rng = np.random.default_rng(seed + 1)
@@ -159,6 +161,18 @@ def andorra(seed: int) -> None:
           f"replace keeps no id, edit or history)")
 
 
+def same_again() -> None:
+    """The Andorra extract again over the network imported from it: what a re-survey that
+    changed nothing proposes (a baseline for the false alarms)."""
+    from app.db.session import session_scope
+    from ingest.network.update import update_from_file
+
+    start = time.perf_counter()
+    with session_scope() as session:
+        proposed = update_from_file(session, ANDORRA, "andorra-again")
+    print(f"the same extract again: {proposed['counts']} in {time.perf_counter() - start:.1f} s")
+
+
 def vegas() -> None:
     """Part 2: the SpaceNet truth as the map, the roads extracted from its image as survey."""
     from app.db.session import session_scope
@@ -203,6 +217,7 @@ def main() -> None:
 
     with bench_database("ugvmap_resurvey"):
         andorra(args.seed)
+        same_again()
         vegas()
 
 

@@ -38,10 +38,15 @@ class ClassifyParams:
     """Largest angle between an end's direction and the chord across the gap."""
     max_asymmetry_deg: float = 5.0
     """Largest difference between the chord's turn from either end (constant curvature)."""
+    short_gap_aside_m: float = 0.15
+    """Across a gap shorter than ``dash_gap_m``, how far sideways the next piece may start."""
     dash_gap_m: float = 1.0
     """Gaps shorter than this are worn paint in a solid line, not a dash pattern."""
-    dashed_paint_share: float = 0.75
-    """A chain painted over less than this share of its length (gaps real) is dashed."""
+    dashed_paint_share: float = 0.6
+    """A chain painted over less than this share of its length (gaps real) is dashed (dash
+    patterns paint a third to a half; a worn or far, blurred solid line much more)."""
+    longest_dash_m: float = 12.0
+    """A chain with a piece longer than this is a broken solid line, not dashes."""
     lone_dash_m: float = 6.0
     """A single piece shorter than this is a dash of a line whose other dashes were not seen."""
     side_m: tuple[float, float] = (0.4, 1.2)
@@ -97,9 +102,13 @@ def _link_cost(a: Piece, b: Piece, res: float, params: ClassifyParams) -> float 
     if gap_px * res > params.max_gap_m:
         return None
     da, db = a.heads[1], b.heads[0]
-    if gap_px < 1.5:  # touching: only the directions can say
+    if gap_px * res < params.dash_gap_m:
+        # A short gap (worn paint, a junction cut out): the chord is too short to measure
+        # turns by; the two directions must agree and the ends line up sideways.
         turn = abs(_angle(da, db))
-        return gap_px * res + turn / 10 if turn <= params.max_turn_deg else None
+        aside = abs(float(da[0] * gap[1] - da[1] * gap[0])) * res
+        ok = turn <= params.max_turn_deg and aside <= params.short_gap_aside_m
+        return gap_px * res + turn / 10 if ok else None
     chord = gap / gap_px
     ta, tb = _angle(da, chord), _angle(chord, db)
     if max(abs(ta), abs(tb)) > params.max_turn_deg or abs(ta - tb) > params.max_asymmetry_deg:
@@ -213,8 +222,8 @@ def classify(all_pieces: list[Piece], hsv: np.ndarray, hat: np.ndarray, res: flo
     for p in all_pieces:
         if p.length_px * res < params.min_length_m:
             continue
-        if p.width_px > thick_px:
-            bars.append(p)
+        if p.width_px > thick_px and p.length_px * res < params.lone_dash_m:
+            bars.append(p)  # longer: a wide or blurred line (a far edge in an IPM mosaic)
         elif p.length_px >= params.min_elongation * p.width_px:
             thin.append(p)  # thin and short: a speck, a leaf, a marker disc
     surface = np.dstack([(hsv[..., 1] < params.asphalt_saturation) & (hsv[..., 2] > 0.15)]
@@ -232,7 +241,8 @@ def classify(all_pieces: list[Piece], hsv: np.ndarray, hat: np.ndarray, res: flo
         road = side_means(coords, surface, res, params.side_m)[:, 0]
         if not np.nanmax(road, initial=0.0) >= params.on_road:
             continue  # grass, trees, roofs: texture, not paint on a road
-        if (real_gaps and share < params.dashed_paint_share) or (
+        dashes = max(p.length_px for p in group) * res <= params.longest_dash_m
+        if (real_gaps and dashes and share < params.dashed_paint_share) or (
                 len(group) == 1 and length_m < params.lone_dash_m):
             kind = "dashed"
         elif np.nanmin(road, initial=1.0) < params.off_road:
@@ -241,30 +251,39 @@ def classify(all_pieces: list[Piece], hsv: np.ndarray, hat: np.ndarray, res: flo
             kind = "solid"
         rows = np.concatenate([p.rows for p in group])
         cols = np.concatenate([p.cols for p in group])
-        width = sum(p.width_px * p.length_px for p in group) / sum(p.length_px for p in group)
+        width = _mean_width(group)
         out.append(Marking(coords, kind, colour_of(hsv[rows, cols]), round(width * res, 3),
                            round(length_m, 2), _confidence(group, hat, length_m), len(group),
                            round(share, 3), group))
     lines = [m for m in out if m.length_m >= 3.0]
-    for p in bars:
-        if not np.nanmax(side_means(p.coords, surface, res, params.side_m)[:, 0],
+    for group in chain(bars, res, params):  # a stop line cut where lane lines meet it
+        coords = np.vstack([p.coords for p in group])
+        if not np.nanmax(side_means(coords, surface, res, params.side_m)[:, 0],
                          initial=0.0) >= params.on_road:
             continue
-        length_m = p.length_px * res
+        length_m = shapely.LineString(coords).length * res
+        width = _mean_width(group)
         kind = "other"
-        if length_m >= 1.5 and p.length_px >= params.min_elongation * p.width_px:
-            kind = "stop_line" if _crosses(p, lines, res, params) else "other"
-        out.append(Marking(p.coords, kind, colour_of(hsv[p.rows, p.cols]),
-                           round(p.width_px * res, 3), round(length_m, 2),
-                           _confidence([p], hat, length_m), 1, 1.0, [p]))
+        if length_m >= 1.5 and length_m >= params.min_elongation * width * res:
+            kind = "stop_line" if _crosses(coords, lines, res, params) else "other"
+        rows = np.concatenate([p.rows for p in group])
+        cols = np.concatenate([p.cols for p in group])
+        out.append(Marking(coords, kind, colour_of(hsv[rows, cols]), round(width * res, 3),
+                           round(length_m, 2), _confidence(group, hat, length_m), len(group),
+                           1.0, group))
     return out
 
 
-def _crosses(bar: Piece, lines: list[Marking], res: float, params: ClassifyParams) -> bool:
+def _mean_width(group: list[Piece]) -> float:
+    """Length-weighted mean width of pieces (pixels)."""
+    return sum(p.width_px * p.length_px for p in group) / sum(p.length_px for p in group)
+
+
+def _crosses(bar: np.ndarray, lines: list[Marking], res: float, params: ClassifyParams) -> bool:
     """A bar crosses the road when the lines within 10 m of it run at least
     ``stop_angle_deg`` from its direction (none near: taken as a stop line)."""
-    shape = shapely.LineString(bar.coords)
-    d = bar.coords[-1] - bar.coords[0]
+    shape = shapely.LineString(bar)
+    d = bar[-1] - bar[0]
     d = d / max(float(np.hypot(*d)), 1e-9)
     angles = []
     for m in lines:

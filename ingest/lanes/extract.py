@@ -12,7 +12,7 @@ import numpy as np
 
 from ingest.lanes import check_resolution
 from ingest.lanes.classify import ClassifyParams, Marking, classify
-from ingest.lanes.paint import PaintParams, brightness, paint_mask, split_bars, top_hat
+from ingest.lanes.paint import PaintParams, brightness, paint_mask, top_hat
 from ingest.lanes.trace import pieces
 from ingest.roads.georef import Image, crs_member
 
@@ -34,9 +34,8 @@ def extract_markings(image: Image, paint: PaintParams | None = None,
     rgb = rgb_of(image.pixels)
     hat = top_hat(brightness(rgb), image.resolution_m, image.valid, paint)
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
-    lines, bars = split_bars(paint_mask(hat, paint), image.resolution_m, paint)
-    res, shortest = image.resolution_m, params.min_length_m
-    return classify(pieces(lines, res, shortest) + pieces(bars, res, shortest), hsv, hat, res,
+    res = image.resolution_m
+    return classify(pieces(paint_mask(hat, paint), res, params.min_length_m), hsv, hat, res,
                     params)
 
 

@@ -28,8 +28,6 @@ class PaintParams:
     """Top-hat contrast a pixel needs when it touches a strong one."""
     high: float = 40.0
     """Top-hat contrast that makes a pixel paint on its own."""
-    bar_m: float = 0.28
-    """Paint that holds a disc this wide is a bar (stop line, zebra) or a symbol, not a line."""
 
 
 def brightness(rgb: np.ndarray) -> np.ndarray:
@@ -58,14 +56,3 @@ def paint_mask(hat: np.ndarray, params: PaintParams = PaintParams()) -> np.ndarr
     """Bool mask of paint from the top-hat contrast (hysteresis between low and high)."""
     return apply_hysteresis_threshold(hat, params.low, params.high)
 
-
-def split_bars(mask: np.ndarray, resolution_m: float,
-               params: PaintParams = PaintParams()) -> tuple[np.ndarray, np.ndarray]:
-    """(lines, bars): paint too wide for a lane line (an opening with a ``bar_m`` disc) apart
-    from the rest, so a stop line that touches the lane lines at its ends is traced on its own
-    and does not turn a lane line's blob into one long bent piece."""
-    size = max(3, metres_to_px(params.bar_m, resolution_m))
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-    bars = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, disc).astype(bool)
-    near_bar = cv2.dilate(bars.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    return mask & ~near_bar, bars

@@ -1,9 +1,10 @@
 """Painted blobs -> measured pieces of line.
 
-Each connected blob of paint is thinned, and its skeleton's longest geodesic path (two
-Dijkstra passes over the 8-connected skeleton pixels) is the piece's line: a dash, a stretch
-of solid line, a stop line or an arrow's shaft. Its width is the blob's area over that length,
-which stays right for lines one or two pixels wide where a distance transform cannot.
+The paint is thinned, its short spurs pruned, and the skeleton cut at its junctions: a stop
+line touching the lane lines at its ends, or an arrow touching a line, becomes pieces of its
+own instead of one bent blob. Each branch's longest geodesic path (two Dijkstra passes over
+its 8-connected pixels) is the piece's line: a dash, a stretch of solid line, a stop line or
+an arrow's shaft. Its width is twice the distance from that line to the paint's edge.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import shapely
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ingest.roads.skeleton import thin
+from ingest.roads.skeleton import neighbour_count, prune_spurs, thin
 
 _OFFSETS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 2**0.5), (1, -1, 2**0.5))
 
@@ -32,7 +33,7 @@ class Piece:
     width_px: float
     rows: np.ndarray
     cols: np.ndarray
-    """The blob's pixels (colour and contrast are read there)."""
+    """The piece's skeleton pixels, the paint's core (colour and contrast are read there)."""
 
     heads: np.ndarray
     """(2, 2) unit directions of travel at the start and at the end, over the last ~2 m."""
@@ -80,30 +81,30 @@ def _longest_path(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
 
 
 def pieces(mask: np.ndarray, resolution_m: float, min_length_m: float = 0.5,
-           simplify_px: float = 0.6, head_m: float = 2.0) -> list[Piece]:
-    """One :class:`Piece` per 8-connected blob of ``mask`` whose bounding box's diagonal
+           simplify_px: float = 0.6, head_m: float = 2.0, spur_m: float = 0.3) -> list[Piece]:
+    """One :class:`Piece` per skeleton branch of ``mask`` whose bounding box's diagonal
     reaches ``min_length_m`` (smaller specks are no marking)."""
     min_px = min_length_m / resolution_m
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8),
+    skel = prune_spurs(thin(mask), spur_m / resolution_m)
+    junction = (skel & (neighbour_count(skel) >= 3)).astype(np.uint8)
+    branches = skel & ~cv2.dilate(junction, np.ones((3, 3), np.uint8)).astype(bool)
+    dist = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(branches.astype(np.uint8),
                                                                  connectivity=8)
-    skel = thin(mask)
     out = []
     for label in range(1, count):
-        x, y, w, h, area = stats[label]
+        x, y, w, h, _ = stats[label]
         if w * w + h * h < min_px * min_px:
             continue
-        blob = labels[y:y + h, x:x + w] == label
-        sr, sc = np.nonzero(skel[y:y + h, x:x + w] & blob)
-        if len(sr) == 0:
-            continue
+        sr, sc = np.nonzero(labels[y:y + h, x:x + w] == label)
         path = _longest_path(sr, sc)
         if len(path) < 2:
-            continue  # a dot: no direction, no marking
+            continue
         xy = np.column_stack([sc[path] + x + 0.5, sr[path] + y + 0.5]).astype(float)
         length = float(np.hypot(*np.diff(xy, axis=0).T).sum()) + 1.0
-        line = shapely.LineString(xy).simplify(simplify_px)
-        br, bc = np.nonzero(blob)
-        coords = np.asarray(line.coords)
-        out.append(Piece(coords, length, float(area) / length, br + y, bc + x,
+        coords = np.asarray(shapely.LineString(xy).simplify(simplify_px).coords)
+        rows, cols = sr + y, sc + x
+        width = max(2.0 * float(np.median(dist[rows, cols])) - 1.0, 1.0)
+        out.append(Piece(coords, length, width, rows, cols,
                          _heads(coords, head_m / resolution_m)))
     return out

@@ -99,13 +99,17 @@ def print_real(rows: list[dict]) -> None:
     for row in rows:
         print(f"{row['image']:42} {row['p']:7.3f} {row['r']:7.3f} {row['base_p']:7.3f} "
               f"{row['base_r']:7.3f} {row['s_per_mp']:6.2f}")
-    if rows:
-        mean = {k: float(np.mean([row[k] for row in rows]))
+    if not rows:
+        return
+    mean: dict[str, float] = {}
+    for name in [*sorted({row["image"].split("/")[0] for row in rows}), "all"]:
+        some = [row for row in rows if name == "all" or row["image"].startswith(name + "/")]
+        mean = {k: float(np.mean([row[k] for row in some]))
                 for k in ("p", "r", "base_p", "base_r", "s_per_mp")}
-        print(f"{'mean':42} {mean['p']:7.3f} {mean['r']:7.3f} {mean['base_p']:7.3f} "
+        print(f"{'mean, ' + name:42} {mean['p']:7.3f} {mean['r']:7.3f} {mean['base_p']:7.3f} "
               f"{mean['base_r']:7.3f} {mean['s_per_mp']:6.2f}")
-        met = mean["p"] >= 0.8 and mean["r"] >= 0.75
-        print(f"aim P >= 0.80, R >= 0.75: {'met' if met else 'MISSED'}")
+    met = mean["p"] >= 0.8 and mean["r"] >= 0.75
+    print(f"aim P >= 0.80, R >= 0.75 (all): {'met' if met else 'MISSED'}")
 
 
 def drive_markings(frames: int) -> tuple[list[tuple[shapely.LineString, str]],

@@ -17,6 +17,7 @@ from click.testing import CliRunner
 from cli.main import main
 from ingest.ipm.synthetic import Drive, LanePaint
 from ingest.lanes import LanesInputError
+from ingest.lanes.across import sections
 from ingest.lanes.classify import Marking
 from ingest.lanes.extract import extract_markings
 from ingest.roads.georef import as_image
@@ -156,3 +157,40 @@ def test_synthetic_drive_writes_its_painted_truth(tmp_path: Path) -> None:
         assert lines[i].distance(lines[i + 1]) == pytest.approx(width, abs=0.01)
     frames = sorted((tmp_path / "frames").glob("*.jpg"))
     assert len(frames) == 2 and cv2.imread(str(frames[0])).shape == (128, 256, 3)
+
+
+def test_a_lane_that_widens_into_two_is_a_change_along_the_road() -> None:
+    """Markings drawn top-down: a 3.5 m forward lane whose right edge swings out to 7 m from
+    x = 20 m on, where a dashed line starts between the two lanes; the cuts across the road
+    see one forward lane, then two, and the backward lane throughout."""
+    size_m, res = 40.0, RES
+    img = np.full((int(12 / res), int(size_m / res), 3), 105, np.uint8)
+
+    def y(offset_m: float) -> int:  # + left of travel (travel is +x, image y grows down)
+        return round((6.0 - offset_m) / res)
+
+    def x(m: float) -> int:
+        return round(m / res)
+
+    white, yellow = (235, 235, 235), (230, 185, 40)
+    cv2.line(img, (x(0), y(3.25)), (x(size_m), y(3.25)), white, 3)  # left edge
+    cv2.line(img, (x(0), y(0.0)), (x(size_m), y(0.0)), yellow, 3)  # centre
+    edge = [(x(0), y(-3.5)), (x(16), y(-3.5)), (x(20), y(-5.5)), (x(size_m), y(-5.5))]
+    cv2.polylines(img, [np.array(edge, np.int32)], False, white, 3)
+    for start in np.arange(20.0, size_m, 9.0):  # lane line of the new lane
+        cv2.line(img, (x(start), y(-2.75)), (x(min(start + 3, size_m - 0.1)), y(-2.75)), white, 3)
+    img[y(-6.5):, :] = (60, 140, 50)  # verge beyond the widened edge
+    img[: y(4.0), :] = (60, 140, 50)
+    found = markings(img, res)
+    lines = [(shapely.LineString(np.column_stack([m.coords[:, 0] * res,
+                                                  6.0 - m.coords[:, 1] * res])), m.kind)
+             for m in found]
+    cuts = sections(shapely.LineString([(0, 0), (size_m, 0)]), lines, step_m=1.0)
+    counts = {c.station_m: tuple(len(side) for side in c.lanes()) for c in cuts}
+    assert all(counts[s] == (1, 1) for s in np.arange(2.5, 15, 1.0)), counts
+    assert all(counts[s] == (2, 1) for s in np.arange(24.5, 37, 1.0)), counts
+    narrow = next(c for c in cuts if c.station_m == 5.5).lanes()
+    wide = next(c for c in cuts if c.station_m == 30.5).lanes()
+    assert narrow[0] == pytest.approx([3.5], abs=0.1)
+    assert narrow[1] == pytest.approx([3.25], abs=0.1)
+    assert wide[0] == pytest.approx([2.75, 2.75], abs=0.1)

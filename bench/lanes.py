@@ -200,7 +200,8 @@ def drive_scores(frames: int) -> dict[str, float]:
     dashed = np.array([k == "dashed" for k in t_kinds])
     said_dashed = np.array([k == "dashed" for k in found_kind])
     kind_ok = (dashed == said_dashed)[near & np.array(lines)]
-    path = shapely.LineString(np.column_stack(DRIVE.local_pose(np.arange(-60.0, 300.0, 0.5))[:2]))
+    ring = np.arange(0.0, 2 * np.pi * DRIVE.radius_m, 0.5)  # once round: no cut counted twice
+    path = shapely.LineString(np.column_stack(DRIVE.local_pose(ring)[:2]))
     cuts = sections(path, found)
     want_fwd, want_back = list(LANES.widths_m[:LANES.forward]), list(LANES.widths_m[LANES.forward:])
     seen = [c for c in cuts if inside.contains(path.interpolate(c.station_m))]

@@ -32,11 +32,11 @@ class ClassifyParams:
     """Pieces wider than this (and 2.5 pixels) are bars (stop lines, zebra) or symbols."""
     min_length_m: float = 0.5
     min_elongation: float = 3.0
-    max_gap_m: float = 12.0
+    max_gap_m: float = 16.0
     """Longest gap between dashes that is joined."""
     max_turn_deg: float = 12.0
     """Largest angle between an end's direction and the chord across the gap."""
-    max_asymmetry_deg: float = 5.0
+    max_asymmetry_deg: float = 8.0
     """Largest difference between the chord's turn from either end (constant curvature)."""
     short_gap_aside_m: float = 0.15
     """Across a gap shorter than ``dash_gap_m``, how far sideways the next piece may start."""

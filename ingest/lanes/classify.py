@@ -95,13 +95,14 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(math.atan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1]))
 
 
-def _link_cost(a: Piece, b: Piece, res: float, params: ClassifyParams) -> float | None:
-    """Cost of continuing ``a`` (at its end) with ``b`` (at its start); None if not a line."""
-    gap = b.coords[0] - a.coords[-1]
+def _link_cost(pa: np.ndarray, da: np.ndarray, pb: np.ndarray, db: np.ndarray, res: float,
+               params: ClassifyParams) -> float | None:
+    """Cost of continuing a line that leaves point ``pa`` heading ``da`` with one that starts
+    at ``pb`` heading ``db``; None if they are not one line."""
+    gap = pb - pa
     gap_px = float(np.hypot(*gap))
     if gap_px * res > params.max_gap_m:
         return None
-    da, db = a.heads[1], b.heads[0]
     if gap_px * res < params.dash_gap_m:
         # A short gap (worn paint, a junction cut out): the chord is too short to measure
         # turns by; the two directions must agree and the ends line up sideways.
@@ -120,24 +121,25 @@ def chain(thin: list[Piece], res: float, params: ClassifyParams) -> list[list[Pi
     """Thin pieces joined end to end across gaps, greedily by cost, each piece once and each
     end linked at most once (a piece may be turned round to fit)."""
     n = len(thin)
-    ends = [np.array([p.coords[0], p.coords[-1]]) for p in thin]
-    starts = np.array([e[0] for e in ends]) if n else np.zeros((0, 2))
-    stops = np.array([e[1] for e in ends]) if n else np.zeros((0, 2))
-    points = np.vstack([starts, stops])
-    tree = shapely.STRtree(shapely.points(points)) if n else None
+    if not n:
+        return []
+    # End k < n is piece k's start, k >= n piece k - n's end; leaving a piece through its
+    # start means travelling it backwards, and entering through an end the same.
+    points = np.vstack([[p.coords[0] for p in thin], [p.coords[-1] for p in thin]])
+    leaving = np.vstack([[-p.heads[0] for p in thin], [p.heads[1] for p in thin]])
+    tree = shapely.STRtree(shapely.points(points))
     links = []
     for i in range(n):
-        for side_i in (0, 1):  # 1: leave i from its end, 0: from its start (i turned round)
-            here = ends[i][side_i]
-            near = tree.query(shapely.Point(here), predicate="dwithin",
-                              distance=params.max_gap_m / res) if tree else []
+        for side_i in (0, 1):
+            k_out = i + side_i * n
+            near = tree.query(shapely.Point(points[k_out]), predicate="dwithin",
+                              distance=params.max_gap_m / res)
             for k in near:
-                j, side_j = int(k) % n, int(k) // n  # side_j 0: enter j at its start
+                j, side_j = int(k) % n, int(k) // n
                 if j == i:
                     continue
-                a = thin[i] if side_i == 1 else thin[i].flipped()
-                b = thin[j] if side_j == 0 else thin[j].flipped()
-                cost = _link_cost(a, b, res, params)
+                cost = _link_cost(points[k_out], leaving[k_out], points[k], -leaving[k], res,
+                                  params)
                 if cost is not None:
                     links.append((cost, i, side_i, j, side_j))
     links.sort()
@@ -213,9 +215,10 @@ def _confidence(pieces: list[Piece], hat: np.ndarray, length_m: float) -> float:
     return round(min(contrast / 80.0, 1.0) * (1 - math.exp(-length_m / 1.5)), 3)
 
 
-def classify(all_pieces: list[Piece], hsv: np.ndarray, hat: np.ndarray, res: float,
-             params: ClassifyParams = ClassifyParams()) -> list[Marking]:
-    """Marking lines from the pieces of one image (``res`` metres per pixel)."""
+def classify(all_pieces: list[Piece], hsv: np.ndarray, hat: np.ndarray, surface: np.ndarray,
+             res: float, params: ClassifyParams = ClassifyParams()) -> list[Marking]:
+    """Marking lines from the pieces of one image (``res`` metres per pixel; ``surface``:
+    :func:`~ingest.lanes.paint.road_surface`)."""
     thick_px = max(params.thick_m / res, 2.5)
     thin: list[Piece] = []
     bars: list[Piece] = []
@@ -226,8 +229,7 @@ def classify(all_pieces: list[Piece], hsv: np.ndarray, hat: np.ndarray, res: flo
             bars.append(p)  # longer: a wide or blurred line (a far edge in an IPM mosaic)
         elif p.length_px >= params.min_elongation * p.width_px:
             thin.append(p)  # thin and short: a speck, a leaf, a marker disc
-    surface = np.dstack([(hsv[..., 1] < params.asphalt_saturation) & (hsv[..., 2] > 0.15)]
-                        ).astype(np.float32)
+    surface = surface[..., None]
     out: list[Marking] = []
     for group in chain(thin, res, params):
         coords = np.vstack([p.coords for p in group])

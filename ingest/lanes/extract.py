@@ -12,7 +12,7 @@ import numpy as np
 
 from ingest.lanes import check_resolution
 from ingest.lanes.classify import ClassifyParams, Marking, classify
-from ingest.lanes.paint import PaintParams, brightness, paint_mask, top_hat
+from ingest.lanes.paint import PaintParams, brightness, near_road, paint_mask, road_surface, top_hat
 from ingest.lanes.trace import pieces
 from ingest.roads.georef import Image, crs_member
 
@@ -35,8 +35,9 @@ def extract_markings(image: Image, paint: PaintParams | None = None,
     hat = top_hat(brightness(rgb), image.resolution_m, image.valid, paint)
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
     res = image.resolution_m
-    return classify(pieces(paint_mask(hat, paint), res, params.min_length_m), hsv, hat, res,
-                    params)
+    surface = road_surface(hsv, params.asphalt_saturation)
+    mask = paint_mask(hat, paint) & near_road(surface, res)
+    return classify(pieces(mask, res, params.min_length_m), hsv, hat, surface, res, params)
 
 
 def markings_geojson(markings: list[Marking], image: Image) -> dict:

@@ -56,3 +56,18 @@ def paint_mask(hat: np.ndarray, params: PaintParams = PaintParams()) -> np.ndarr
     """Bool mask of paint from the top-hat contrast (hysteresis between low and high)."""
     return apply_hysteresis_threshold(hat, params.low, params.high)
 
+
+
+def road_surface(hsv: np.ndarray, saturation: float) -> np.ndarray:
+    """(rows, cols) float32 1 where the ground looks like road surface (grey: saturation below
+    ``saturation``; not shadow-dark), from HSV with S and V in [0, 1]."""
+    return ((hsv[..., 1] < saturation) & (hsv[..., 2] > 0.15)).astype(np.float32)
+
+
+def near_road(surface: np.ndarray, resolution_m: float, window_m: float = 2.5,
+              share: float = 0.4) -> np.ndarray:
+    """Bool mask of pixels with road surface on ``share`` of the square ``window_m`` around
+    them: paint elsewhere (grass, tree crowns) is texture, and dropping it before tracing
+    saves the time of tracing and chaining thousands of pieces that would be dropped anyway."""
+    k = max(3, round(window_m / resolution_m))
+    return cv2.blur(surface, (k, k)) >= share

@@ -194,3 +194,29 @@ def test_a_lane_that_widens_into_two_is_a_change_along_the_road() -> None:
     assert narrow[0] == pytest.approx([3.5], abs=0.1)
     assert narrow[1] == pytest.approx([3.25], abs=0.1)
     assert wide[0] == pytest.approx([2.75, 2.75], abs=0.1)
+
+
+def test_zebra_stripes_are_other_not_stop_lines_or_lane_lines() -> None:
+    """A zebra crossing on a two-lane road: 0.5 m bars along the road, 1 m apart, across it,
+    the lines interrupted there. The bars are ``other``; the centre and edge lines stay lines,
+    joined across the crossing."""
+    res = RES
+    img = np.full((int(10 / res), int(30 / res), 3), 105, np.uint8)
+    img[: int(1.5 / res)] = img[-int(1.5 / res):] = (60, 140, 50)  # verges
+    for row_m in (2.0, 5.0, 8.0):  # edge, centre, edge lines along x, stopping at the crossing
+        for x0, x1 in ((0.0, 13.0), (17.0, 30.0)):
+            cv2.line(img, (round(x0 / res), round(row_m / res)),
+                     (round(x1 / res), round(row_m / res)), (235, 235, 235), 3)
+    bars = 0
+    for top_m in np.arange(2.25, 7.3, 1.0):
+        cv2.rectangle(img, (round(13.5 / res), round(top_m / res)),
+                      (round(16.5 / res), round((top_m + 0.5) / res)), (235, 235, 235), -1)
+        bars += 1
+    found = markings(img, res)
+    kinds = [m.kind for m in found]
+    assert "stop_line" not in kinds
+    assert kinds.count("other") == bars, kinds
+    assert sorted(kinds.count(k) for k in ("solid", "road_edge")) == [1, 2], kinds
+    stripes_zone = shapely.box(13.0 / res, 2.3 / res, 17.0 / res, 7.8 / res)
+    lines = [m for m in found if m.kind in ("solid", "dashed", "road_edge")]
+    assert all(not shapely.LineString(m.coords).within(stripes_zone) for m in lines)

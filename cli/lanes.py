@@ -1,4 +1,5 @@
-"""``ugvmap extract-lanes``: painted lane markings of one image into GeoJSON (no database).
+"""``ugvmap extract-lanes``: painted lane markings of one image into GeoJSON (no database), and
+``ugvmap ingest lanes``: a layer's markings stored as the lanes of a network's segments.
 
 Heavy imports (OpenCV, scikit-image) happen inside the command so ``ugvmap --help`` stays
 instant; user mistakes (imagery too coarse, no georeference and no --resolution) are
@@ -8,12 +9,14 @@ instant; user mistakes (imagery too coarse, no georeference and no --resolution)
 from __future__ import annotations
 
 import json
+import sys
 from collections import Counter
 from pathlib import Path
 
 import click
 
 from app.errors import UserError
+from cli.jobs import enqueue_job, queue_option
 
 
 @click.command("extract-lanes")
@@ -47,3 +50,36 @@ def extract_lanes(image: Path, resolution: float | None, out_path: Path) -> None
     kinds = Counter(m.kind for m in markings)
     summary = ", ".join(f"{n} {kind}" for kind, n in kinds.most_common()) or "no marking found"
     click.echo(f"{len(markings)} markings ({summary}) -> {out_path}")
+
+
+@click.command("lanes")
+@click.option("--layer", "slug", required=True, help="Raster layer to read the paint from.")
+@click.option("--network", required=True, help="Network whose segments get the lanes.")
+@queue_option
+def ingest_lanes(slug: str, network: str, queued: bool) -> None:
+    """Read the lane markings of raster layer SLUG where NETWORK's roads are and store each
+    segment's lanes (count per direction and widths, in ranges along it) and lane boundaries.
+
+    Imagery coarser than 0.2 m/px is refused before anything is read. The rows of every
+    segment with paint are replaced in one transaction; segments without paint keep theirs.
+    """
+    if queued:
+        enqueue_job("ingest-lanes", {"layer": slug, "network": network})
+        return
+    from app.db.session import session_scope
+    from app.jobs.recorder import JobRecorder, Throttle
+    from ingest.lanes.layer import ingest_layer_lanes
+
+    with JobRecorder("ingest-lanes", network, {"layer": slug}) as job, \
+            session_scope() as session:
+        throttle = Throttle(job)
+
+        def progress(fraction: float, message: str) -> None:
+            throttle(fraction, message)
+            if sys.stderr.isatty():
+                click.echo(f"  {message}", err=True)
+
+        done = ingest_layer_lanes(session, slug, network, progress)
+    for line in done.lines():
+        click.echo(line)
+

@@ -56,7 +56,7 @@ def ingest() -> None:
 def _register_capabilities() -> None:
     """Each capability owns its commands; this is the table of contents (one line each)."""
     from cli import backup, db, demo, ipm, jobs, layers, network, roads, routing, tokens, vehicle
-    from cli.lanes import extract_lanes
+    from cli.lanes import extract_lanes, ingest_lanes
 
     for command in (db.db, backup.backup, backup.restore, demo.demo, demo.serve,
                     jobs.jobs, jobs.worker, tokens.tokens, network.export, network.network,
@@ -65,7 +65,7 @@ def _register_capabilities() -> None:
                     extract_lanes):
         main.add_command(command)
     for command in (network.ingest_network, layers.ingest_raster_cmd, roads.ingest_roads,
-                    ipm.ingest_ipm_cmd):
+                    ipm.ingest_ipm_cmd, ingest_lanes):
         ingest.add_command(command)
     network.export.add_command(vehicle.export_package)
 

@@ -184,6 +184,19 @@ class PreviewParams(JobParams):
         return self.layer
 
 
+class LanesParams(JobParams):
+    """``ingest-lanes``: a raster layer's lane markings stored as the lanes and lane boundaries
+    of a network's segments."""
+
+    layer: Slug
+    network: Slug
+
+    @property
+    def target(self) -> str:
+        """The network."""
+        return self.network
+
+
 @dataclass(frozen=True)
 class JobKind:
     """A row of the table: how to check a job's parameters and what runs it."""
@@ -197,6 +210,7 @@ JOB_KINDS: dict[str, JobKind] = {
     "ingest-network": JobKind(NetworkParams, "ingest.queue.runners:ingest_network"),
     "ingest-roads": JobKind(RoadsParams, "ingest.queue.runners:ingest_roads"),
     "road-preview": JobKind(PreviewParams, "ingest.queue.runners:road_preview"),
+    "ingest-lanes": JobKind(LanesParams, "ingest.queue.runners:ingest_lanes"),
 }
 
 

@@ -24,6 +24,7 @@ IDs are positive, unique across nodes, ways and relations, and handed out in a f
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
@@ -32,7 +33,7 @@ import shapely
 
 from app.lanelet2 import topology as topo
 from app.lanelet2.frame import Frame, IdSource
-from app.lanelet2.geometry import line_index, progressing
+from app.lanelet2.geometry import bounds_oriented, line_index, progressing
 from app.lanelet2.junctions import (
     BASE_TAGS,
     Pending,
@@ -48,6 +49,7 @@ from app.lanelet2.roads import NetworkSelection
 
 Progress = Callable[[str, float], None]
 SEGMENT_CHUNK = 20_000
+SIGN_HEIGHT_M = 2.0
 NODE_CHUNK = 20_000
 
 
@@ -120,7 +122,7 @@ def _write_segments(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter
     keep = progressing(along(centres[slot_line[point_slot]], local), point_slot,
                        along(centres[slot_line], plan.end_xy[0][slots]),
                        along(centres[slot_line], plan.end_xy[1][slots]))
-    local, point_slot = local[keep], point_slot[keep]
+    local, point_slot = _painted_inner(plan, rows, slots, local[keep], point_slot[keep])
     inner_offsets = np.concatenate([[0], np.cumsum(np.bincount(point_slot,
                                                                minlength=len(slots)))])
     point_ids = ids.take(len(local))
@@ -129,9 +131,10 @@ def _write_segments(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter
     starts, ends = plan.end_ids[0][slots].tolist(), plan.end_ids[1][slots].tolist()
     pid = point_ids.tolist()
     io = inner_offsets.tolist()
+    painted = plan.pieces.slots
     out.ways((int(way_ids[i]), [starts[i], *pid[io[i]:io[i + 1]], ends[i]],
-              _boundary_tags(int(k[i]), int(n[slot_seg[i]]),
-                             int(plan.backward[slot_seg[i]])))
+              painted[key].tags if (key := (int(slot_seg[i]), int(k[i]))) in painted else
+              _boundary_tags(int(k[i]), int(n[slot_seg[i]]), int(plan.backward[slot_seg[i]])))
              for i in range(len(slots)))
     relations: list[tuple[int, list[Member], dict[str, object]]] = []
     lanelet_ids = ids.take(int(n[seg_rows].sum()))
@@ -150,11 +153,65 @@ def _write_segments(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter
                     left, right, lane = w0 + j + 1, w0 + j, j + 1
                 members: list[Member] = [("way", int(way_ids[left]), "left"),
                                          ("way", int(way_ids[right]), "right")]
-                if re_id:
-                    members.append(("relation", re_id, "regulatory_element"))
+                members += [("relation", r, "regulatory_element")
+                            for r in (re_id, plan.stop_ids.get(arm, 0)) if r]
                 relations.append((int(lanelet_ids[next_lanelet]), members,
                                   {**tags, "direction": direction, "lane": lane}))
                 next_lanelet += 1
+    out.relations(relations)
+    return len(relations)
+
+
+def _painted_inner(plan: Layout, rows: range, slots: np.ndarray, local: np.ndarray,
+                   point_slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The inner points of the chunk's bounds with those of painted bounds replaced by the
+    paint's vertices between the line's cuts (``point_slot``: index into ``slots``). Where
+    lanelet2's loader would read a lanelet of the piece with a bound turned round (paint
+    that strays across the piece's centreline where the segment leaves the road), the
+    piece keeps the bounds offset from its centreline (through the paint's end points)."""
+    if not plan.pieces.slots:
+        return local, point_slot
+    base = plan.slot_offsets[rows.start]
+    inner: dict[int, np.ndarray] = {}
+    for s in sorted({s for s, _ in plan.pieces.slots if rows.start <= s < rows.stop}):
+        first = int(plan.slot_offsets[s] - base)
+        count = int(plan.slot_offsets[s + 1] - plan.slot_offsets[s])
+        mine = {first + k: slot.inner(float(plan.cut[0, s]), float(plan.cut[1, s]))
+                for k in range(count) if (slot := plan.pieces.slots.get((s, k))) is not None}
+        bounds = [np.vstack([plan.end_xy[0][base + i],
+                             mine[i] if i in mine else local[point_slot == i],
+                             plan.end_xy[1][base + i]]) for i in range(first, first + count)]
+        if all(bounds_oriented(left, right) for left, right in itertools.pairwise(bounds)):
+            inner.update(mine)
+    keep = ~np.isin(point_slot, list(inner))
+    xy = np.concatenate([local[keep], *inner.values()])
+    which = np.concatenate([point_slot[keep], *[np.full(len(v), i) for i, v in inner.items()]])
+    order = np.argsort(which, kind="stable")
+    return xy[order], which[order]
+
+
+def _write_stops(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter) -> int:
+    """Painted stop lines as ``traffic_sign`` regulatory elements (a stop sign beside the
+    road where the line ends, as Autoware's maps draw a stop line without a light), each
+    referenced by the lanelets that end at it; returns how many."""
+    ways: list[tuple[int, list[int], dict[str, object]]] = []
+    relations: list[tuple[int, list[Member], dict[str, object]]] = []
+    for stop in plan.pieces.stops:
+        line, sign = ids.take(2).tolist()
+        along = stop.xy[1] - stop.xy[0]
+        along = along / max(float(np.hypot(*along)), 1e-9)
+        sign_xy = np.array([stop.xy[1] + 0.5 * along, stop.xy[1] + 1.0 * along])
+        points = ids.take(4)
+        out.nodes(points[:2], frame.lonlat(stop.xy), stop.xy)
+        out.nodes(points[2:], frame.lonlat(sign_xy), sign_xy, SIGN_HEIGHT_M)
+        ways += [(line, points[:2].tolist(), {"type": "stop_line", "ugvmap:source": "paint"}),
+                 (sign, points[2:].tolist(), {"type": "traffic_sign", "subtype": "stop_sign",
+                                              "virtual": "yes"})]
+        relations.append((plan.stop_ids[stop.arm], [("way", sign, "refers"),
+                                                    ("way", line, "ref_line")],
+                          {"type": "regulatory_element", "subtype": "traffic_sign",
+                           "segment_id": int(plan.roads.ids[stop.arm // 2])}))
+    out.ways(ways)
     out.relations(relations)
     return len(relations)
 
@@ -178,6 +235,7 @@ def write_map(sel: NetworkSelection, frame: Frame, out: OsmXmlWriter,
     for rows in _chunks(total, SEGMENT_CHUNK):
         lanelets += _write_segments(plan, frame, ids, out, rows)
         say("segment lanelets", 0.1 + 0.5 * rows.stop / max(total, 1))
+    _write_stops(plan, frame, ids, out)
     junction_lanelets = light_count = 0
     dropped: list[tuple[int, int, int]] = []
     busy = np.flatnonzero((plan.arms.kind == topo.JUNCTION)

@@ -27,6 +27,7 @@ from app.lanelet2.geometry import (
     unit,
     vertex_normals,
 )
+from app.lanelet2.paint import Pieces, split_painted
 from app.lanelet2.roads import NetworkSelection, RoadTable
 from app.routing.costs import effective_speed_kph
 
@@ -65,10 +66,15 @@ class Layout:
     end_xy: np.ndarray  # (2, slots, 2)
     re_ids: np.ndarray  # (2S) traffic-light element of the lanes entering at the arm, or 0
     defects: list[topo.Defect]
+    pieces: Pieces  # the bounds drawn from the paint, by (row, slot)
+    cut: np.ndarray  # (2, S) stations where each line's lanelets start and end
+    stop_ids: dict[int, int]  # arm -> the stop line element of the lanes entering there
 
 
 def plan_layout(sel: NetworkSelection, frame: Frame, ids: IdSource) -> Layout:
-    """Decide lanes, nodes and cuts; place every bound's end point and give it an id."""
+    """Decide lanes, nodes and cuts; place every bound's end point and give it an id.
+    Painted segments are cut into pieces first (:func:`app.lanelet2.paint.split_painted`)."""
+    sel, pieces = split_painted(sel, frame)
     roads, nodes = sel.roads, sel.nodes
     n_nodes = len(nodes.ids)
     src = np.searchsorted(nodes.ids, roads.source)
@@ -84,6 +90,8 @@ def plan_layout(sel: NetworkSelection, frame: Frame, ids: IdSource) -> Layout:
     drop, dups = topo.duplicates(kept.ids, np.asarray(lines), src[rows], dst[rows])
     defects += dups
     rows = rows[~drop]
+    pieces = pieces.take(rows)
+    painted = pieces.painted_rows(len(rows))
     table, xy = _subset(roads, rows, xy)
     src, dst, length = src[rows], dst[rows], length[rows]
     forward, backward, lane_defects = topo.effective_lanes(table)
@@ -97,9 +105,9 @@ def plan_layout(sel: NetworkSelection, frame: Frame, ids: IdSource) -> Layout:
     demoted = np.zeros(n_nodes, bool)
     for _ in range(JOINT_PASSES):
         arms = topo.arms(src, dst, forward, backward, width, length, away, n_nodes, demoted)
-        geo = _place(arms, xy, table.offsets, n, width, slot_offsets)
+        geo = _place(arms, xy, table.offsets, n, width, slot_offsets, pieces, painted)
         bad = _folded(geo.xy, geo.offsets, geo.normals, geo.end_xy, slot_offsets, n, width,
-                      geo.straight)
+                      geo.straight) & ~painted
         bad_joints = arms.node[(arms.partner >= 0) & np.repeat(bad, 2)]
         if not len(bad_joints):
             break
@@ -113,9 +121,10 @@ def plan_layout(sel: NetworkSelection, frame: Frame, ids: IdSource) -> Layout:
     re_ids[lit] = ids.take(int(lit.sum()))
     speed = effective_speed_kph(table.speed_limit_kph, table.road_class)
     away = np.column_stack([geo.first_dir, -geo.last_dir]).reshape(-1, 2)  # where cut
+    stops = {stop.arm: int(ids.take(1)[0]) for stop in pieces.stops}
     return Layout(table, nodes.ids, traffic_light, forward, backward, width, speed, arms,
                  geo.xy, geo.offsets, geo.normals, geo.straight, away, slot_offsets, end_ids,
-                 geo.end_xy, re_ids, defects)
+                 geo.end_xy, re_ids, defects, pieces, geo.cut, stops)
 
 
 def _away(xy: np.ndarray, offsets: np.ndarray, length: np.ndarray) -> np.ndarray:
@@ -142,44 +151,59 @@ class _Placed:
     straight: np.ndarray  # (S) lines whose bounds are straight (no inner vertices)
     joined_a: tuple[np.ndarray, np.ndarray]  # (end, slot) of joint points, first arm
     joined_b: tuple[np.ndarray, np.ndarray]  # the same points at the second arm
+    cut: np.ndarray  # (2, S) stations along the uncut lines where the cut ones start and end
+
+
+def _laterals(n: np.ndarray, width: np.ndarray, slot_offsets: np.ndarray, pieces: Pieces,
+              cut: np.ndarray) -> np.ndarray:
+    """(2, slots): how far left of its line each bound starts and ends: lanes side by side
+    centred on the line, or where the paint is at the cut stations."""
+    seg = np.repeat(np.arange(len(n)), n + 1)
+    k = np.arange(slot_offsets[-1]) - slot_offsets[seg]
+    out = np.tile((n[seg] / 2.0 - k) * width[seg], (2, 1))
+    for (s, slot_k), slot in pieces.slots.items():
+        out[0, slot_offsets[s] + slot_k] = slot.offset_at(float(cut[0, s]))
+        out[1, slot_offsets[s] + slot_k] = slot.offset_at(float(cut[1, s]))
+    return out
 
 
 def _place(arms: topo.Arms, xy: np.ndarray, offsets: np.ndarray, n: np.ndarray,
-           width: np.ndarray, slot_offsets: np.ndarray) -> _Placed:
+           width: np.ndarray, slot_offsets: np.ndarray, pieces: Pieces, painted: np.ndarray
+           ) -> _Placed:
     """Cut the centrelines at the junctions and place the bounds' end points.
 
     A short line around a sharp bend would fold its inner bound back (the offset of a bend
     tighter than the offset runs backwards), and lanelet2's loader, which orients each bound
     by the side the other bound's middle point is on, may then turn one bound round: such
-    lines get straight bounds, parallel to their chord."""
+    lines get straight bounds, parallel to their chord (painted ones keep their paint)."""
     cxy, coff = cut_lines(xy, offsets, arms.cut_m[0::2], arms.cut_m[1::2])
+    cut = np.stack([arms.cut_m[0::2], line_lengths(xy, offsets) - arms.cut_m[1::2]])
+    lateral = _laterals(n, width, slot_offsets, pieces, cut)
     normals = vertex_normals(cxy, coff)
     first_dir, last_dir = end_directions(cxy, coff)
     seg = np.repeat(np.arange(len(n)), n + 1)
-    k = np.arange(slot_offsets[-1]) - slot_offsets[seg]
-    offset = ((n[seg] / 2.0 - k) * width[seg])[:, None]
     first_v, last_v = coff[:-1][seg], coff[1:][seg] - 1
 
     def ends() -> np.ndarray:
-        return np.stack([cxy[first_v] + offset * normals[first_v],
-                         cxy[last_v] + offset * normals[last_v]])
+        return np.stack([cxy[first_v] + lateral[0][:, None] * normals[first_v],
+                         cxy[last_v] + lateral[1][:, None] * normals[last_v]])
 
     end_xy = ends()
-    _join(arms, n, width, cxy, coff, first_dir, last_dir, slot_offsets, end_xy)
+    _join(arms, n, lateral, cxy, coff, first_dir, last_dir, slot_offsets, end_xy)
     straight = np.zeros(len(n), bool)
     chord = cxy[coff[1:] - 1] - cxy[coff[:-1]]
     chord_m = np.hypot(*chord.T)
     folded = _folded(cxy, coff, normals, end_xy, slot_offsets, n, width, straight)
-    straight = folded & (chord_m > MIN_CHORD_M) & (
+    straight = folded & ~painted & (chord_m > MIN_CHORD_M) & (
         line_lengths(cxy, coff) < STRAIGHT_BELOW_WIDTHS * np.maximum(n, 1) * width)
     vertex_line = line_index(coff)
     at = straight[vertex_line]
     normals[at] = left_normal(unit(chord))[vertex_line[at]]
     end_xy = ends()
-    joined_a, joined_b = _join(arms, n, width, cxy, coff, first_dir, last_dir, slot_offsets,
+    joined_a, joined_b = _join(arms, n, lateral, cxy, coff, first_dir, last_dir, slot_offsets,
                                end_xy)
     return _Placed(cxy, coff, normals, first_dir, last_dir, end_xy, straight, joined_a,
-                   joined_b)
+                   joined_b, cut)
 
 
 def _folded(cxy: np.ndarray, coff: np.ndarray, normals: np.ndarray, end_xy: np.ndarray,
@@ -205,7 +229,7 @@ def _folded(cxy: np.ndarray, coff: np.ndarray, normals: np.ndarray, end_xy: np.n
     return bad
 
 
-def _join(arms: topo.Arms, n: np.ndarray, width: np.ndarray, cxy: np.ndarray,
+def _join(arms: topo.Arms, n: np.ndarray, lateral: np.ndarray, cxy: np.ndarray,
           coff: np.ndarray, first_dir: np.ndarray, last_dir: np.ndarray,
           slot_offsets: np.ndarray, end_xy: np.ndarray
           ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
@@ -223,7 +247,7 @@ def _join(arms: topo.Arms, n: np.ndarray, width: np.ndarray, cxy: np.ndarray,
     count = n[sa] + 1
     j = np.repeat(np.arange(len(a)), count)
     k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    along_a = (n[sa][j] / 2.0 - k) * width[sa][j]  # offset left of a's digitising direction
+    along_a = lateral[ea[j], slot_offsets[sa][j] + k]  # left of a's digitising direction
     through = np.where(ea[j] == 1, along_a, -along_a)
     points = cxy[at][j] + through[:, None] * m[j]
     kb = np.where(ea[j] != eb[j], k, n[sa][j] - k)

@@ -36,6 +36,17 @@ SELECT n.id, ST_X(n.geom), ST_Y(n.geom), n.traffic_light
  ORDER BY n.id
 """
 NODE_IDS_WHERE = "AND n.id = ANY(CAST(:ids AS bigint[]))"
+BOUNDS_SQL = """
+SELECT segment_id, position, kind, colour, width_m, confidence, station_from_m, station_to_m,
+       source, offset_m, ST_AsBinary(geom)
+  FROM lane_boundaries WHERE segment_id = ANY(CAST(:ids AS bigint[]))
+ ORDER BY segment_id, station_from_m, id
+"""
+RANGES_SQL = """
+SELECT segment_id, station_from_m, station_to_m, lanes_forward, lanes_backward, widths_m
+  FROM segment_lanes WHERE segment_id = ANY(CAST(:ids AS bigint[]))
+ ORDER BY segment_id, station_from_m
+"""
 CHUNK = 50_000
 COLUMNS = ("ids", "source", "target", "length_m", "lanes_forward", "lanes_backward", "oneway",
            "speed_limit_kph", "road_class", "name", "width_m")
@@ -81,6 +92,49 @@ class NodeTable:
 
 
 @dataclass
+class StoredBound:
+    """A ``lane_boundaries`` row as the export reads it."""
+
+    position: int | None
+    kind: str
+    colour: str
+    width_m: float | None
+    confidence: float
+    station_from_m: float
+    station_to_m: float
+    source: str
+    offset_m: float
+    lonlat: np.ndarray
+
+
+@dataclass
+class StoredLanes:
+    """A segment's ``segment_lanes`` ranges and ``lane_boundaries`` rows."""
+
+    ranges: list[tuple[float, float, int, int]] = field(default_factory=list)
+    widths: list[float] = field(default_factory=list)
+    """Each range's road width (its lanes' widths summed)."""
+    bounds: list[StoredBound] = field(default_factory=list)
+
+
+def read_paint(conn: Connection, segment_ids: np.ndarray) -> dict[int, StoredLanes]:
+    """The stored lanes of the segments that have them."""
+    ids = segment_ids.tolist()
+    out: dict[int, StoredLanes] = {}
+    for r in conn.execute(text(RANGES_SQL), {"ids": ids}):
+        lanes = out.setdefault(int(r.segment_id), StoredLanes())
+        lanes.ranges.append((r.station_from_m, r.station_to_m, r.lanes_forward,
+                             r.lanes_backward))
+        lanes.widths.append(float(sum(r.widths_m)))
+    for r in conn.execute(text(BOUNDS_SQL), {"ids": ids}):
+        if int(r[0]) in out:
+            out[int(r[0])].bounds.append(StoredBound(
+                r[1], r[2], r[3], r[4], r[5] or 0.0, r[6], r[7], r[8], r[9] or 0.0,
+                shapely.get_coordinates(shapely.from_wkb(bytes(r[10])))))
+    return out
+
+
+@dataclass
 class NetworkSelection:
     """What an export maps: the network's identity, its segments (all, or those meeting a
     bbox) and their nodes."""
@@ -91,6 +145,8 @@ class NetworkSelection:
     nodes: NodeTable
     bbox: tuple[float, float, float, float] | None = None
     notes: list[str] = field(default_factory=list)
+    paint: dict[int, StoredLanes] = field(default_factory=dict)
+    """The stored lanes of the segments that have them (``ugvmap ingest lanes``)."""
 
 
 def _float(values: list[object]) -> np.ndarray:
@@ -154,7 +210,8 @@ def read_selection(conn: Connection, network: str,
                       lonlat=np.array([(r[1], r[2]) for r in node_rows],
                                       np.float64).reshape(-1, 2),
                       traffic_light=np.array([r[3] for r in node_rows], bool))
-    return NetworkSelection(network, int(row.version), roads, nodes, bbox)
+    return NetworkSelection(network, int(row.version), roads, nodes, bbox,
+                            paint=read_paint(conn, roads.ids))
 
 
 @contextmanager

@@ -17,7 +17,7 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.db.session import get_engine, session_scope
-from app.jobs.kinds import NetworkParams, PreviewParams, RoadsParams
+from app.jobs.kinds import LanesParams, NetworkParams, PreviewParams, RoadsParams
 from app.jobs.lease import Lease
 from app.jobs.rows import record_progress, succeed_in
 
@@ -61,6 +61,16 @@ def ingest_roads(job_id: int, params: RoadsParams) -> None:
                                   rules=params.rules, replace=params.replace,
                                   update=params.update, tolerances=params.tolerances,
                                   labels=params.labels, review_labels=params.review_labels)
+        succeed_in(session.connection(), job_id, "; ".join(done.lines()))
+
+
+def ingest_lanes(job_id: int, params: LanesParams) -> None:
+    """Store a layer's lane markings as a network's lanes (``ugvmap ingest lanes``)."""
+    from ingest.lanes.layer import ingest_layer_lanes
+
+    with Lease(get_engine(), job_id), session_scope() as session:
+        done = ingest_layer_lanes(session, params.layer, params.network,
+                                  lambda f, m: record_progress(job_id, f, m))
         succeed_in(session.connection(), job_id, "; ".join(done.lines()))
 
 

@@ -1,0 +1,267 @@
+"""A segment's lanes and lane boundaries from the marking lines around it (metric coordinates).
+
+The cuts of :func:`ingest.lanes.across.sections` along the segment say, station by station,
+how many lanes each way the paint shows; runs of equal counts are the segment's lane ranges
+(a run shorter than :data:`MIN_RANGE_M` is a missed dash or a blur, not a lane that opens,
+and joins its neighbour). Within a range each boundary (its ``position`` from the right edge
+along the segment's direction) lies at the median offset of the cuts that met them all; each
+marking line near the segment is then cut into the stretches that follow one boundary of one
+range, and stretches of a boundary no paint covers become ``offset`` boundaries (the range's
+offset there, a guess that says it is one). Stop lines are kept whole, without a position.
+Pure functions of shapely lines, tested without a database.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from ingest.lanes.across import BOUNDING, sections
+
+MIN_RANGE_M = 6.0
+"""Shortest run of cuts with one lane count kept as a range of its own."""
+MAX_LANE_M = 4.5
+"""A range with a lane wider than this and fewer lanes than a neighbour is that neighbour
+with a line unseen (blurred or off the imagery), not a lane that ends."""
+MATCH_M = 0.75
+"""How far from a range's boundary a marking may lie and still be that boundary."""
+MIN_STRETCH_M = 2.5
+"""Shortest stretch of paint (or of missing paint) that makes a boundary row."""
+SAMPLE_M = 0.25
+ALONG = 0.7
+"""A stretch must run along the segment: its stations span this share of its length (a
+line crossing the segment at more than ~45° is not one of its boundaries)."""
+REACH_M = 15.0
+"""Marking lines further than this from the segment are not its road's."""
+
+
+@dataclass(frozen=True)
+class Paint:
+    """A marking line in a metric frame (as :mod:`ingest.lanes.classify` measured it)."""
+
+    line: shapely.LineString
+    kind: str
+    colour: str
+    width_m: float
+    confidence: float
+
+
+@dataclass(frozen=True)
+class LaneRange:
+    """The segment's lanes between two stations: boundary offsets right to left (+ left of
+    the segment), forward lanes first; ``confidence`` is the share of the range's cuts that
+    met every boundary."""
+
+    station_from_m: float
+    station_to_m: float
+    forward: int
+    backward: int
+    offsets: tuple[float, ...]
+    confidence: float
+
+    @property
+    def widths(self) -> list[float]:
+        """Lane widths right to left."""
+        return [round(float(w), 3) for w in np.diff(self.offsets)]
+
+    def guessed_kind(self, position: int) -> str:
+        """The kind of a boundary nothing was painted on: edge, the line between the
+        directions, or a lane line."""
+        if position in (0, len(self.offsets) - 1):
+            return "road_edge"
+        return "solid" if position == self.forward else "dashed"
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """One stretch of a marking (or of a guessed boundary) along the segment."""
+
+    line: shapely.LineString
+    kind: str
+    colour: str
+    width_m: float | None
+    confidence: float
+    position: int | None
+    offset_m: float
+    station_from_m: float
+    station_to_m: float
+    source: str  # paint / offset
+
+
+def lane_ranges(reference: shapely.LineString, paint: list[Paint],
+                step_m: float = 0.5) -> list[LaneRange]:
+    """The segment's lane ranges, covering it from end to end (the first and last carry on
+    to the segment's ends, where the imagery may stop short); [] when no cut met two
+    boundaries."""
+    cuts = sections(reference, [(p.line, p.kind) for p in paint], step_m=step_m,
+                    reach_m=REACH_M)
+    counts = []
+    for cut in cuts:
+        forward, backward = cut.lanes()
+        counts.append((len(forward), len(backward)) if len(cut.offsets) >= 2 else (0, 0))
+    runs = _runs(counts, step_m)
+    ranges = []
+    for start, stop, (f, b) in runs:
+        if f + b == 0:
+            continue
+        full = [c for c in cuts[start:stop] if len(c.offsets) == f + b + 1]
+        offsets = np.median(np.array([c.offsets for c in full]), axis=0)
+        ranges.append(LaneRange(cuts[start].station_m - step_m / 2,
+                                cuts[stop - 1].station_m + step_m / 2, f, b,
+                                tuple(round(float(o), 3) for o in offsets),
+                                round(len(full) / (stop - start), 3)))
+    return _cover(_unseen_lines_merged(ranges), reference.length)
+
+
+def _unseen_lines_merged(ranges: list[LaneRange]) -> list[LaneRange]:
+    """Ranges that are a neighbour with a line unseen (:data:`MAX_LANE_M`) dropped: the
+    neighbour's lanes stretch over them (:func:`_cover`)."""
+    def unseen(i: int) -> bool:
+        r = ranges[i]
+        lanes = r.forward + r.backward
+        more = any(0 <= j < len(ranges) and ranges[j].forward + ranges[j].backward > lanes
+                   for j in (i - 1, i + 1))
+        return more and max(r.widths) > MAX_LANE_M
+
+    while True:
+        bad = [i for i in range(len(ranges)) if unseen(i)]
+        if not bad:
+            return ranges
+        ranges = [r for i, r in enumerate(ranges) if i != bad[0]]
+
+
+def _runs(counts: list[tuple[int, int]], step_m: float
+          ) -> list[tuple[int, int, tuple[int, int]]]:
+    """(start, stop, count) runs of equal counts, the shortest under :data:`MIN_RANGE_M`
+    merged into its longer neighbour until none is left (or one run)."""
+    runs: list[tuple[int, int, tuple[int, int]]] = []
+    for i, c in enumerate(counts):
+        if runs and runs[-1][2] == c:
+            runs[-1] = (runs[-1][0], i + 1, c)
+        else:
+            runs.append((i, i + 1, c))
+    while len(runs) > 1:
+        i = min(range(len(runs)), key=lambda j: runs[j][1] - runs[j][0])
+        if (runs[i][1] - runs[i][0]) * step_m >= MIN_RANGE_M:
+            break
+        left = runs[i - 1] if i > 0 else None
+        right = runs[i + 1] if i + 1 < len(runs) else None
+        into = left if right is None or (left is not None and
+                                         left[1] - left[0] >= right[1] - right[0]) else right
+        assert into is not None
+        merged = (min(into[0], runs[i][0]), max(into[1], runs[i][1]), into[2])
+        lo = i - 1 if into is left else i
+        runs[lo:lo + 2] = [merged]
+        if lo > 0 and runs[lo - 1][2] == merged[2]:
+            runs[lo - 1:lo + 1] = [(runs[lo - 1][0], merged[1], merged[2])]
+        if lo + 1 < len(runs) and runs[lo + 1][2] == runs[lo][2]:
+            runs[lo:lo + 2] = [(runs[lo][0], runs[lo + 1][1], runs[lo][2])]
+    return runs
+
+
+def _cover(ranges: list[LaneRange], length: float) -> list[LaneRange]:
+    """The ranges stretched to meet halfway across the gaps between them and to reach both
+    ends of the segment."""
+    out = []
+    for i, r in enumerate(ranges):
+        lo = 0.0 if i == 0 else (ranges[i - 1].station_to_m + r.station_from_m) / 2
+        hi = length if i == len(ranges) - 1 else (r.station_to_m + ranges[i + 1].station_from_m) / 2
+        out.append(LaneRange(round(lo, 3), round(hi, 3), r.forward, r.backward, r.offsets,
+                             r.confidence))
+    return out
+
+
+def _tangents(reference: shapely.LineString, station: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """(point at each station, unit direction of the reference over the metre around it)."""
+    def at(s: np.ndarray) -> np.ndarray:
+        return shapely.get_coordinates(shapely.line_interpolate_point(reference, s))
+
+    t = at(np.minimum(station + 0.5, reference.length)) - at(np.maximum(station - 0.5, 0))
+    return at(station), t / np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-9)[:, None]
+
+
+def _frame(reference: shapely.LineString, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(station along ``reference``, signed offset, + left) of each point."""
+    station = shapely.line_locate_point(reference, shapely.points(points))
+    foot, t = _tangents(reference, station)
+    d = points - foot
+    return station, d[:, 1] * t[:, 0] - d[:, 0] * t[:, 1]
+
+
+def _samples(line: shapely.LineString) -> np.ndarray:
+    at = np.append(np.arange(0.0, line.length, SAMPLE_M), line.length)
+    return shapely.get_coordinates(shapely.line_interpolate_point(line, at))
+
+
+def boundaries(reference: shapely.LineString, paint: list[Paint], ranges: list[LaneRange],
+               elsewhere: shapely.Geometry | None = None) -> list[Boundary]:
+    """The segment's boundaries: each marking's stretches that follow one boundary of one
+    range (or stop lines, whole), then ``offset`` rows where a boundary has no paint.
+    ``elsewhere``: the other segments near this one; paint nearer to them is theirs."""
+    out: list[Boundary] = []
+    length = reference.length
+    starts = np.array([r.station_from_m for r in ranges])
+    for p in paint:
+        xy = _samples(p.line)
+        station, offset = _frame(reference, xy)
+        mine = (station > 0) & (station < length) & (np.abs(offset) <= REACH_M)
+        if elsewhere is not None and not elsewhere.is_empty:
+            mine &= shapely.distance(shapely.points(xy), reference) <= \
+                shapely.distance(shapely.points(xy), elsewhere)
+        if p.kind == "stop_line":
+            if mine.sum() >= 2:
+                out.append(Boundary(shapely.LineString(xy[mine]), p.kind, p.colour, p.width_m,
+                                    p.confidence, None, round(float(np.median(offset[mine])), 3),
+                                    round(float(station[mine].min()), 3),
+                                    round(float(station[mine].max()), 3), "paint"))
+            continue
+        if p.kind not in BOUNDING or not ranges:
+            continue
+        label = np.full(len(xy), -1)
+        which = np.clip(np.searchsorted(starts, station, side="right") - 1, 0, len(ranges) - 1)
+        for i in np.flatnonzero(mine):
+            offs = np.array(ranges[which[i]].offsets)
+            k = int(np.argmin(np.abs(offs - offset[i])))
+            if abs(offs[k] - offset[i]) <= MATCH_M:
+                label[i] = which[i] * 64 + k
+        edges = np.flatnonzero(np.diff(label)) + 1
+        for run in np.split(np.arange(len(xy)), edges):
+            if label[run[0]] < 0 or len(run) < 2:
+                continue
+            s = station[run]
+            if s.max() - s.min() < max(MIN_STRETCH_M, ALONG * SAMPLE_M * (len(run) - 1)):
+                continue  # short, or crossing the segment (where it leaves the road)
+            out.append(Boundary(shapely.LineString(xy[run]), p.kind, p.colour, p.width_m,
+                                p.confidence, int(label[run[0]] % 64),
+                                round(float(np.median(offset[run])), 3),
+                                round(float(s.min()), 3), round(float(s.max()), 3), "paint"))
+    return out + _guessed(reference, ranges, out)
+
+
+def _guessed(reference: shapely.LineString, ranges: list[LaneRange],
+             found: list[Boundary]) -> list[Boundary]:
+    """``offset`` boundaries over each stretch of a range's boundary no paint covers."""
+    out = []
+    for r in ranges:
+        for k, offset in enumerate(r.offsets):
+            covered = sorted((b.station_from_m, b.station_to_m) for b in found
+                             if b.position == k and b.station_to_m > r.station_from_m
+                             and b.station_from_m < r.station_to_m)
+            at = r.station_from_m
+            for lo, hi in [*covered, (r.station_to_m, r.station_to_m)]:
+                if lo - at >= MIN_STRETCH_M:
+                    out.append(_offset_line(reference, r, k, offset, at, lo))
+                at = max(at, hi)
+    return out
+
+
+def _offset_line(reference: shapely.LineString, r: LaneRange, k: int, offset: float,
+                 lo: float, hi: float) -> Boundary:
+    stations = np.append(np.arange(lo, hi, 1.0), hi)
+    centre, t = _tangents(reference, stations)
+    xy = centre + offset * np.column_stack([-t[:, 1], t[:, 0]])
+    return Boundary(shapely.LineString(xy), r.guessed_kind(k), "unknown", None, 0.0, k,
+                    offset, round(float(lo), 3), round(float(hi), 3), "offset")

@@ -119,7 +119,7 @@ def _area_paint(area: list[LayerSource], roads_3857: shapely.Geometry,
     assert image.transform is not None
     out = []
     for m in extract_markings(image):
-        xs, ys = image.transform * (m.coords[:, 0], m.coords[:, 1])
+        xs, ys = image.transform @ (m.coords[:, 0], m.coords[:, 1])
         x, y = to_metric.transform(np.asarray(xs), np.asarray(ys))
         out.append(Paint(shapely.LineString(np.column_stack([x, y])), m.kind, m.colour,
                          m.width_m, m.confidence))

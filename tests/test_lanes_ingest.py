@@ -1,0 +1,202 @@
+"""Lanes from the paint, stored and mapped: ``ugvmap ingest lanes`` on the IPM mosaic of a short
+synthetic multi-lane drive (:class:`ingest.ipm.synthetic.LanePaint`: 2+2 lanes of 3.5 / 3.0 /
+3.25 / 3.75 m from the right edge, edge lines, a solid yellow centre, dashed lane lines, a stop
+line across the forward lanes), over a network imported along the road's true centre, then
+``export network --format lanelet2`` loaded by the official lanelet2 library.
+
+The drive is 12 frames (about 14 m driven; the mosaic shows some 30 m of road), the cheapest
+that still shows every line and the stop line.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+from click.testing import CliRunner
+from lanelet2 import geometry
+from rasterio.transform import from_origin
+from sqlalchemy import text
+
+from app.db.session import session_scope
+from cli.main import main
+from ingest.ipm.synthetic import Camera, Drive, LanePaint, frame_times, write_drive
+from ingest.lanes.assign import Paint, boundaries, lane_ranges
+from testkit.raster_synth import UTM33, utm_origin, write_tif
+from tests.lanelet2_support import LoadedMap, export
+from tests.test_ipm_drive import GRID_ARGS
+
+PAINT = LanePaint((3.5, 3.0, 3.25, 3.75), 2, stop_at_m=12.0)
+DRIVE = Drive.in_lane(PAINT, 1)
+FRAMES = 12
+WIDTHS = {("forward", 1): 3.5, ("forward", 2): 3.0, ("backward", 1): 3.75,
+          ("backward", 2): 3.25}
+"""Truth per (direction, lane from the right of that direction)."""
+
+
+def run(*args: str) -> str:
+    result = CliRunner().invoke(main, list(args))
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+def refused(*args: str) -> str:
+    result = CliRunner().invoke(main, list(args))
+    assert result.exit_code == 1, result.output
+    return result.output
+
+
+def centreline(from_m: float, to_m: float) -> list[list[float]]:
+    """The road's true centre (lon/lat) from ``from_m`` to ``to_m`` along the drive."""
+    radius = DRIVE.radius_m + DRIVE.road_offset_m
+    az = np.radians(DRIVE.start_deg) + np.linspace(from_m, to_m, 60) / DRIVE.radius_m
+    lon, lat = DRIVE.to_lonlat(radius * np.sin(az), radius * np.cos(az))
+    return np.column_stack([lon, lat]).tolist()
+
+
+@pytest.fixture(scope="module")
+def drive(database_url: str, tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """The drive's layer, a network along its road, and what ``ingest lanes`` said."""
+    folder = tmp_path_factory.mktemp("lane-drive")
+    paths = write_drive(folder, DRIVE, Camera(), frame_times(FRAMES))
+    run("ingest", "ipm", str(paths["frames"]), "--poses", str(paths["poses"]), "--calib",
+        str(paths["calib"]), "--layer", "lane-drive", *GRID_ARGS)
+    road = folder / "road.geojson"
+    road.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {"lanes_forward": 1, "lanes_backward": 1},
+        "geometry": {"type": "LineString", "coordinates": centreline(-6.0, 24.0)}}]}))
+    run("ingest", "network", str(road), "--network", "lane-road")
+    return {"output": run("ingest", "lanes", "--layer", "lane-drive", "--network", "lane-road"),
+            "folder": str(folder)}
+
+
+def stored(network: str) -> tuple[list, list]:
+    with session_scope() as session:
+        ranges = session.execute(text(
+            "SELECT l.* FROM segment_lanes l JOIN networks n ON n.id = l.network_id "
+            "WHERE n.name = :n ORDER BY l.station_from_m"), {"n": network}).all()
+        rows = session.execute(text(
+            "SELECT b.kind, b.colour, b.position, b.offset_m, b.source, b.station_from_m, "
+            "b.station_to_m FROM lane_boundaries b JOIN networks n ON n.id = b.network_id "
+            "WHERE n.name = :n ORDER BY b.position, b.station_from_m"), {"n": network}).all()
+    return ranges, rows
+
+
+def test_ingest_lanes_stores_the_lanes_and_boundaries_of_the_paint(drive: dict[str, str]
+                                                                  ) -> None:
+    assert "lanes from the paint of layer lane-drive on 1 of 1 segments" in drive["output"]
+    ranges, rows = stored("lane-road")
+    assert len(ranges) == 1 and (ranges[0].lanes_forward, ranges[0].lanes_backward) == (2, 2)
+    assert ranges[0].station_from_m == 0 and ranges[0].station_to_m > 29
+    assert np.allclose(ranges[0].widths_m, [3.5, 3.0, 3.25, 3.75], atol=0.15), ranges[0]
+    painted = {(r.position, r.kind, r.colour) for r in rows if r.source == "paint"}
+    assert painted >= {(0, "road_edge", "white"), (1, "dashed", "white"),
+                       (2, "solid", "yellow"), (3, "dashed", "white"),
+                       (4, "road_edge", "white")}, painted
+    assert not {(p, k) for p, k, _ in painted} - {(0, "road_edge"), (1, "dashed"),
+                                                   (2, "solid"), (3, "dashed"),
+                                                   (4, "road_edge"), (None, "stop_line")}
+    stops = [r for r in rows if r.kind == "stop_line"]
+    assert len(stops) == 1 and stops[0].offset_m < 0  # across the forward (right) lanes
+    assert all(r.kind != "stop_line" or r.position is None for r in rows)
+    with session_scope() as session:
+        job = session.execute(text("SELECT status, progress FROM ingest_jobs "
+                                   "WHERE kind = 'ingest-lanes' ORDER BY id DESC")).first()
+    assert job is not None and tuple(job) == ("succeeded", 1.0)
+
+
+def _bound(line) -> tuple[str, str, str]:
+    a = line.attributes
+    return (a["type"], a["subtype"] if "subtype" in a else "",  # noqa: SIM401 (no .get)
+            a["color"] if "color" in a else "")  # noqa: SIM401
+
+
+def _width(ll) -> float:
+    """Median width of a lanelet across its centreline."""
+    c = ll.centerline
+    inner = [c[i] for i in range(1, len(c) - 1)] or [c[0]]
+    return float(np.median([geometry.distance(ll.leftBound, p)
+                            + geometry.distance(ll.rightBound, p) for p in inner]))
+
+
+def _exported(drive: dict[str, str]) -> LoadedMap:
+    _, loaded = export("lane-road", Path(drive["folder"]) / "lanes.osm")
+    return loaded
+
+
+def test_lanelet2_bounds_are_the_painted_lines(drive: dict[str, str]) -> None:
+    loaded = _exported(drive)  # lanelet2 loads it with no error, every lanelet as written
+    lanelets = loaded.lanelets()
+    assert len(lanelets) == 8  # 2+2 lanes, cut in two at the stop line
+    for ll in lanelets:
+        a = ll.attributes
+        lane = (a["direction"], int(a["lane"]))
+        assert abs(_width(ll) - WIDTHS[lane]) <= 0.15, (lane, _width(ll))
+        outer = ll.rightBound
+        assert _bound(outer) == ("road_border", "", "") if lane[1] == 1 else \
+            _bound(outer) == ("line_thin", "dashed", "white")
+        inner = ll.leftBound
+        assert _bound(inner) == ("line_thin", "dashed", "white") if lane[1] == 1 else \
+            _bound(inner) == ("line_thin", "solid", "yellow")
+        # lanelet2's traffic rules allow a lane change exactly across the dashed lines
+        for side, bound in (("left", ll.leftBound), ("right", ll.rightBound)):
+            neighbour = getattr(loaded.graph, side)(ll)
+            assert (neighbour is not None) == (_bound(bound)[1] == "dashed"), (lane, side)
+    stop_elements = {re.id: re for ll in lanelets for re in ll.regulatoryElements}
+    assert len(stop_elements) == 1
+    (stop,) = stop_elements.values()
+    assert stop.attributes["subtype"] == "traffic_sign"
+    holders = [ll for ll in lanelets if ll.regulatoryElements]
+    assert {ll.attributes["direction"] for ll in holders} == {"forward"} and len(holders) == 2
+    line = stop.parameters["ref_line"][0]
+    assert line.attributes["type"] == "stop_line"
+    for ll in holders:  # the forward lanelets end at the stop line
+        end = ll.centerline[len(ll.centerline) - 1]
+        assert geometry.distance(line, end) < 0.5
+
+
+def test_bad_input_is_refused_and_changes_nothing(drive: dict[str, str],
+                                                  tmp_path: Path) -> None:
+    before = stored("lane-road")
+    assert "no raster layer 'nope'" in refused("ingest", "lanes", "--layer", "nope",
+                                               "--network", "lane-road")
+    assert "network 'nope' does not exist" in refused("ingest", "lanes", "--layer",
+                                                      "lane-drive", "--network", "nope")
+    east, north = utm_origin()
+    coarse = write_tif(tmp_path / "coarse.tif", np.full((3, 50, 50), 90, np.uint8), UTM33,
+                       from_origin(round(east), round(north), 0.3, 0.3))
+    run("ingest", "raster", str(coarse), "--layer", "lanes-coarse")
+    said = refused("ingest", "lanes", "--layer", "lanes-coarse", "--network", "lane-road")
+    assert "layer 'lanes-coarse': imagery at 0.3" in said  # as stored: 0.397 m (zoom 18)
+    assert "m/px is too coarse for lane markings" in said
+    fine = write_tif(tmp_path / "fine.tif", np.full((3, 50, 50), 90, np.uint8), UTM33,
+                     from_origin(round(east), round(north), 0.1, 0.1))
+    run("ingest", "raster", str(fine), "--layer", "lanes-elsewhere")
+    assert "network 'lane-road' has no road over layer 'lanes-elsewhere'" in refused(
+        "ingest", "lanes", "--layer", "lanes-elsewhere", "--network", "lane-road")
+    assert stored("lane-road") == before
+
+
+def test_a_lane_that_opens_is_a_range_of_its_own() -> None:
+    """A straight road, 1+1 lanes, a right-turn lane opening 40 m along it (its own line
+    from there on): two ranges, the second with two lanes forward, and the new line a
+    boundary of the second range only."""
+    def line(offset: float, start: float = 0.0, kind: str = "solid") -> Paint:
+        return Paint(shapely.LineString([(start, offset), (80.0, offset)]), kind, "white",
+                     0.15, 0.9)
+
+    paint = [line(-3.2, kind="road_edge"), line(0.0), line(3.2, kind="road_edge"),
+             line(-6.2, 40.0, "road_edge")]
+    reference = shapely.LineString([(0.0, 0.0), (80.0, 0.0)])
+    first, second = lane_ranges(reference, paint)
+    assert (first.forward, first.backward, second.forward, second.backward) == (1, 1, 2, 1)
+    assert abs(first.station_to_m - 40.0) < 1.0 and second.station_to_m == 80.0
+    assert np.allclose(second.widths, [3.0, 3.2, 3.2], atol=0.01)
+    rows = boundaries(reference, paint, [first, second])
+    new = [r for r in rows if r.source == "paint" and r.offset_m < -5]
+    assert len(new) == 1 and new[0].position == 0 and new[0].station_from_m > 39
+    guessed = [r for r in rows if r.source == "offset"]
+    assert guessed == []  # every boundary of both ranges is painted

@@ -13,6 +13,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import mapbox_vector_tile
+import morecantile
 import numpy as np
 import pytest
 import shapely
@@ -25,6 +27,7 @@ from app.db.session import session_scope
 from cli.main import main
 from ingest.ipm.synthetic import Camera, Drive, LanePaint, frame_times, write_drive
 from ingest.lanes.assign import Paint, boundaries, lane_ranges
+from testkit.network_helpers import bearer
 from testkit.raster_synth import UTM33, utm_origin, write_tif
 from tests.lanelet2_support import LoadedMap, export
 from tests.test_ipm_drive import GRID_ARGS
@@ -200,3 +203,59 @@ def test_a_lane_that_opens_is_a_range_of_its_own() -> None:
     assert len(new) == 1 and new[0].position == 0 and new[0].station_from_m > 39
     guessed = [r for r in rows if r.source == "offset"]
     assert guessed == []  # every boundary of both ranges is painted
+
+
+def test_served_as_a_collection_and_in_the_vector_tiles(client, drive: dict[str, str]) -> None:
+    ids = {c["id"] for c in client.get("/collections").json()["collections"]}
+    assert "lane-road-lanes" in ids
+    page = client.get("/collections/lane-road-lanes/items", params={"kind": "dashed"}).json()
+    assert page["numberMatched"] >= 2
+    for f in page["features"]:
+        p = f["properties"]
+        assert f["geometry"]["type"] == "LineString" and p["kind"] == "dashed"
+        assert (p["lanes_forward"], p["lanes_backward"]) == (2, 2)
+        assert np.allclose([float(w) for w in p["lane_widths_m"].split(",")],
+                           [3.5, 3.0, 3.25, 3.75], atol=0.15)
+    schema = client.get("/collections/lane-road-lanes/schema").json()
+    assert schema["properties"]["kind"]["enum"][:2] == ["solid", "dashed"]
+    tj = client.get("/networks/lane-road/tilejson.json").json()
+    fields = next(layer["fields"] for layer in tj["vector_layers"] if layer["id"] == "lanes")
+    lon, lat = centreline(10.0, 10.0)[0]
+    tile = morecantile.tms.get("WebMercatorQuad").tile(lon, lat, 18)
+    body = client.get(f"/networks/lane-road/tiles/18/{tile.x}/{tile.y}.mvt").content
+    lanes = mapbox_vector_tile.decode(body)["lanes"]["features"]
+    assert {f["properties"]["kind"] for f in lanes} >= {"solid", "dashed", "road_edge"}
+    assert {k for f in lanes for k in f["properties"]} == set(fields)
+
+
+def test_edited_like_segments_and_the_lanelet2_map_follows(client, drive: dict[str, str]
+                                                         ) -> None:
+    """A reviewer makes the right lane line solid (PATCH with If-Match, editor): the stale
+    version and an anonymous edit are refused, the history keeps it, and the next Lanelet2
+    map forbids changing between the forward lanes along it."""
+    line = next(f for f in client.get("/collections/lane-road-lanes/items",
+                                      params={"position": 1, "source": "paint"}
+                                      ).json()["features"])
+    url = f"/collections/lane-road-lanes/items/{line['id']}"
+    version = line["properties"]["version"]
+    assert client.patch(url, json={"kind": "solid"}).status_code == 401
+    stale = client.patch(url, json={"kind": "solid"}, headers={
+        **bearer("editor"), "If-Match": f'"{version + 1}"'})
+    assert stale.status_code == 412
+    bad = client.patch(url, json={"kind": "zigzag"}, headers=bearer("editor"))
+    assert bad.status_code == 422 and "kind" in bad.json()["errors"]
+    done = client.patch(url, json={"kind": "solid"}, headers={
+        **bearer("editor"), "If-Match": f'"{version}"'})
+    assert done.status_code == 200, done.text
+    assert done.json()["properties"]["kind"] == "solid"
+    assert done.headers["ETag"] == f'"{version + 1}"'
+    edits = client.get(url + "/history").json()["edits"]
+    assert [(e["old"], e["new"]) for e in edits] == [({"kind": "dashed"}, {"kind": "solid"})]
+    assert client.post("/collections/lane-road-lanes/items", headers=bearer("editor"),
+                       json=line).status_code == 405
+    loaded = _exported(drive)
+    along = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"
+             and _bound(ll.leftBound if ll.attributes["lane"] == "1" else ll.rightBound)[1]
+             == "solid" and geometry.length2d(ll) > 5]
+    assert along and all(loaded.graph.left(ll) is None and loaded.graph.right(ll) is None
+                         for ll in along)

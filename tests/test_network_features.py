@@ -72,7 +72,7 @@ def test_bad_parameters(client, grid, query: str, status: int) -> None:
 
 def test_unknown_collection_and_item(client, grid) -> None:
     assert client.get("/collections/nope-segments").status_code == 404
-    assert client.get(f"/collections/{grid.network}-lanes/items").status_code == 404
+    assert client.get(f"/collections/{grid.network}-edges/items").status_code == 404
     for fid in ("0", "abc", "99999999999999999999999", "-1"):
         r = client.get(f"/collections/{grid.network}-segments/items/{fid}")
         assert r.status_code == 404 and r.json()["code"] == "NotFound"

@@ -32,7 +32,8 @@ from app.network.features_router import GEOJSON
 
 router = APIRouter(include_in_schema=False)
 ITEMS = "/collections/{collection_id}/items"
-KIND_SCHEMA: dict[colls.Kind, str] = {"segments": "Segment", "nodes": "Node"}
+KIND_SCHEMA: dict[colls.Kind, str] = {"segments": "Segment", "nodes": "Node",
+                                     "lanes": "LaneBoundary"}
 SECURITY = {"bearer": {"type": "http", "scheme": "bearer",
                        "description": "A token from `ugvmap tokens create --role ...` (also "
                                       "accepted as the password of HTTP Basic, any user name: "

@@ -1,5 +1,7 @@
-"""Which OGC API collections exist: one ``{network}-segments`` and one ``{network}-nodes``
-collection per network, resolved from the id in the URL, and their GeoJSON features.
+"""Which OGC API collections exist: one ``{network}-segments``, one ``{network}-nodes`` and
+one ``{network}-lanes`` (the lane boundaries ``ugvmap ingest lanes`` stored, each with the
+lanes of the range of its segment it bounds) collection per network, resolved from the id in
+the URL, and their GeoJSON features.
 
 All SQL here takes user input only as bound parameters; column lists are constants.
 """
@@ -18,8 +20,10 @@ from sqlalchemy.orm import Session
 from app.db.models import SLUG_RE
 from app.errors import NotFoundError
 
-Kind = Literal["segments", "nodes"]
-KINDS: tuple[Kind, ...] = ("segments", "nodes")
+Kind = Literal["segments", "nodes", "lanes"]
+KINDS: tuple[Kind, ...] = ("segments", "nodes", "lanes")
+TABLES: dict[Kind, str] = {"segments": "road_segments", "nodes": "road_nodes",
+                           "lanes": "lane_boundaries"}
 
 # Editable segment attributes, in the order they are shown.
 SEGMENT_ATTRIBUTES = ("lanes_forward", "lanes_backward", "speed_limit_kph", "oneway",
@@ -43,12 +47,26 @@ NODE_ENDS = f"SELECT n.id, {NODE_DEGREE} AS degree FROM road_nodes n WHERE n.id 
 NODE_ATTRIBUTES = ("traffic_light", "external_id")
 NODE_COLUMNS = ("id, id AS node_id, kind, traffic_light, external_id, version, updated_at, "
                 f"updated_by, {NODE_DEGREE} AS degree")
+# A boundary's row, then the lanes of the range of its segment it lies in (by its middle
+# station): what the boundary separates, without a second request.
+LANE_RANGE = ("(SELECT {col} FROM segment_lanes l WHERE l.segment_id = b.segment_id AND "
+              "(b.station_from_m + b.station_to_m) / 2 BETWEEN l.station_from_m AND "
+              "l.station_to_m ORDER BY l.station_from_m LIMIT 1)")
+LANE_COLUMNS = ", ".join((
+    "id", "id AS boundary_id", "segment_id", "kind", "colour", "width_m", "confidence",
+    "position", "offset_m", "station_from_m", "station_to_m", "source", "version",
+    "updated_at", "updated_by",
+    *(f"{LANE_RANGE.format(col=col)} AS {name}" for col, name in (
+        ("l.lanes_forward", "lanes_forward"), ("l.lanes_backward", "lanes_backward"),
+        ("array_to_string(l.widths_m, ',')", "lane_widths_m")))))
+# Editable lane boundary attributes (its geometry too).
+LANE_ATTRIBUTES = ("kind", "colour", "width_m", "position", "source")
 GEOMETRY = "ST_AsGeoJSON(geom, 15)"
 
 
 @dataclass(frozen=True)
 class Collection:
-    """An OGC API collection: one network's segments or nodes."""
+    """An OGC API collection: one network's segments, nodes or lane boundaries."""
     network: str
     network_id: int
     kind: Kind
@@ -62,18 +80,20 @@ class Collection:
     @property
     def table(self) -> str:
         """The table the collection's features live in."""
-        return "road_segments" if self.kind == "segments" else "road_nodes"
+        return TABLES[self.kind]
 
     def select(self, geometry: str = GEOMETRY) -> str:
         """``SELECT`` list and table of its features, the geometry as ``geometry`` (SQL of
         GeoJSON text, e.g. reprojected for Part 2)."""
         if self.kind == "segments":
             return f"{SEGMENT_COLUMNS}, {geometry} AS geometry FROM road_segments"
+        if self.kind == "lanes":
+            return f"{LANE_COLUMNS}, {geometry} AS geometry FROM lane_boundaries b"
         return f"{NODE_COLUMNS}, {geometry} AS geometry FROM road_nodes n"
 
 
 def list_collections(session: Session) -> list[Collection]:
-    """Both collections of every network, in name order so listings are stable."""
+    """The collections of every network, in name order so listings are stable."""
     rows = session.execute(text("SELECT id, name, title FROM networks ORDER BY name")).all()
     return [Collection(r.name, r.id, kind, r.title) for r in rows for kind in KINDS]
 
@@ -89,7 +109,7 @@ def network_row(session: Session, name: str) -> Any:
 
 
 def resolve(session: Session, collection_id: str) -> Collection:
-    """``{network}-segments`` / ``{network}-nodes`` -> Collection, or 404."""
+    """``{network}-segments`` / ``-nodes`` / ``-lanes`` -> Collection, or 404."""
     network, _, kind = collection_id.rpartition("-")
     if kind in KINDS and network:
         row = network_row(session, network)
@@ -109,7 +129,7 @@ class Extent:
 
 def extent(session: Session, collection: Collection) -> Extent:
     """The collection's extent in one query."""
-    times = ("min(updated_at) AS t0, max(updated_at) AS t1" if collection.kind == "segments"
+    times = ("min(updated_at) AS t0, max(updated_at) AS t1" if collection.kind != "nodes"
              else "NULL::timestamptz AS t0, NULL::timestamptz AS t1")
     row = session.execute(text(
         f"SELECT ST_XMin(e), ST_YMin(e), ST_XMax(e), ST_YMax(e), t0, t1 FROM "
@@ -170,7 +190,7 @@ def _where(collection: Collection, query: ItemQuery) -> tuple[str, dict[str, Any
             clauses.append(_envelope(":minx", ":maxx"))
         else:  # across the antimeridian: the part east of minx and the part west of maxx
             clauses.append(f"({_envelope(':minx', '180')} OR {_envelope('-180', ':maxx')})")
-    if collection.kind == "segments":
+    if collection.kind != "nodes":
         if query.updated_from is not None:
             clauses.append("updated_at >= :updated_from")
             params["updated_from"] = query.updated_from

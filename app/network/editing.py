@@ -31,7 +31,8 @@ from app.settings import get_settings
 
 # History table and id column of each collection kind.
 HISTORY: dict[colls.Kind, tuple[str, str]] = {"segments": ("segment_edits", "segment_id"),
-                                              "nodes": ("node_edits", "node_id")}
+                                              "nodes": ("node_edits", "node_id"),
+                                              "lanes": ("lane_boundary_edits", "boundary_id")}
 # Edits a revert may undo: attribute and geometry changes. A split, merge or node move
 # changed the topology (restoring one segment's old line would detach it from its nodes).
 REVERTIBLE = ("update", "replace", "revert", "resurvey", "resurvey-revert")

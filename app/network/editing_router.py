@@ -39,6 +39,7 @@ from app.network import collections as colls
 from app.network import crs as crs_
 from app.network import (
     editing,
+    lane_editing,
     node_editing,
     schemas,
     segment_deletion,
@@ -152,8 +153,16 @@ async def _in_session(work: Callable[[Session], Any]) -> Any:
     return await run_in_threadpool(retried, work)
 
 
-def _by_kind(c: colls.Collection, segments: Callable[..., Any],
-             nodes: Callable[..., Any]) -> Callable[..., Any]:
+def _by_kind(c: colls.Collection, segments: Callable[..., Any], nodes: Callable[..., Any],
+             lanes: Callable[..., Any] | None) -> Callable[..., Any]:
+    """The writer of the collection's kind; a lane collection has no creating writer
+    (:mod:`app.network.lane_editing`): 405."""
+    if c.kind == "lanes":
+        if lanes is None:
+            raise MethodNotAllowedError("lane boundaries are made by `ugvmap ingest lanes`; "
+                                        "edit or delete them (an `offset` one where paint "
+                                        "is missing)")
+        return lanes
     return segments if c.kind == "segments" else nodes
 
 
@@ -182,7 +191,7 @@ async def create_item(collection_id: str, request: Request, principal: EditorDep
     def create(session: Session) -> dict[str, Any]:
         c = colls.resolve(session, collection_id)
         _admin_for_nodes(c, principal)
-        make = _by_kind(c, segment_editing.create_segment, node_editing.create_node)
+        make = _by_kind(c, segment_editing.create_segment, node_editing.create_node, None)
         feature: dict[str, Any] = make(session, c, body, crs, principal)
         feature["links"] = [{"href": f"{base_url(request)}/collections/{c.id}/items/"
                                      f"{feature['id']}", "rel": "self", "type": GEOJSON}]
@@ -204,7 +213,8 @@ async def replace_item(collection_id: str, fid: str, request: Request,
     segments' ends (editor)."""
     body = await json_body(request, FEATURE_TYPES)
     return await _edit_item(request, collection_id, fid, body, principal,
-                            segment_editing.replace_segment, node_editing.replace_node)
+                            segment_editing.replace_segment, node_editing.replace_node,
+                            lane_editing.replace_lane)
 
 
 @router.patch(ITEM, response_class=GeoJSONResponse,
@@ -217,12 +227,14 @@ async def patch_item(collection_id: str, fid: str, request: Request,
     """Edit a feature's attributes or geometry with a JSON merge patch (editor)."""
     body = await json_body(request)
     return await _edit_item(request, collection_id, fid, body, principal,
-                            segment_editing.patch_segment, node_editing.patch_node)
+                            segment_editing.patch_segment, node_editing.patch_node,
+                            lane_editing.patch_lane)
 
 
 async def _edit_item(request: Request, collection_id: str, fid: str, body: Any,
                      principal: Principal, segments: Callable[..., dict[str, Any]],
-                     nodes: Callable[..., dict[str, Any]]) -> Response:
+                     nodes: Callable[..., dict[str, Any]],
+                     lanes: Callable[..., dict[str, Any]]) -> Response:
     """A PUT or PATCH of one feature with the writer of its kind. The collection and the
     feature id are resolved before the precondition (428/412), which RFC 9110 evaluates only
     for a request that could otherwise succeed."""
@@ -230,7 +242,7 @@ async def _edit_item(request: Request, collection_id: str, fid: str, body: Any,
 
     def write(session: Session) -> dict[str, Any]:
         c = colls.resolve(session, collection_id)
-        return _by_kind(c, segments, nodes)(session, c, parse_fid(fid),
+        return _by_kind(c, segments, nodes, lanes)(session, c, parse_fid(fid),
                                             editing.expected_version(if_match), body, crs,
                                             principal)
 
@@ -253,7 +265,8 @@ async def delete_item(collection_id: str, fid: str, request: Request,
     def delete(session: Session) -> None:
         c = colls.resolve(session, collection_id)
         _admin_for_nodes(c, principal)
-        remove = _by_kind(c, segment_deletion.delete_segment, node_editing.delete_node)
+        remove = _by_kind(c, segment_deletion.delete_segment, node_editing.delete_node,
+                          lane_editing.delete_lane)
         remove(session, c, parse_fid(fid), editing.expected_version(if_match), principal)
 
     await _in_session(delete)

@@ -14,7 +14,7 @@ import re
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from app.db.models import NODE_KINDS, ONEWAY_VALUES
+from app.db.models import LANE_COLOURS, LANE_KINDS, LANE_SOURCES, NODE_KINDS, ONEWAY_VALUES
 from app.errors import InvalidParameterValueError
 from app.network.collections import Kind
 from app.network.validation import text_problem
@@ -133,8 +133,43 @@ PROPERTIES: dict[Kind, tuple[Property, ...]] = {
         Property("updated_by", "string", "Who changed it last", nullable=True),
         Property("degree", "integer", "Number of segment ends at the node"),
     ),
+    "lanes": (
+        Property("boundary_id", "integer", "The boundary's id (the feature id, repeated as a "
+                 "property: clients reading GeoJSON through OGR show no feature id)"),
+        Property("segment_id", "integer", "The segment whose road the line bounds lanes of",
+                 queryable=True),
+        _editable("kind", "string", "What is painted: solid, dashed, solid_solid, road_edge, "
+                  "stop_line (across the lanes) or other", enum=LANE_KINDS, queryable=True),
+        _editable("colour", "string", "Colour of the paint", enum=LANE_COLOURS,
+                  queryable=True),
+        _editable("width_m", "number", "Width of the painted line, metres", nullable=True),
+        Property("confidence", "number", "How sure extraction was of the line, 0..1 (0 for "
+                 "an offset line: no paint there)", nullable=True),
+        _editable("position", "integer", "Order across the road within its lane range, 0 = "
+                  "the rightmost boundary along the segment's direction; null for stop lines "
+                  "and symbols", nullable=True, queryable=True),
+        Property("offset_m", "number", "Median offset from the segment's centreline, metres, "
+                 "+ left of its direction", nullable=True),
+        Property("station_from_m", "number", "Where along the segment it starts, metres from "
+                 "the segment's start"),
+        Property("station_to_m", "number", "Where along the segment it ends"),
+        _editable("source", "string", "paint (found in the imagery, or drawn over it by a "
+                  "person) or offset (no paint there: the lane range's offset along the "
+                  "segment, a guess)", enum=LANE_SOURCES, queryable=True),
+        Property("version", "integer", "Edit version; the item's ETag"),
+        Property("updated_at", "string", "When the boundary last changed", format="date-time"),
+        Property("updated_by", "string", "Who changed it last (ingest-lanes when extracted)",
+                 nullable=True),
+        Property("lanes_forward", "integer", "Lanes along the segment's direction where the "
+                 "boundary lies (its lane range)", nullable=True),
+        Property("lanes_backward", "integer", "Lanes against it there", nullable=True),
+        Property("lane_widths_m", "string", "Widths of those lanes, metres, right to left "
+                 "across the road along the segment's direction (comma-separated)",
+                 nullable=True),
+    ),
 }
-GEOMETRY: dict[Kind, str] = {"segments": "LineString", "nodes": "Point"}
+GEOMETRY: dict[Kind, str] = {"segments": "LineString", "nodes": "Point",
+                             "lanes": "LineString"}
 
 
 def by_name(kind: Kind) -> dict[str, Property]:

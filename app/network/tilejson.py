@@ -14,7 +14,7 @@ from typing import Any
 
 from app.network.collections import Kind
 from app.network.properties import GEOMETRY, MVT_TYPES, by_name
-from app.network.tiles import NODES_MINZOOM
+from app.network.tiles import LANES_MINZOOM, NODES_MINZOOM
 
 MINZOOM = 0
 # Past this zoom clients overzoom: a z18 tile's 4096-unit grid is already ~4 cm.
@@ -57,7 +57,23 @@ TILE_LAYERS = (
                        "confidence only where the segment was extracted from imagery"),
     TileLayer("nodes", "nodes", ("kind", "traffic_light"), NODES_MINZOOM,
               "Topology nodes (feature id = node id)"),
+    TileLayer("lanes", "lanes",
+              ("segment_id", "kind", "colour", "position", "source", "width_m", "confidence",
+               "version"),
+              LANES_MINZOOM, "Lane boundaries from the paint (feature id = boundary id): "
+                             "kind solid/dashed/solid_solid/road_edge/stop_line/other, source "
+                             "paint or offset (no paint there)"),
 )
+# Lane boundaries by kind: (style layer id, filter, dash pattern or None). One layer per
+# kind with fixed paint values, for QGIS's style converter (see NODE_STYLES); the colour of
+# the paint (yellow where yellow, else white), guessed (offset) lines faint.
+LANE_STYLES: tuple[tuple[str, list[Any], list[float] | None], ...] = (
+    ("lanes-solid", ["match", ["get", "kind"], ["solid", "solid_solid", "road_edge"], True,
+                     False], None),
+    ("lanes-dashed", ["==", ["get", "kind"], "dashed"], [3, 3]),
+    ("lanes-stop", ["==", ["get", "kind"], "stop_line"], None),
+)
+LANE_WIDTH = ["interpolate", ["linear"], ["zoom"], 16, 1.0, 20, 3.0]
 
 
 @dataclass(frozen=True)
@@ -142,7 +158,8 @@ def _line_width(extra: float) -> list[Any]:
 def style(network: NetworkInfo, tilejson_url: str) -> dict[str, Any]:
     """A MapLibre style drawing the network: roads coloured by class over a dark casing (so a
     road of any colour shows over imagery), junctions orange, traffic lights red (plain nodes
-    from z16), in constructs QGIS's style converter keeps (:data:`NODE_STYLES`). No glyphs or
+    from z16), painted lane boundaries from z16 (dashed where dashed, yellow where yellow),
+    in constructs QGIS's style converter keeps (:data:`NODE_STYLES`). No glyphs or
     sprites, so it loads offline."""
     source = network.name
     line = {"line-cap": "round", "line-join": "round"}
@@ -167,6 +184,14 @@ def style(network: NetworkInfo, tilejson_url: str) -> dict[str, Any]:
                "paint": {"circle-color": colour, "circle-radius": radius,
                          "circle-stroke-width": stroke, "circle-stroke-color": "#ffffff"}}
               for layer_id, node_filter, colour, radius, stroke, minzoom in NODE_STYLES),
+            *({"id": layer_id, "type": "line", "source": source, "source-layer": "lanes",
+               "minzoom": LANES_MINZOOM, "filter": lane_filter,
+               "paint": {"line-color": ["match", ["get", "colour"], "yellow", "#ffd400",
+                                        "#ffffff"],
+                         "line-opacity": ["match", ["get", "source"], "offset", 0.45, 1.0],
+                         "line-width": LANE_WIDTH if layer_id != "lanes-stop" else 3.0,
+                         **({"line-dasharray": dash} if dash else {})}}
+              for layer_id, lane_filter, dash in LANE_STYLES),
         ],
     }
 

@@ -1,6 +1,8 @@
 """Mapbox vector tiles of a road network, rendered by PostGIS (``ST_AsMVT``).
 
-Layers: ``segments`` and ``nodes`` (kind, traffic light; from zoom 12). What ``segments``
+Layers: ``segments``, ``nodes`` (kind, traffic light; from zoom 12) and ``lanes`` (the
+painted lane boundaries of ``ugvmap ingest lanes``: kind, colour, position, source; from zoom
+16, where a 3 m lane is a few pixels wide). What ``segments``
 holds depends on the zoom, so that a low-zoom tile of a country-sized network stays small:
 
 - z >= 12: every segment with its planner attributes (simplified to about a pixel below 14);
@@ -36,6 +38,7 @@ MVT = "application/vnd.mapbox-vector-tile"
 EXTENT = 4096
 BUFFER = 64
 NODES_MINZOOM = 12
+LANES_MINZOOM = 16
 SIMPLIFY_BELOW = 14
 MERGE_BELOW = 10
 _MAJOR = ("motorway", "trunk", "primary")
@@ -69,11 +72,19 @@ TILE_SQL = f"""{_BOUNDS}, segments AS (
            n.id, n.kind, n.traffic_light
       FROM road_nodes n, bounds b
      WHERE n.network_id = :network_id AND n.geom && b.q AND :z >= {NODES_MINZOOM}
+), lanes AS (
+    SELECT ST_AsMVTGeom(ST_Transform(l.geom, 3857), b.tile, {EXTENT}, {BUFFER}, true) AS geom,
+           l.id, l.segment_id, l.kind, l.colour, l.position, l.source, l.width_m,
+           l.confidence, l.version
+      FROM lane_boundaries l, bounds b
+     WHERE l.network_id = :network_id AND l.geom && b.q AND :z >= {LANES_MINZOOM}
 )
 SELECT COALESCE((SELECT ST_AsMVT(segments, 'segments', {EXTENT}, 'geom', 'id' ORDER BY id)
                    FROM segments WHERE geom IS NOT NULL), '')
     || COALESCE((SELECT ST_AsMVT(nodes, 'nodes', {EXTENT}, 'geom', 'id' ORDER BY id)
                    FROM nodes WHERE geom IS NOT NULL), '')
+    || COALESCE((SELECT ST_AsMVT(lanes, 'lanes', {EXTENT}, 'geom', 'id' ORDER BY id)
+                   FROM lanes WHERE geom IS NOT NULL), '')
 """
 
 OVERVIEW_SQL = f"""{_BOUNDS}, merged AS (

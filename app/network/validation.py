@@ -13,8 +13,8 @@ import re
 from collections.abc import Callable
 from typing import Any
 
-from app.db.models import ONEWAY_VALUES
-from app.network.collections import NODE_ATTRIBUTES, SEGMENT_ATTRIBUTES, Kind
+from app.db.models import LANE_COLOURS, LANE_KINDS, LANE_SOURCES, ONEWAY_VALUES
+from app.network.collections import LANE_ATTRIBUTES, NODE_ATTRIBUTES, SEGMENT_ATTRIBUTES, Kind
 
 ROAD_CLASSES = (
     "motorway", "motorway_link", "trunk", "trunk_link", "primary", "primary_link",
@@ -34,7 +34,7 @@ out of every reader of the network (the history and item reads, exports, tiles),
 serializers give up on deep values (pydantic at 255, Python's at ~1000 levels) while
 PostgreSQL stores them; source attributes (OSM tags) are flat."""
 DEPTH_PROBLEM = f"must be nested at most {MAX_ATTRS_DEPTH} levels deep"
-NULLABLE = {"speed_limit_kph", "name", "surface", "width_m", "external_id", "attrs"}
+NULLABLE = {"speed_limit_kph", "name", "surface", "width_m", "external_id", "attrs", "position"}
 # What a whole feature (POST, PUT) gets for an editable attribute it does not give: the
 # columns' defaults, so a road drawn in QGIS with its form left empty is a plain two-way road.
 DEFAULTS: dict[Kind, dict[str, Any]] = {
@@ -43,6 +43,8 @@ DEFAULTS: dict[Kind, dict[str, Any]] = {
                  "name": None, "surface": None, "width_m": None, "external_id": None,
                  "attrs": {}},
     "nodes": {"traffic_light": False, "external_id": None},
+    "lanes": {"kind": "solid", "colour": "unknown", "width_m": None, "position": None,
+              "source": "paint"},
 }
 
 
@@ -152,7 +154,17 @@ NODE_RULES: dict[str, Callable[[Any], str | None]] = {
     "traffic_light": _bool,
     "external_id": _text(MAX_NAME),
 }
+LANE_RULES: dict[str, Callable[[Any], str | None]] = {
+    "kind": _one_of(LANE_KINDS),
+    "colour": _one_of(LANE_COLOURS),
+    "width_m": _number_in(0.01, 2.0, "m"),
+    "position": _int_in(0, 32),
+    "source": _one_of(LANE_SOURCES),
+}
+KIND_RULES: dict[Kind, dict[str, Callable[[Any], str | None]]] = {
+    "segments": RULES, "nodes": NODE_RULES, "lanes": LANE_RULES}
 assert set(RULES) == set(SEGMENT_ATTRIBUTES) == set(DEFAULTS["segments"])
+assert set(LANE_RULES) == set(LANE_ATTRIBUTES) == set(DEFAULTS["lanes"])
 assert set(NODE_RULES) == set(NODE_ATTRIBUTES) == set(DEFAULTS["nodes"])
 
 
@@ -182,7 +194,7 @@ def field_errors(properties: dict[str, Any], kind: Kind = "segments",
                  read_only: frozenset[str] = frozenset()) -> dict[str, str]:
     """One message per offending field of a merge patch of a feature's properties
     (``read_only``: the kind's properties the server maintains)."""
-    rules = RULES if kind == "segments" else NODE_RULES
+    rules = KIND_RULES[kind]
     errors: dict[str, str] = {}
     for key, value in properties.items():
         label = key[:100]

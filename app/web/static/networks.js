@@ -33,7 +33,7 @@ function matchRows(expression) {
 export function segmentsLayerId(name) { return `net-${name}-segments`; }
 function casingLayerId(name) { return `net-${name}-segments-casing`; }
 export function arrowsLayerId(name) { return `net-${name}-oneway`; }
-function nodeLayerId(name, styleId) { return `net-${name}-${styleId}`; }
+function styleLayerId(name, styleId) { return `net-${name}-${styleId}`; }
 function selectedLayerId(name) { return `net-${name}-selected`; }
 function sourceId(name) { return `net-${name}`; }
 
@@ -64,8 +64,9 @@ function arrowImage() {
 }
 
 /** Add one network: its tiles as described by its TileJSON, its style's layers renamed for
- * this map, one-way arrows, and a highlight layer for the selected segments. Returns the
- * road-class colours and the ids of the node layers. */
+ * this map, one-way arrows, and a highlight layer for the selected segments; the painted lane
+ * boundaries (from z16, as the style draws them) over the roads. Returns the road-class
+ * colours and the ids of the node and lane layers. */
 function addNetwork(map, name, tilejson, style) {
   map.addSource(sourceId(name), {
     type: 'vector', tiles: tilejson.tiles, bounds: tilejson.bounds,
@@ -95,10 +96,14 @@ function addNetwork(map, name, tilejson, style) {
   // Nodes come as one style layer per kind (junctions, traffic lights, plain nodes), each
   // with fixed colours, the form QGIS's style converter also reads.
   const nodeLayers = style.layers.filter((l) => l['source-layer'] === 'nodes')
-    .map((layer) => nodeLayerId(name, layer.id));
+    .map((layer) => styleLayerId(name, layer.id));
   style.layers.filter((l) => l['source-layer'] === 'nodes')
     .forEach((layer, i) => map.addLayer(own(layer, nodeLayers[i])));
-  return { classColours: styled.segments.paint['line-color'], nodeLayers };
+  const laneLayers = style.layers.filter((l) => l['source-layer'] === 'lanes')
+    .map((layer) => styleLayerId(name, layer.id));
+  style.layers.filter((l) => l['source-layer'] === 'lanes')
+    .forEach((layer, i) => map.addLayer(own(layer, laneLayers[i])));
+  return { classColours: styled.segments.paint['line-color'], nodeLayers, laneLayers };
 }
 
 function legendRows(mode, classColours) {
@@ -118,6 +123,7 @@ function legendHtml(mode, classColours) {
   lines.push('<li><i class="dot" style="background:#ff9800"></i>junction</li>');
   lines.push('<li><i class="dot light"></i>traffic light</li>');
   lines.push('<li><i class="arrow">›</i>one-way</li>');
+  lines.push('<li><i class="swatch lane"></i>lane lines from the paint (zoom 16+)</li>');
   return `<ul>${lines.join('')}</ul>`;
 }
 
@@ -140,6 +146,7 @@ export class Networks {
     this.bounds = {};
     this.tilejsonUrls = {};
     this.nodeLayers = {};
+    this.laneLayers = {};
     this.classColours = ['match', ['get', 'road_class'], 'other'];
     this.mode = 'road_class';
     this.filter = null;
@@ -172,6 +179,7 @@ export class Networks {
       const added = addNetwork(this.map, network.name, tilejson.body, style.body);
       this.classColours = added.classColours;
       this.nodeLayers[network.name] = added.nodeLayers;
+      this.laneLayers[network.name] = added.laneLayers;
       if (network.bounds) {
         this.extents.push(network.bounds);
         this.bounds[network.name] = network.bounds;
@@ -210,7 +218,7 @@ export class Networks {
 
   layerIds(name) {
     return [casingLayerId(name), segmentsLayerId(name), selectedLayerId(name), arrowsLayerId(name),
-      ...this.nodeLayers[name]];
+      ...this.nodeLayers[name], ...this.laneLayers[name]];
   }
 
   setMode(mode) {

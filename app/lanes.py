@@ -15,6 +15,13 @@ at once in a worker (one per kind) held the GIL so much that a single feature to
 worker's event loop its share, and the cores are as busy with one per worker (measured with
 ``bench/heavy_mix.py``, docs/performance.md).
 
+A routing request takes its place in the lane on arrival (:func:`held_on_arrival`, a route
+dependency), before its points are parsed or its network's version read: when it was only
+checked on arrival and the place taken later, a burst of 50 clients at once (each worker's
+lanes empty) let every request of the burst past the check, each parsed its 5,000 points on
+the event loop, and then most were refused: 12-33 of the 503s came after 2.4-4.7 s on a quiet
+box (``bench/heavy_mix.py``).
+
 A lane belongs to the event loop it is used on (one per worker; tests start several): asyncio's
 semaphore may only be awaited on one loop.
 """
@@ -23,8 +30,9 @@ from __future__ import annotations
 
 import asyncio
 import weakref
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
+from contextvars import ContextVar
 from functools import lru_cache
 from typing import Literal
 
@@ -45,6 +53,11 @@ class LaneSettings(BaseSettings):
     total: int = Field(default=1, ge=1)  # at once, all kinds together
     waiting: int = Field(default=4, ge=0)  # queued for a slot; beyond them: 503
     retry_after_s: int = Field(default=2, ge=1)  # the 503's Retry-After
+
+
+_HELD: ContextVar[frozenset[str]] = ContextVar("ugvmap_lanes_held", default=frozenset())
+"""The kinds whose slot the running request holds: its work's own :meth:`Lane.slot` inside the
+slot taken on arrival is that same slot, not a second one."""
 
 
 @lru_cache(maxsize=1)
@@ -78,7 +91,11 @@ class Lane:
     @asynccontextmanager
     async def slot(self) -> AsyncIterator[None]:
         """Hold one of the lane's slots for the block; queue for one when all are taken and
-        the queue has room, else raise :class:`ServiceBusyError` at once."""
+        the queue has room, else raise :class:`ServiceBusyError` at once. Inside a slot of
+        the same kind this request already holds, it is that slot."""
+        if self.kind in _HELD.get():
+            yield
+            return
         self.refuse_when_full()
         self.waiting += 1
         try:
@@ -90,9 +107,12 @@ class Lane:
                 raise
         finally:
             self.waiting -= 1
+        _HELD.set(_HELD.get() | {self.kind})
         try:
             yield
         finally:
+            # set, not reset: a dependency's exit may run in another context than its entry
+            _HELD.set(_HELD.get() - {self.kind})
             self._shared.release()
             self._slots.release()
 
@@ -121,11 +141,12 @@ def lane(kind: Kind) -> Lane:
     return lanes.by_kind[kind]
 
 
-def refuse_when_full(kind: Kind) -> Callable[[], Awaitable[None]]:
-    """A route dependency refusing a request of ``kind`` while its lane is full, before the
-    request's body is validated: the slot itself is taken later, when the work starts (the
-    lane may fill meanwhile, and the request is refused then)."""
-    async def lane_has_room() -> None:
-        lane(kind).refuse_when_full()
+def held_on_arrival(kind: Kind) -> Callable[[], AsyncIterator[None]]:
+    """A route dependency holding a slot of ``kind``'s lane for the whole request, taken (or
+    queued for, or refused with 503) as the request arrives, before its parameters or body are
+    parsed: the work's own :meth:`Lane.slot` then finds it held."""
+    async def lane_slot() -> AsyncIterator[None]:
+        async with lane(kind).slot():
+            yield
 
-    return lane_has_room
+    return lane_slot

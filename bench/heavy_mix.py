@@ -280,11 +280,13 @@ def report(record: Record, start_mb: float, peak_mb: float, end_mb: float, waite
            for k, c in record.status.items()}
     bad = {k: v for k, v in bad.items() if v}
     slow = sum(record.slow_busy.values())
+    late = ", ".join(f"{k} {n}" for k, n in sorted(record.slow_busy.items()) if n)
     bare = sum(record.busy_without_retry.values())
     answered = not bad and slow == 0 and bare == 0
     print(f"  check every heavy request answered (result, or 503 + Retry-After within "
           f"{BUSY_WITHIN_S:g} s): {'ok' if answered else 'FAIL'} (other 5xx / transport: "
-          f"{bad or 'none'}; 503 later than {BUSY_WITHIN_S:g} s: {slow}; 503 without "
+          f"{bad or 'none'}; 503 later than {BUSY_WITHIN_S:g} s: {slow}"
+          f"{f' ({late})' if late else ''}; 503 without "
           f"Retry-After: {bare})")
     memory = end_mb <= MEMORY_RATIO * start_mb
     print(f"  server memory: {start_mb:.0f} MB after warm-up (baseline), {peak_mb:.0f} MB at "

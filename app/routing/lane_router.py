@@ -7,21 +7,26 @@ parameters, the read-access check). :class:`RoutingLane` is the first route of t
 takes a GET of either URL family (OSRM's ``/networks/{name}/{service}/v1/{profile}/{coords}``
 and ours, ``/networks/{name}/{service}?points=...``) by one regular expression each and calls
 the answers the FastAPI endpoints call (:mod:`app.routing.router`), inside the same middleware
-and exception handlers. Those endpoints stay registered: they document the API and answer
-whatever the lane leaves to them (reads that need a role, an app mounted under a root path).
+and exception handlers; a heavy service (table, match, trip) takes its place in its lane
+(:mod:`app.lanes`) first, as the endpoints' dependency does. Those endpoints stay registered:
+they document the API and answer whatever the lane leaves to them (reads that need a role,
+an app mounted under a root path).
 """
 
 from __future__ import annotations
 
 import re
+from typing import Any
 
 from fastapi import FastAPI
 from starlette.requests import Request
+from starlette.responses import Response
 from starlette.routing import BaseRoute, Match, NoMatchFound
 from starlette.types import Receive, Scope, Send
 
+from app.lanes import lane
 from app.routing.options import SERVICES
-from app.routing.router import answer_get, answer_osrm
+from app.routing.router import HEAVY_SERVICES, answer_get, answer_osrm
 from app.settings import get_settings
 
 _SERVICE = "|".join(SERVICES)
@@ -49,13 +54,20 @@ class RoutingLane(BaseRoute):
     async def handle(self, scope: Scope, receive: Receive, send: Send) -> None:
         """Answer as the FastAPI endpoint of the same URL would."""
         part = scope["path_params"]
-        request = Request(scope, receive)
-        if "coordinates" in part:
-            response = await answer_osrm(part["service"], part["name"], request,
-                                         part["version"], part["profile"], part["coordinates"])
+        kind = HEAVY_SERVICES.get(part["service"])
+        if kind is None:
+            response = await self._answer(part, Request(scope, receive))
         else:
-            response = await answer_get(part["service"], part["name"], request)
+            async with lane(kind).slot():
+                response = await self._answer(part, Request(scope, receive))
         await response(scope, receive, send)
+
+    @staticmethod
+    async def _answer(part: dict[str, Any], request: Request) -> Response:
+        if "coordinates" in part:
+            return await answer_osrm(part["service"], part["name"], request,
+                                     part["version"], part["profile"], part["coordinates"])
+        return await answer_get(part["service"], part["name"], request)
 
     def url_path_for(self, name: str, /, **path_params: object) -> None:  # type: ignore[override]
         """Nothing is named after this route: URLs are built from the endpoints' names."""

@@ -36,7 +36,7 @@ from app.api.errors import (
     responses,
 )
 from app.api.query import only_query
-from app.lanes import Kind, lane, refuse_when_full
+from app.lanes import Kind, held_on_arrival, lane
 from app.routing import params
 from app.routing.bodies import ServiceBody, body_model
 from app.routing.graph import RoadGraph
@@ -74,6 +74,8 @@ router = APIRouter(prefix="/networks", tags=["routing"],
                        errors.ServiceBusyError))
 
 PROFILE = re.compile(r"[A-Za-z0-9_.-]{1,64}", re.ASCII)
+HEAVY_SERVICES: dict[Service, Kind] = {"table": "table", "match": "match", "trip": "trip"}
+"""The services whose work queues in a lane of its own kind (:mod:`app.lanes`)."""
 NOT_SERVED = ("tile",)  # OSRM's vector tiles of its graph: /networks/{name}/tiles/... has ours
 ISOCHRONE_DOCS = {
     **{n: service_docs("route")[n] for n in ("profile", "avoid", "exclude", "radius")},
@@ -270,19 +272,22 @@ async def nearest_get(name: str, request: Request) -> Response:
     return await answer_get("nearest", name, request)
 
 
-@router.get("/{name}/table", openapi_extra=_service_doc("table", "ugvmap"))
+@router.get("/{name}/table", openapi_extra=_service_doc("table", "ugvmap"),
+            dependencies=[Depends(held_on_arrival("table"))])
 async def table_get(name: str, request: Request) -> Response:
     """Durations and distances between the points (OSRM table-service response)."""
     return await answer_get("table", name, request)
 
 
-@router.get("/{name}/match", openapi_extra=_service_doc("match", "ugvmap"))
+@router.get("/{name}/match", openapi_extra=_service_doc("match", "ugvmap"),
+            dependencies=[Depends(held_on_arrival("match"))])
 async def match_get(name: str, request: Request) -> Response:
     """The roads a GNSS trace drove (OSRM match-service response)."""
     return await answer_get("match", name, request)
 
 
-@router.get("/{name}/trip", openapi_extra=_service_doc("trip", "ugvmap"))
+@router.get("/{name}/trip", openapi_extra=_service_doc("trip", "ugvmap"),
+            dependencies=[Depends(held_on_arrival("trip"))])
 async def trip_get(name: str, request: Request) -> Response:
     """The best order to visit the points, and the route (OSRM trip-service response)."""
     return await answer_get("trip", name, request)
@@ -347,15 +352,17 @@ def _osrm_endpoint(service: Service) -> Callable[..., Any]:
 for _service in SERVICES:
     router.add_api_route(f"/{{name}}/{_service}/{{version}}/{{profile}}/{{coordinates}}",
                          _osrm_endpoint(_service), methods=["GET"],
-                         openapi_extra=_service_doc(_service, "osrm"))
+                         openapi_extra=_service_doc(_service, "osrm"),
+                         dependencies=[Depends(held_on_arrival(HEAVY_SERVICES[_service]))]
+                         if _service in HEAVY_SERVICES else None)
 # The POST bodies after the GETs: FastAPI tries a router's routes in order, and every GET of
 # OSRM's URL shape (most requests) would otherwise be matched against these first.
-# A heavy service's POST is refused while its lane is full before its body is validated
-# (5,000 points took the event loop ~50 ms each, only to be told 503; issue 33).
+# A heavy service takes its place in its lane before its points are parsed (5,000 points took
+# the event loop ~50 ms each, only to be told 503; issue 33).
 router.add_api_route("/{name}/route", _post_endpoint("route"), methods=["POST"])
-for _heavy in ("table", "match", "trip"):
+for _heavy, _kind in HEAVY_SERVICES.items():
     router.add_api_route(f"/{{name}}/{_heavy}", _post_endpoint(_heavy), methods=["POST"],
-                         dependencies=[Depends(refuse_when_full(_heavy))])
+                         dependencies=[Depends(held_on_arrival(_kind))])
 
 
 @router.get("/{name}/{service}/{version}/{profile}", include_in_schema=False)
@@ -381,7 +388,8 @@ async def osrm_other_service(name: str, service: str, profile: str,
 
 
 @router.get("/{name}/isochrone", openapi_extra=_query_doc(list(ISOCHRONE_OPTIONS),
-                                                          ISOCHRONE_DOCS))
+                                                          ISOCHRONE_DOCS),
+            dependencies=[Depends(held_on_arrival("isochrone"))])
 async def isochrone(name: str, request: Request) -> Response:
     """Segments (partly) reachable from the point within ``seconds`` or ``meters``."""
     params.network_name(name)

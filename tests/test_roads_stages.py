@@ -6,7 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
-from ingest.roads.classify import fit_spectral_line
+from ingest.roads.classify import (
+    NOT_ROAD,
+    ROAD,
+    fit_spectral_line,
+    spectral_classify,
+)
 from ingest.roads.clean import clean_mask
 from ingest.roads.evaluate import buffer_scores
 from ingest.roads.houses import HouseRule, is_house_like, remove_houses
@@ -24,6 +29,37 @@ def test_total_least_squares_line_recovers_the_grey_axis() -> None:
     assert line.mean_distance == pytest.approx(0.01 * np.sqrt(np.pi / 2), rel=0.1)
     flat = fit_spectral_line(np.full((50, 3), 0.5))
     assert flat.mean_distance > 0  # a single-colour sample still gives a usable tolerance
+
+
+def _grey(level: float, noise: float, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` grey pixels around ``level``: brightness noise, a little chroma."""
+    return level + rng.normal(0, noise, (n, 1)) + rng.normal(0, 1.5, (n, 3))
+
+
+@pytest.mark.parametrize(("ground", "bounded"), [
+    ((95, 95, 95), True),       # darker grey ground: on the asphalt's colour line
+    ((150, 148, 145), True),    # a brighter grey gravel verge: on it too, beyond the road
+    ((70, 125, 55), False),     # green grass: the line alone parts them, shade and all
+])
+def test_the_colour_line_ends_where_a_grey_background_lies_on_it(ground, bounded) -> None:
+    """A drive's sample: road pixels (grey asphalt with a little white paint) and not-road
+    ones. Without the background the line runs on through every grey: a 7 m road on darker
+    grey ground came out as the whole 30 m wide mosaic (centreline 0.3-1.0 m off)."""
+    rng = np.random.default_rng(1)
+    road = np.vstack([_grey(122, 4, 3000, rng), _grey(235, 3, 60, rng)])
+    other = np.asarray(ground, float) + rng.normal(0, 5, (3000, 3))
+    shade = _grey(80, 3, 200, rng)  # the road in a shadow: darker along the same line
+    pixels = np.vstack([road, other, shade])[:, None, :]
+    labels = np.concatenate([np.full(len(road), ROAD), np.full(len(other), NOT_ROAD),
+                             np.zeros(len(shade))])[:, None].astype(np.uint8)
+    found = spectral_classify(pixels, labels)[:, 0]
+    assert found[:len(road)].mean() >= 0.95
+    ground_found = found[len(road):len(road) + len(other)].mean()
+    shade_found = found[len(road) + len(other):].mean()
+    if bounded:
+        assert ground_found <= 0.05
+    else:
+        assert ground_found <= 0.01 and shade_found >= 0.95
 
 
 def _blob(draw) -> np.ndarray:

@@ -71,20 +71,31 @@ def training_labels(shape: tuple[int, int], road_boxes: Sequence[Box] = (),
 
 @dataclass(frozen=True)
 class SpectralLine:
-    """A line through colour space and the mean distance of the road samples to it."""
+    """A line through colour space and the mean distance of the road samples to it, ended
+    where the background says so (:func:`bounded_by_background`; unbounded by default)."""
 
     origin: np.ndarray
     direction: np.ndarray
     mean_distance: float
+    low: float = -math.inf
+    high: float = math.inf
+    """Positions along the line (from ``origin``) beyond which a colour is not road: the
+    excess counts as distance."""
+
+    def along(self, pixels: np.ndarray) -> np.ndarray:
+        """Position of (n, bands) pixels along the line, from its origin."""
+        return (pixels - self.origin) @ self.direction
 
     def distance(self, pixels: np.ndarray) -> np.ndarray:
-        """Orthogonal distance of every pixel (..., bands) to the line, float32."""
+        """Distance of every pixel (..., bands) to the line (to its bounded part), float32."""
         d = pixels.reshape(-1, pixels.shape[-1]) - self.origin
         if d.shape[1] == 1:
             dist = np.abs(d[:, 0])
         else:
             along = d @ self.direction
-            dist = np.sqrt(np.maximum(np.einsum("ij,ij->i", d, d) - along * along, 0))
+            perp2 = np.maximum(np.einsum("ij,ij->i", d, d) - along * along, 0)
+            excess = np.maximum(self.low - along, 0) + np.maximum(along - self.high, 0)
+            dist = np.sqrt(perp2 + excess * excess)
         return dist.reshape(pixels.shape[:-1]).astype(np.float32)
 
 
@@ -103,14 +114,73 @@ def fit_spectral_line(samples: np.ndarray) -> SpectralLine:
     return SpectralLine(origin, direction, max(mean, NOISE_FLOOR))
 
 
+BOUND_MIN_SHARE = 0.1
+"""A side of the line is ended only when at least this share of the background samples lies
+on the line beyond the road's middle on that side (else the line already separates them)."""
+BOUND_MAX_ROAD_LOSS = 0.05
+"""...at a cut that loses at most this share of the road samples..."""
+BOUND_MAX_KEPT = 0.5
+"""...and keeps at most this share of those background samples (else no clear cut)."""
+
+
+def _cut(road: np.ndarray, background: np.ndarray) -> float | None:
+    """The position along the line (``road``/``background``: positions, the background all
+    below the road's median) that best parts the two: the least road lost below it plus
+    background kept above it, losing at most ``BOUND_MAX_ROAD_LOSS`` of the road; None when
+    no cut keeps less than ``BOUND_MAX_KEPT`` of the background."""
+    road, background = np.sort(road), np.sort(background)
+    candidates = np.unique(np.quantile(np.concatenate([road, background]),
+                                       np.linspace(0, 1, 513)))
+    lost = np.searchsorted(road, candidates) / len(road)
+    kept = 1 - np.searchsorted(background, candidates) / len(background)
+    error = np.where(lost <= BOUND_MAX_ROAD_LOSS, lost + kept, np.inf)
+    best = int(np.argmin(error))
+    return float(candidates[best]) if kept[best] <= BOUND_MAX_KEPT else None
+
+
+def bounded_by_background(line: SpectralLine, road: np.ndarray, background: np.ndarray,
+                          limit: float) -> SpectralLine:
+    """``line`` ended where ``background`` samples (not road) lie on it: a grey verge or a
+    grey ground darker or brighter than grey asphalt is on the asphalt's line, which is
+    unbounded because shade moves a road's colour along it; where the background shows such
+    a colour, the line stops between the road's and the background's brightness. Without
+    such a background (green verges, most imagery) the line is unchanged, shade and all."""
+    if len(background) == 0 or road.shape[1] == 1:
+        return line
+    near = background[line.distance(background[None])[0] <= limit]
+    if len(near) < BOUND_MIN_SHARE * len(background):
+        return line
+    along_road, along_near = line.along(road), line.along(near)
+    middle = float(np.median(along_road))
+    low = high = None
+    below, above = along_near[along_near < middle], along_near[along_near > middle]
+    if len(below) >= BOUND_MIN_SHARE * len(background):
+        low = _cut(along_road, below)
+    if len(above) >= BOUND_MIN_SHARE * len(background):
+        cut = _cut(-along_road, -above)
+        high = None if cut is None else -cut
+    if low is None and high is None:
+        return line
+    return SpectralLine(line.origin, line.direction, line.mean_distance,
+                        -math.inf if low is None else low, math.inf if high is None else high)
+
+
+def subsample_rows(values: np.ndarray, limit: int, seed: int) -> np.ndarray:
+    """At most ``limit`` of ``values`` (rows), a random choice when there are more."""
+    if len(values) <= limit:
+        return values
+    return values[np.random.default_rng(seed).choice(len(values), limit, replace=False)]
+
+
 def spectral_classify(pixels: np.ndarray, labels: np.ndarray, k: float = 3.0,
                       max_samples: int = 200_000, seed: int = 0) -> np.ndarray:
-    """Road mask: pixels within ``k`` x the training pixels' mean distance to their TLS line."""
-    road = pixels[labels == ROAD]
-    if len(road) > max_samples:
-        road = road[np.random.default_rng(seed).choice(len(road), max_samples, replace=False)]
-    line = fit_spectral_line(road.astype(np.float64))
+    """Road mask: pixels within ``k`` x the training pixels' mean distance to their TLS line,
+    the line ended where the not-road samples lie on it (:func:`bounded_by_background`)."""
+    road = subsample_rows(pixels[labels == ROAD], max_samples, seed).astype(np.float64)
+    line = fit_spectral_line(road)
     limit = k * line.mean_distance
+    background = subsample_rows(pixels[labels == NOT_ROAD], max_samples, seed)
+    line = bounded_by_background(line, road, background.astype(np.float64), limit)
     out = np.empty(pixels.shape[:2], bool)
     step = max(1, 4_000_000 // max(1, pixels.shape[1]))
     for r in range(0, pixels.shape[0], step):

@@ -43,7 +43,12 @@ import numpy as np
 from rasterio.transform import Affine
 from scipy.ndimage import spline_filter
 
-from ingest.roads.classify import SpectralLine, fit_spectral_line
+from ingest.roads.classify import (
+    SpectralLine,
+    bounded_by_background,
+    fit_spectral_line,
+    subsample_rows,
+)
 from ingest.roads.evaluate import rasterize_lines
 from ingest.roads.geometry import edge_key, refine_geometry
 from ingest.roads.georef import Image
@@ -84,10 +89,11 @@ def _distance_to_lines(lines: list[np.ndarray], shape: tuple[int, int]) -> np.nd
 
 
 def _colour_line(pixels: np.ndarray, valid: np.ndarray | None, dist: np.ndarray,
-                 width_px: float) -> SpectralLine | None:
+                 width_px: float, k: float) -> SpectralLine | None:
     """The spectral line of the road pixels among every ``SAMPLE_STRIDE``-th one, ``dist``
-    (:func:`_distance_to_lines`) from the centrelines; None when they give no road or no
-    background sample."""
+    (:func:`_distance_to_lines`) from the centrelines, ended where the background samples lie
+    on it (:func:`ingest.roads.classify.bounded_by_background`, ``k`` as there); None when
+    they give no road or no background sample."""
     n = SAMPLE_STRIDE
     road = dist <= 0.25 * width_px
     background = (dist >= 0.75 * width_px) & (dist <= 1.5 * width_px)
@@ -96,11 +102,10 @@ def _colour_line(pixels: np.ndarray, valid: np.ndarray | None, dist: np.ndarray,
         background &= valid[::n, ::n]
     if not road.any() or not background.any():
         return None
-    samples = pixels[::n, ::n][road].astype(np.float64)
-    if len(samples) > MAX_SAMPLES:
-        samples = samples[np.random.default_rng(0).choice(len(samples), MAX_SAMPLES,
-                                                          replace=False)]
-    return fit_spectral_line(samples)
+    samples = subsample_rows(pixels[::n, ::n][road], MAX_SAMPLES, 0).astype(np.float64)
+    line = fit_spectral_line(samples)
+    others = subsample_rows(pixels[::n, ::n][background], MAX_SAMPLES, 0).astype(np.float64)
+    return bounded_by_background(line, samples, others, k * line.mean_distance)
 
 
 def band_blocks(dist: np.ndarray, reach_px: float) -> list[tuple[int, int]]:
@@ -156,7 +161,7 @@ def refine_on_source(graph: RoadGraph, image: Image, to_source: Affine, params: 
     lines = [source(e.coords) for e in graph.edges]
     widths = [e.width_m / res for e in graph.edges]
     dist = _distance_to_lines(lines, image.pixels.shape[:2])
-    colour = _colour_line(image.pixels, image.valid, dist, float(np.median(widths)))
+    colour = _colour_line(image.pixels, image.valid, dist, float(np.median(widths)), k)
     if colour is None:
         return graph
     reach_px = BAND_WIDTHS * max(widths)

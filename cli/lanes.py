@@ -72,7 +72,7 @@ def ingest_lanes(slug: str, network: str, queued: bool) -> None:
 
     with JobRecorder("ingest-lanes", network, {"layer": slug}) as job, \
             session_scope() as session:
-        throttle = Throttle(job)
+        throttle = Throttle(job.progress)
 
         def progress(fraction: float, message: str) -> None:
             throttle(fraction, message)

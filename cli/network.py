@@ -50,7 +50,7 @@ def ingest_network(file: Path, network: str, replace: bool, update: bool,
             tqdm(total=100, desc=f"import {file.name}", unit="%",
                  bar_format="{l_bar}{bar}| {n:.0f}% [{elapsed}<{remaining}{postfix}]",
                  disable=not sys.stderr.isatty()) as bar, session_scope() as session:
-        throttle = Throttle(job)
+        throttle = Throttle(job.progress)
 
         def progress(message: str, fraction: float) -> None:
             bar.n = round(100 * fraction, 1)

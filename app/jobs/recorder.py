@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from types import TracebackType
 from typing import Any
 
@@ -57,14 +58,17 @@ class JobRecorder:
 
 class Throttle:
     """Forward progress to a job row at most every ``every_s`` seconds (and always at the end):
-    a streamed import reports per chunk, and one UPDATE per chunk would be noise."""
+    a streamed import reports per chunk, and one UPDATE per chunk would be noise. ``report``:
+    what records it (:meth:`JobRecorder.progress`, or a queued job's
+    :func:`~app.jobs.rows.record_progress` for its id)."""
 
-    def __init__(self, job: JobRecorder, every_s: float = 1.0) -> None:
-        self.job, self.every_s, self._last = job, every_s, -float("inf")
+    def __init__(self, report: Callable[[float, str | None], None],
+                 every_s: float = 1.0) -> None:
+        self.report, self.every_s, self._last = report, every_s, -float("inf")
 
     def __call__(self, fraction: float, message: str | None = None) -> None:
         """Record ``fraction`` now if a second has passed (or the job is done), else drop it."""
         now = time.monotonic()
         if fraction >= 1.0 or now - self._last >= self.every_s:
             self._last = now
-            self.job.progress(fraction, message)
+            self.report(fraction, message)

@@ -28,6 +28,8 @@ with a line unseen (blurred or off the imagery), not a lane that ends."""
 MATCH_M = 0.75
 """How far from a range's boundary a marking may lie and still be that boundary."""
 MIN_STRETCH_M = 2.5
+MIN_KIND_M = 5.0
+"""Shortest stretch whose kind differs from the rest of its boundary's (:func:`_main_kinds`)."""
 """Shortest stretch of paint (or of missing paint) that makes a boundary row."""
 SAMPLE_M = 0.25
 ALONG = 0.7
@@ -116,14 +118,24 @@ def lane_ranges(reference: shapely.LineString, paint: list[Paint],
 
 
 def _unseen_lines_merged(ranges: list[LaneRange]) -> list[LaneRange]:
-    """Ranges that are a neighbour with a line unseen (:data:`MAX_LANE_M`) dropped: the
-    neighbour's lanes stretch over them (:func:`_cover`)."""
+    """Ranges that are a neighbour with a line unseen dropped (the neighbour's lanes stretch
+    over them, :func:`_cover`): a range with fewer lanes than a neighbour is a lane that
+    opens or ends only when its lines go on in the neighbour where they were (each within
+    :data:`MATCH_M` of one of the neighbour's) and no lane is wider than :data:`MAX_LANE_M`;
+    otherwise a line went unseen (blurred, off the imagery) or the segment strays off the
+    road there (an extracted centreline's end curling across it)."""
     def unseen(i: int) -> bool:
         r = ranges[i]
-        lanes = r.forward + r.backward
-        more = any(0 <= j < len(ranges) and ranges[j].forward + ranges[j].backward > lanes
-                   for j in (i - 1, i + 1))
-        return more and max(r.widths) > MAX_LANE_M
+        for j in (i - 1, i + 1):
+            if not 0 <= j < len(ranges):
+                continue
+            n = ranges[j]
+            if n.forward + n.backward <= r.forward + r.backward:
+                continue
+            carried_on = all(min(abs(o - p) for p in n.offsets) <= MATCH_M for o in r.offsets)
+            if not carried_on or max(r.widths) > MAX_LANE_M:
+                return True
+        return False
 
     while True:
         bad = [i for i in range(len(ranges)) if unseen(i)]
@@ -238,7 +250,25 @@ def boundaries(reference: shapely.LineString, paint: list[Paint], ranges: list[L
                                 p.confidence, int(label[run[0]] % 64),
                                 round(float(np.median(offset[run])), 3),
                                 round(float(s.min()), 3), round(float(s.max()), 3), "paint"))
-    return out + _guessed(reference, ranges, out)
+    return (kept := _main_kinds(out, starts)) + _guessed(reference, ranges, kept)
+
+
+def _main_kinds(found: list[Boundary], starts: np.ndarray) -> list[Boundary]:
+    """The stretches with their boundary's main kind (the most painted length of that
+    position in that range), and those of another kind at least :data:`MIN_KIND_M` long (a
+    dashed line turning solid before a junction); a short one of another kind is paint of a
+    neighbouring line where the segment strays (an ``offset`` boundary goes there)."""
+    def boundary(b: Boundary) -> tuple[int, int | None]:
+        middle = (b.station_from_m + b.station_to_m) / 2
+        return int(np.searchsorted(starts, middle, side="right")), b.position
+
+    length: dict[tuple[int, int | None], dict[str, float]] = {}
+    for b in found:
+        kinds = length.setdefault(boundary(b), {})
+        kinds[b.kind] = kinds.get(b.kind, 0.0) + b.station_to_m - b.station_from_m
+    return [b for b in found if b.position is None
+            or b.kind == max(length[boundary(b)].items(), key=lambda kv: kv[1])[0]
+            or b.station_to_m - b.station_from_m >= MIN_KIND_M]
 
 
 def _guessed(reference: shapely.LineString, ranges: list[LaneRange],

@@ -66,11 +66,12 @@ def ingest_roads(job_id: int, params: RoadsParams) -> None:
 
 def ingest_lanes(job_id: int, params: LanesParams) -> None:
     """Store a layer's lane markings as a network's lanes (``ugvmap ingest lanes``)."""
+    from app.jobs.recorder import Throttle
     from ingest.lanes.layer import ingest_layer_lanes
 
+    throttle = Throttle(lambda f, m: record_progress(job_id, f, m))
     with Lease(get_engine(), job_id), session_scope() as session:
-        done = ingest_layer_lanes(session, params.layer, params.network,
-                                  lambda f, m: record_progress(job_id, f, m))
+        done = ingest_layer_lanes(session, params.layer, params.network, throttle)
         succeed_in(session.connection(), job_id, "; ".join(done.lines()))
 
 

@@ -1,6 +1,7 @@
 """Road previews and their acceptance: ``POST /layers/{slug}/previews`` queues the extraction
 of a view, a real worker runs it (``ugvmap serve``'s own, or the task run here), and
-``.../accept`` replaces a network's unreviewed extracted roads there, keeping a person's."""
+``.../accept`` matches the preview's roads against the network there and applies what changed
+to unreviewed extracted roads, keeping a person's."""
 
 from __future__ import annotations
 
@@ -148,47 +149,81 @@ def _history(network: str, fid: int) -> list[dict]:
             "ORDER BY e.id"), {"n": network, "s": fid})]
 
 
-def test_accept_replaces_unreviewed_roads_and_keeps_a_persons(client, scene) -> None:
-    before = _segments("teach-net")
-    assert len(before) >= 3
-    edited = min(before)
+def _as_an_older_extraction(scene: dict, missed: int, client) -> tuple[int, str]:
+    """The network as an older extraction of the layer left it: segment ``missed`` never
+    found, and a false road in an empty corner of the scene; the false road's id and the
+    missed segment's line (EWKT). Both without history: the model's work nobody reviewed."""
+    x0, y0, x1, y1 = scene["bbox"]
+
+    def lonlat(col: float, row: float) -> list[float]:
+        return [x0 + col / SIZE[1] * (x1 - x0), y1 - row / SIZE[0] * (y1 - y0)]
+
+    made = client.post("/collections/teach-net-segments/items", json={
+        "type": "Feature", "geometry": {"type": "LineString", "coordinates": [
+            lonlat(300, 240), lonlat(380, 270)]},
+        "properties": {"attrs": {"extracted_from": "teach"}}}, headers=bearer("editor"))
+    assert made.status_code == 201, made.text
+    false_road = int(made.json()["id"])
+    with get_engine().begin() as conn:
+        line = conn.execute(text("SELECT ST_AsEWKT(geom) FROM road_segments WHERE id = :s"),
+                            {"s": missed}).scalar_one()
+        ends = conn.execute(text("DELETE FROM road_segments WHERE id = :s "
+                                 "RETURNING source_node, target_node"), {"s": missed}).one()
+        conn.execute(text("DELETE FROM road_nodes n WHERE n.id = ANY(:ends) AND NOT EXISTS ("
+                          "SELECT 1 FROM road_segments s WHERE n.id IN (s.source_node, "
+                          "s.target_node))"), {"ends": list(ends)})
+        conn.execute(text("DELETE FROM segment_edits WHERE segment_id = ANY(:s)"),
+                     {"s": [missed, false_road]})
+    return false_road, line
+
+
+def test_accept_matches_the_preview_keeping_ids_and_a_persons_roads(client, scene) -> None:
+    """Accepting matches the preview against the network (issue 36's matching): the roads it
+    sees again keep their ids and history, a false road of an older extraction goes, a road
+    it missed comes, a person's road stays; a second accept changes nothing; the accept is
+    a change set, reverted in one step."""
+    extracted = _segments("teach-net")
+    assert len(extracted) >= 3
+    edited, missed = min(extracted), max(extracted)
     patched = client.patch(f"/collections/teach-net-segments/items/{edited}",
                            json={"road_class": "service"}, headers=bearer("editor"))
     assert patched.status_code == 200, patched.text
+    false_road, missed_line = _as_an_older_extraction(scene, missed, client)
     preview_id = _preview(client, scene)
-    features = client.get(f"/layers/teach/previews/{preview_id}").json()["result"]["features"]
     url = f"/layers/teach/previews/{preview_id}/accept"
     assert client.post(url, json={"network": "teach-net"},
                        headers=bearer("viewer")).status_code == 403
     assert client.post(url, json={"network": "nope"},
                        headers=bearer("editor")).status_code == 422
-    assert _segments("teach-net") == before | {edited: _segments("teach-net")[edited]}
+    before = _segments("teach-net")
 
     answer = client.post(url, json={"network": "teach-net"}, headers=bearer("editor"))
     assert answer.status_code == 200, answer.text
     counts = answer.json()
     after = _segments("teach-net")
-    removed = set(before) - set(after)
-    assert removed == set(before) - {edited} and counts["removed"] == len(removed)
-    assert after[edited]["attrs"] == before[edited]["attrs"]  # the person's road stays
-    assert counts["kept"] >= 1 and counts["added"] >= 2
-    assert counts["added"] + counts["duplicates"] == len(features)
+    assert set(before) - set(after) == {false_road} and counts["removed"] == 1
+    # Seen again: same ids, same versions, no new history (the person's road included).
+    unchanged = set(before) - {false_road}
+    assert {f: after[f]["version"] for f in unchanged} == \
+        {f: before[f]["version"] for f in unchanged}
+    assert after[edited]["attrs"] == before[edited]["attrs"]
+    assert counts["kept"] >= len(unchanged) - counts["moved"] and counts["left"] == 0
     added = set(after) - set(before)
-    assert len(added) == counts["added"]
-    for fid in removed:
-        last = _history("teach-net", fid)[-1]
-        assert last["action"] == "accept" and last["new"]["preview"] == preview_id
+    assert len(added) == counts["added"] >= 1
+    (gone,) = [e for e in _history("teach-net", false_road) if e["action"] == "accept"]
+    assert gone["new"]["preview"] == preview_id
+    assert gone["new"]["change_set"] == counts["change_set"]
     for fid in added:
         (created,) = _history("teach-net", fid)
         assert created["action"] == "accept" and created["new"]["preview"] == preview_id
         assert after[fid]["confidence"] is not None
         assert after[fid]["attrs"]["extracted_from"] == "teach"
-    # The preview line along the kept road was not added twice: nothing lies on it.
+    # The road found again lies along the missed one.
     assert scalar(
-        "SELECT count(*) FROM road_segments s, road_segments k WHERE k.id = :k "
-        "AND s.id <> k.id AND s.network_id = k.network_id AND "
-        "ST_Length(ST_Intersection(s.geom, ST_Buffer(k.geom::geography, 1)::geometry)"
-        "::geography) > 10", k=edited) == 0
+        "SELECT max(ST_Length(ST_Intersection(s.geom, ST_Buffer(CAST(:line AS geography), 3)"
+        "::geometry)::geography)) / ST_Length(CAST(:line AS geography)) "
+        "FROM road_segments s WHERE s.id = ANY(:added)", added=list(added), line=missed_line
+    ) > 0.8
 
     validated = CliRunner().invoke(main, ["network", "validate", "teach-net"])
     assert validated.exit_code == 0 and "topology OK" in validated.output, validated.output
@@ -196,11 +231,22 @@ def test_accept_replaces_unreviewed_roads_and_keeps_a_persons(client, scene) -> 
     with session_scope() as session:
         review = review_labels(session, "teach")
     assert (review.deleted, review.drawn, review.moved, review.confirmed) == (0, 0, 0, 1)
-    # Accepting again: the roads just accepted are the model's, so they are replaced again.
+    # Accepting the same view again: every road is seen again, nothing changes.
     again = _preview(client, scene)
     second = client.post(f"/layers/teach/previews/{again}/accept", json={"network": "teach-net"},
                          headers=bearer("editor")).json()
-    assert second["removed"] == counts["added"] and edited in _segments("teach-net")
+    assert (second["added"], second["moved"], second["removed"]) == (0, 0, 0), second
+    assert _segments("teach-net") == after
+    # The first accept is a change set of the network, undone in one step.
+    listed = client.get("/networks/teach-net/changes").json()
+    assert any(s["id"] == counts["change_set"] and s["source"] ==
+               f"preview {preview_id} of layer teach" for s in listed), listed
+    reverted = client.post(f"/change-sets/{counts['change_set']}/revert",
+                           headers=bearer("editor"))
+    assert reverted.status_code == 200, reverted.text
+    assert reverted.json()["reverted"] == counts["added"] + counts["removed"] + counts["moved"]
+    back = _segments("teach-net")
+    assert not added & set(back) and len(back) == len(before)
 
 
 def test_a_preview_of_a_layer_reingested_meanwhile_stores_nothing(client, scene) -> None:

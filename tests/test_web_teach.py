@@ -5,6 +5,7 @@ them into the chosen network, which redraws."""
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -111,7 +112,8 @@ def test_teach_label_preview_then_accept(browser, teach_world, request, tmp_path
                            "document.getElementById('teach-result').textContent)",
                            timeout=30_000)
     result = page.locator("#teach-result").inner_text()
-    assert result.startswith("Accepted into teach-net:"), result
+    assert re.match(r"Accepted into teach-net as change set \d+: \d+ added, \d+ moved, "
+                    r"\d+ removed, \d+ kept", result), result
     actions = segment_history_actions()
     assert actions.get("accept", 0) > 0 and set(actions) == {"accept"}
     assert page.locator("#teach-accept").is_disabled()

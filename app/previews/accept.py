@@ -1,61 +1,51 @@
-"""Accept a road preview into a network: the preview's roads replace the network's roads of
-the same window that nobody has reviewed, and nothing a person did is undone.
+"""Accept a road preview into a network: the preview's roads are matched against the network's
+roads of its view, as a re-survey is (:mod:`app.network.resurvey`), and what they change is
+applied where nobody reviewed it; nothing a person did is undone.
 
-In one transaction, under the network's edit lock (as every edit of it,
-:func:`app.network.editing.lock_topology`), and with the layer row share-locked (no re-ingest
-commits meanwhile):
+Why matching and not "delete the view's extracted roads, add the preview's": a preview that
+finds a road the network already has would replace it by a new segment of a new id, so every
+accept churned ids and histories (a vehicle's mission referring to a segment lost it) and a
+second accept of the same view replaced every road again. Matched, such a road is *unchanged*
+and kept as it is.
+
+In one transaction, under the network's edit lock and its re-survey lock (one update at a
+time), and with the layer row share-locked (no re-ingest commits meanwhile):
 
 1. the preview must still be of the layer's current version (else 409: the imagery changed);
-2. the network's *unreviewed extracted* segments lying in the preview's window are deleted:
-   extracted from this layer (``attrs.extracted_from``) and with no edit in their history but
-   earlier accepts (an accepted preview is the model's work, not a person's review). Segments
-   a person created or edited, and those of other sources, are kept;
-3. each preview road is added as the editing API's POST adds one (noded into the network at
-   its ends: :func:`~app.network.segment_editing.create_segment`), unless it duplicates a kept
-   road: most of it (:data:`DUPLICATE_SHARE`) within :data:`DUPLICATE_M` of one. A road the
-   POST would refuse (both ends on one node, an exact duplicate) is left out alone, in its
-   own savepoint, so it cannot undo the rest.
+2. its roads are matched against the network inside the preview's box, and the result is a
+   change set (source ``preview N of layer L``), listed with the network's re-surveys;
+3. accepted at once: every *new* road, and each *moved* or *missing* segment that was
+   extracted from this layer (``attrs.extracted_from``) and that no person edited. Proposals
+   on a person's segments and on roads of other sources (an OSM import) stay proposed, for
+   the review tool, one by one.
 
-Every deletion and creation is a history row with action ``accept`` and the preview's id, so
-review edits read as labels (a person's) stay apart from accepted extraction (the model's).
+Every change is a history row with action ``accept`` naming the preview, the change set and
+the change, so review edits read as labels (a person's) stay apart from accepted extraction
+(the model's), and the whole accept is reverted in one step as its change set.
 """
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
+import shapely
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidValueError, StalePreviewError
 from app.network import collections as colls
-from app.network import crs as crs_
 from app.network.editing import lock_topology
-from app.network.segment_deletion import delete_segment
-from app.network.segment_editing import create_segment
+from app.network.resurvey import changes
 from app.network.tokens import Principal
 from app.previews.store import stored_preview
 
-ACTION = "accept"
-DUPLICATE_M = 3.0
-"""A preview road this close to a kept road, along most of its length, is that road again."""
-DUPLICATE_SHARE = 0.5
-DUPLICATE_SAMPLES = 20
-"""Points along a preview road at which its distance to the kept roads is measured."""
-
-UNREVIEWED = (
-    "SELECT s.id FROM road_segments s WHERE s.network_id = :n "
-    "AND s.attrs->>'extracted_from' = :slug AND ST_CoveredBy(s.geom, CAST(:box AS geometry)) "
-    "AND NOT EXISTS (SELECT 1 FROM segment_edits e WHERE e.network_id = s.network_id "
-    f"  AND e.segment_id = s.id AND e.action <> '{ACTION}') ORDER BY s.id")
-IN_BOX = ("SELECT count(*) FROM road_segments s WHERE s.network_id = :n "
-          "AND ST_Intersects(s.geom, CAST(:box AS geometry))")
-DUPLICATED = (
-    "SELECT avg((EXISTS (SELECT 1 FROM road_segments s WHERE s.network_id = :n "
-    "  AND ST_DWithin(s.geom::geography, p.geom::geography, :m)))::int) "
-    "FROM ST_DumpPoints(ST_LineInterpolatePoints("
-    "  ST_SetSRID(ST_GeomFromGeoJSON(:g), 4326), :step)) p")
+# Applied at once: new roads, and moves and deletions of unreviewed roads of this layer.
+APPLICABLE = (
+    "SELECT p.id FROM proposed_changes p LEFT JOIN road_segments s ON s.id = p.segment_id "
+    "WHERE p.change_set_id = :set AND NOT p.edited "
+    "AND (p.kind = 'new' OR s.attrs->>'extracted_from' = :slug) ORDER BY p.id")
+DECIDED = ("SELECT kind, status, count(*) AS n FROM proposed_changes "
+           "WHERE change_set_id = :set GROUP BY kind, status")
 
 
 def _network(session: Session, name: Any) -> colls.Collection:
@@ -67,10 +57,11 @@ def _network(session: Session, name: Any) -> colls.Collection:
 
 
 def accept_preview(session: Session, slug: str, preview_id: int, network: Any,
-                   principal: Principal) -> dict[str, int]:
+                   principal: Principal) -> dict[str, Any]:
     """Put preview ``preview_id`` of layer ``slug`` into ``network`` (in the caller's
-    transaction); the counts of segments removed, added, kept, and preview roads left out
-    as duplicates of kept ones."""
+    transaction). Answers the change set's id and counts: roads ``added``, ``moved`` and
+    ``removed``; ``kept`` (the preview saw them where they are); ``left`` (proposals on a
+    person's roads or another source's, for review)."""
     c = _network(session, network)
     lock_topology(session, c)
     preview = stored_preview(session, slug, preview_id)
@@ -79,32 +70,33 @@ def accept_preview(session: Session, slug: str, preview_id: int, network: Any,
             f"the layer changed since this preview (it was made from version "
             f"{preview.layer_version}, the layer is at version {preview.current}); preview "
             "again")
-    where = {"n": c.network_id, "slug": slug, "box": preview.bbox}
-    note = {"preview": preview_id, "layer": slug}
-    removed: list[int] = list(session.execute(text(UNREVIEWED), where).scalars())
-    for fid in removed:
-        delete_segment(session, c, fid, None, principal, action=ACTION, note=note)
-    kept = int(session.execute(text(IN_BOX), where).scalar_one())
-    added = duplicates = 0
-    for feature in preview.result["features"]:
-        geometry = json.dumps(feature["geometry"])
-        share: float | None = session.execute(text(DUPLICATED), {
-            "n": c.network_id, "m": DUPLICATE_M, "g": geometry,
-            "step": 1 / DUPLICATE_SAMPLES}).scalar_one()
-        if share is not None and share > DUPLICATE_SHARE:
-            duplicates += 1
-            continue
-        properties = dict(feature["properties"])
-        confidence = properties.pop("confidence", None)
-        savepoint = session.begin_nested()
-        try:
-            create_segment(session, c, {**feature, "properties": properties}, crs_.DEFAULT,
-                           principal, action=ACTION, note=note, confidence=confidence)
-        except InvalidValueError:
-            savepoint.rollback()
-            duplicates += 1
-            continue
-        savepoint.commit()
-        added += 1
-    return {"removed": len(removed), "added": added, "kept": kept,
-            "duplicates": duplicates}
+    features = preview.result["features"]
+    if not features:
+        raise InvalidValueError(
+            f"preview {preview_id} found no roads in its view: nothing to accept (a road "
+            "the network has there and should not is deleted in the editor, and the "
+            "deletion teaches the next extraction)", errors={"preview": "has no roads"})
+    box = shapely.from_wkt(session.execute(text("SELECT ST_AsText(CAST(:b AS geometry))"),
+                                           {"b": preview.bbox}).scalar_one())
+    layer_id: int = session.execute(text("SELECT id FROM layers WHERE slug = :s"),
+                                    {"s": slug}).scalar_one()
+    lines = [changes.SurveyLine([tuple(p[:2]) for p in f["geometry"]["coordinates"]],
+                                dict(f["properties"])) for f in features]
+    proposed = changes.propose(session, c.network, lines,
+                               source=f"preview {preview_id} of layer {slug}", coverage=box,
+                               principal=principal, layer=(layer_id, preview.layer_version),
+                               elsewhere=True)
+    set_id = proposed["id"]
+    ids: tuple[int, ...] = tuple(session.execute(
+        text(APPLICABLE), {"set": set_id, "slug": slug}).scalars())
+    if ids:
+        changes.accept(session, c.network, set_id, changes.Selection(ids=ids), principal,
+                       action=changes.PREVIEW_ACCEPTED,
+                       note={"preview": preview_id, "layer": slug})
+    done = {(r.kind, r.status): r.n for r in session.execute(text(DECIDED), {"set": set_id})}
+    return {"change_set": set_id,
+            "added": done.get(("new", "accepted"), 0),
+            "moved": done.get(("moved", "accepted"), 0),
+            "removed": done.get(("missing", "accepted"), 0),
+            "kept": proposed["counts"].get("unchanged", 0),
+            "left": sum(n for (_, status), n in done.items() if status == "proposed")}

@@ -15,9 +15,10 @@ mosaic) learns from them without anyone labelling twice:
   (an edit of its attributes only: they looked at it and kept it) is a road line along its
   current geometry.
 
-An accepted road preview (history action ``accept``, :mod:`app.previews.accept`) is the
-model's work put in by a person's one click, not a review of each road: neither the roads
-it added nor those it replaced are labels.
+An accepted road preview (history action ``accept``, :mod:`app.previews.accept`) or an
+accepted re-survey (``resurvey``, ``resurvey-revert``) is the model's or another survey's
+work put in by a person's one click, not a review of each road: neither the roads it added
+nor those it moved or replaced are labels.
 
 The lines are partial (``not_road_beyond_m`` None): a reviewer fixes some roads and says
 nothing about the rest of the image.
@@ -33,6 +34,7 @@ from shapely.geometry.base import BaseGeometry
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
+from app.network.resurvey.changes import MACHINE_ACTIONS
 from ingest.roads.sample import GeoSample
 
 # Edits that change a kept segment's line (besides a PATCH/PUT whose new values hold it).
@@ -52,7 +54,8 @@ KEPT = (
     "  bool_or(e.new ? 'geometry' OR e.action = ANY(:geometry_actions)) AS moved "
     "FROM road_segments s JOIN segment_edits e "
     "  ON e.network_id = s.network_id AND e.segment_id = s.id "
-    "WHERE s.network_id = ANY(:nets) AND e.action NOT IN ('delete', 'accept') "
+    "WHERE s.network_id = ANY(:nets) AND e.action <> 'delete' "
+    "  AND e.action <> ALL(:machine) "
     "GROUP BY s.id ORDER BY s.id")
 
 
@@ -106,7 +109,7 @@ def review_labels(session: Session, slug: str) -> ReviewLabels:
     geometries: list[str] = list(session.execute(
         text(DELETED), {"nets": nets, "slug": slug}).scalars())
     deleted = [_geometry(g) for g in geometries]
-    kept = session.execute(text(KEPT), {"nets": nets,
+    kept = session.execute(text(KEPT), {"nets": nets, "machine": list(MACHINE_ACTIONS),
                                         "geometry_actions": list(GEOMETRY_ACTIONS)}).all()
     drawn = sum(1 for row in kept if row.drawn)
     moved = sum(1 for row in kept if row.moved and not row.drawn)

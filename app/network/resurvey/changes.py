@@ -47,9 +47,11 @@ from app.network.topology_edits import merge_segments
 
 ACCEPTED = "resurvey"
 """History action of an accepted change."""
+PREVIEW_ACCEPTED = "accept"
+"""History action of a change accepted with a road preview (:mod:`app.previews.accept`)."""
 REVERTED = "resurvey-revert"
 """History action of an accepted change undone by reverting its change set."""
-MACHINE_ACTIONS = ("accept", ACCEPTED, REVERTED)
+MACHINE_ACTIONS = (PREVIEW_ACCEPTED, ACCEPTED, REVERTED)
 """History actions that are not a person's edit (an accepted preview is the model's work;
 an accepted change is the re-survey's line)."""
 KINDS = ("moved", "new", "missing")
@@ -118,12 +120,14 @@ def _lock_update(session: Session, c: colls.Collection) -> None:
 
 def propose(session: Session, name: str, lines: Sequence[SurveyLine], *, source: str,
             coverage: BaseGeometry | None, principal: Principal,
-            tol: Tolerances | None = None, layer: tuple[int, int] | None = None
-            ) -> dict[str, Any]:
+            tol: Tolerances | None = None, layer: tuple[int, int] | None = None,
+            elsewhere: bool = False) -> dict[str, Any]:
     """Match ``lines`` against network ``name`` and store what they change as a new change
     set (in the caller's transaction): its id, source and counts. ``coverage`` (lon/lat) is
     where the new data could show roads (a layer's footprints); None: the lines' own area.
-    ``layer``: (id, version) of the layer the lines were extracted from."""
+    ``layer``: (id, version) of the layer the lines were extracted from. ``elsewhere``: lines
+    of a place where the network has no road yet are taken (a preview of a new area), not
+    refused as a survey of another place."""
     tol = tol or Tolerances()
     if not lines:
         raise InvalidValueError(f"{source}: no road lines to match")
@@ -138,7 +142,8 @@ def propose(session: Session, name: str, lines: Sequence[SurveyLine], *, source:
     else:
         coverage_m = shapely.transform(coverage, frame.metres)
     old = [OldSegment(r.id, frame.metres(r.coords), r.edited) for r in rows]
-    if old and not any(coverage_m.intersects(shapely.linestrings(s.coords)) for s in old):
+    if old and not elsewhere and not any(coverage_m.intersects(shapely.linestrings(s.coords))
+                                         for s in old):
         raise InvalidValueError(f"{source} does not overlap network {name!r}: nothing of it "
                                 "could be matched (update a network with data of its own area)",
                                 errors={"source": "does not overlap the network"})
@@ -220,32 +225,34 @@ def _selected(session: Session, set_id: int, selection: Selection, status: str) 
 
 
 def _apply(session: Session, c: colls.Collection, change: Any, note: dict[str, Any],
-           principal: Principal) -> int | None:
+           principal: Principal, action: str) -> int | None:
     """Apply one proposal as the editing API would; the segment a new road became."""
     if change.kind == "moved":
         feature = lock_feature(session, c, change.segment_id, change.segment_version)
-        write_change(session, c, feature, {"geometry": change.geometry}, principal, ACCEPTED,
+        write_change(session, c, feature, {"geometry": change.geometry}, principal, action,
                      note=note)
         return None
     if change.kind == "missing":
         delete_segment(session, c, change.segment_id, change.segment_version, principal,
-                       action=ACCEPTED, note=note)
+                       action=action, note=note)
         return None
     properties = dict(change.attributes or {})
     confidence = properties.pop("confidence", None)
     created = create_segment(session, c, {"type": "Feature", "geometry": change.geometry,
                                           "properties": properties},
-                             crs_.DEFAULT, principal, action=ACCEPTED, note=note,
+                             crs_.DEFAULT, principal, action=action, note=note,
                              confidence=confidence)
     return int(created["id"])
 
 
 def accept(session: Session, name: str, set_id: int, selection: Selection,
-           principal: Principal) -> dict[str, int]:
+           principal: Principal, *, action: str = ACCEPTED,
+           note: dict[str, Any] | None = None) -> dict[str, int]:
     """Accept the selected proposals (in the caller's transaction): counts ``accepted``,
     ``edited`` (left for a one-by-one look: a person's segment), ``stale`` (the segment
     changed or went since the proposal) and ``refused`` (a new road the network cannot take:
-    it duplicates a road or joins one node twice)."""
+    it duplicates a road or joins one node twice). ``action`` and ``note``: what the history
+    rows say besides the change set and change (an accepted road preview's own)."""
     c = network(session, name)
     lock_topology(session, c)
     _change_set(session, c, set_id, open_only=True)
@@ -254,10 +261,11 @@ def accept(session: Session, name: str, set_id: int, selection: Selection,
         if change.edited and selection.bulk:
             counts["edited"] += 1
             continue
-        note = {"change_set": set_id, "change": change.id}
         savepoint = session.begin_nested()
         try:
-            made = _apply(session, c, change, note, principal)
+            made = _apply(session, c, change,
+                          {**(note or {}), "change_set": set_id, "change": change.id},
+                          principal, action)
         except (NotFoundError, PreconditionFailedError):
             savepoint.rollback()
             counts["stale"] += 1
@@ -292,8 +300,9 @@ def reject(session: Session, name: str, set_id: int, selection: Selection,
 def _history_row(session: Session, c: colls.Collection, sid: int, change_id: int) -> Any:
     return session.execute(text(
         "SELECT old FROM segment_edits WHERE network_id = :n AND segment_id = :s "
-        "AND action = :a AND (new->>'change')::bigint = :c ORDER BY id DESC LIMIT 1"),
-        {"n": c.network_id, "s": sid, "a": ACCEPTED, "c": change_id}).first()
+        "AND action = ANY(:a) AND (new->>'change')::bigint = :c ORDER BY id DESC LIMIT 1"),
+        {"n": c.network_id, "s": sid, "a": [ACCEPTED, PREVIEW_ACCEPTED],
+         "c": change_id}).first()
 
 
 def _remove_new_road(session: Session, c: colls.Collection, fid: int, note: dict[str, Any],

@@ -202,9 +202,10 @@ export class TeachTool {
       this.say(`Not accepted: ${describeError(answer)}`);
       return;
     }
-    const { removed, added, kept, duplicates } = answer.body;
-    this.say(`Accepted into ${network}: ${added} added, ${removed} removed, ${kept} kept`
-      + (duplicates ? `, ${duplicates} left out (already there)` : ''));
+    const { added, moved, removed, kept, left, change_set: changeSet } = answer.body;
+    this.say(`Accepted into ${network} as change set ${changeSet}: ${added} added, ${moved} `
+      + `moved, ${removed} removed, ${kept} kept`
+      + (left ? `; ${left} left for Review changes` : ''));
     this.previewId = null;
     this.acceptButton.disabled = true;
     this.map.getSource(PREVIEW).setData(EMPTY);

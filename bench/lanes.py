@@ -240,7 +240,8 @@ def drive_scores(frames: int) -> dict[str, float]:
     said_dashed = np.array([k == "dashed" for k in found_kind])
     kind_ok = (dashed == said_dashed)[near & np.array(lines)]
     ring = np.arange(0.0, 2 * np.pi * DRIVE.radius_m, 0.5)  # once round: no cut counted twice
-    path = shapely.LineString(np.column_stack(DRIVE.local_pose(ring)[:2]))
+    xy = np.column_stack(DRIVE.local_pose(ring)[:2])
+    path = shapely.LineString([*xy, xy[0]])  # closed: the drive's start is no end of the road
     seen = [c for c in sections(path, found) if inside.contains(path.interpolate(c.station_m))]
     across = [c for c in seen if inside.contains(cross_section(path, c.station_m, truth))]
     ranges = lane_ranges(path, paint)

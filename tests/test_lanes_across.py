@@ -33,6 +33,21 @@ def test_a_dashed_line_on_a_bend_is_cut_where_its_paint_runs() -> None:
         assert cut.offsets == pytest.approx((-1.5, 1.5), abs=0.02), cut
 
 
+def test_a_closed_reference_starting_in_a_gap_is_cut_the_same() -> None:
+    """A drive round a ring (the reference closed) whose start lies in a gap between dashes:
+    the gap's ends are near the reference's end and its start, and the join across that gap
+    must not be redrawn the long way round the ring (it crossed every cut at offsets between
+    the two)."""
+    dashes = [arc(38.5, a, a + 3.0) for a in np.arange(0.0, 2 * np.pi * 38.5 - 3.0, 9.0)]
+    dashed = shapely.LineString(np.vstack(dashes))
+    start = 4.5 / 38.5 * 40.0
+    ring = arc(40.0, start, start + 2 * np.pi * 40.0 - 0.1)
+    cuts = sections(shapely.LineString([*ring, ring[0]]), [(dashed, "dashed")], step_m=0.5)
+    met = [c for c in cuts if c.offsets]
+    assert len(met) > 400
+    assert all(c.offsets == pytest.approx((1.5,), abs=0.02) for c in met)
+
+
 def test_a_line_unseen_for_a_few_metres_is_bridged_but_one_that_ends_is_not() -> None:
     """A far edge line found in two pieces with 4 m unseen between them is one line across
     the gap (the cuts there meet it, at its offset); a lane line that ends 25 m along (a lane

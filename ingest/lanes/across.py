@@ -10,6 +10,7 @@ a lane that opens or ends shows as a change along the segment, not an average.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,9 +73,15 @@ def bend_gaps(line: shapely.LineString, reference: shapely.LineString,
     for i in range(len(seg)):
         if seg[i] > gap_m:
             (s0, o0), (s1, o1) = (_station_offset(reference, p) for p in xy[i:i + 2])
-            if min(s0, s1) > 0 and max(s0, s1) < reference.length:
+            length, ds = reference.length, s1 - s0
+            closed = bool(reference.is_closed)
+            if closed and abs(ds) > length / 2:
+                ds -= math.copysign(length, ds)  # across a closed reference's start
+            # Only a gap along the reference (not across it) and within it.
+            if (closed or (min(s0, s1) > 0 and max(s0, s1) < length)) \
+                    and 0.5 <= abs(ds) / seg[i] <= 1.5:
                 w = np.linspace(0, 1, int(seg[i] / step_m) + 1)[1:-1]
-                frames = [frame_at(reference, s) for s in s0 + w * (s1 - s0)]
+                frames = [frame_at(reference, s % length) for s in s0 + w * ds]
                 out.append(np.array([c + (o0 + wi * (o1 - o0)) * left
                                      for wi, (c, left) in zip(w, frames, strict=True)]
                                     ).reshape(-1, 2))

@@ -181,10 +181,11 @@ def item_options(collection_id: str, request: Request, session: SessionDep) -> R
              responses={201: {"description": "Created; `Location` is the new item",
                               "content": {GEOJSON: {"schema": {
                                   "$ref": "#/components/schemas/Feature"}}}},
-                        **responses(*WRITE_ERRORS, *BODY_ERRORS)})
+                        **responses(*WRITE_ERRORS, *BODY_ERRORS, *SEGMENTS_ONLY)})
 async def create_item(collection_id: str, request: Request, principal: EditorDep) -> Response:
     """Create a feature (Part 4): a segment is noded into the network at its ends (editor); a
-    node splits the segment it lies on (admin)."""
+    node splits the segment it lies on (admin); lane boundaries are not created here (405:
+    ``ugvmap ingest lanes`` makes them)."""
     body = await json_body(request, FEATURE_TYPES)
     crs = content_crs(request)
 

@@ -62,6 +62,7 @@ def ingest_lanes(slug: str, network: str, queued: bool) -> None:
 
     Imagery coarser than 0.2 m/px is refused before anything is read. The rows of every
     segment with paint are replaced in one transaction; segments without paint keep theirs.
+    A segment's lanes_forward/lanes_backward follow its paint unless a person edited it.
     """
     if queued:
         enqueue_job("ingest-lanes", {"layer": slug, "network": network})

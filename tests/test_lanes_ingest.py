@@ -108,7 +108,16 @@ def test_ingest_lanes_stores_the_lanes_and_boundaries_of_the_paint(drive: dict[s
     with session_scope() as session:
         job = session.execute(text("SELECT status, progress FROM ingest_jobs "
                                    "WHERE kind = 'ingest-lanes' ORDER BY id DESC")).first()
+        segment = session.execute(text(
+            "SELECT s.lanes_forward, s.lanes_backward, s.version, e.action, e.old, e.new "
+            "FROM road_segments s JOIN networks n ON n.id = s.network_id JOIN segment_edits e "
+            "ON e.segment_id = s.id WHERE n.name = 'lane-road'")).one()
     assert job is not None and tuple(job) == ("succeeded", 1.0)
+    # imported as 1+1: routing's lane counts now follow the paint, as a revertable edit
+    assert tuple(segment) == (2, 2, 2, "lanes-from-paint",
+                              {"lanes_forward": 1, "lanes_backward": 1},
+                              {"lanes_forward": 2, "lanes_backward": 2})
+    assert "lane counts of 1 segments set from the paint" in drive["output"]
 
 
 def _bound(line) -> tuple[str, str, str]:
@@ -253,6 +262,10 @@ def test_edited_like_segments_and_the_lanelet2_map_follows(client, drive: dict[s
     assert [(e["old"], e["new"]) for e in edits] == [({"kind": "dashed"}, {"kind": "solid"})]
     assert client.post("/collections/lane-road-lanes/items", headers=bearer("editor"),
                        json=line).status_code == 405
+    again = run("ingest", "lanes", "--layer", "lane-drive", "--network", "lane-road")
+    assert "1 segments keep the lanes a person edited" in again  # never overwritten
+    kept = client.get(url).json()
+    assert kept["properties"]["kind"] == "solid" and kept["properties"]["version"] == version + 1
     loaded = _exported(drive)
     along = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"
              and _bound(ll.leftBound if ll.attributes["lane"] == "1" else ll.rightBound)[1]

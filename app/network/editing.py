@@ -35,7 +35,7 @@ HISTORY: dict[colls.Kind, tuple[str, str]] = {"segments": ("segment_edits", "seg
                                               "lanes": ("lane_boundary_edits", "boundary_id")}
 # Edits a revert may undo: attribute and geometry changes. A split, merge or node move
 # changed the topology (restoring one segment's old line would detach it from its nodes).
-REVERTIBLE = ("update", "replace", "revert", "resurvey", "resurvey-revert")
+REVERTIBLE = ("update", "replace", "revert", "resurvey", "resurvey-revert", "lanes-from-paint")
 
 
 def unprocessable(errors: dict[str, str]) -> InvalidValueError:

@@ -118,27 +118,30 @@ def lane_ranges(reference: shapely.LineString, paint: list[Paint],
 
 
 def _unseen_lines_merged(ranges: list[LaneRange]) -> list[LaneRange]:
-    """Ranges that are a neighbour with a line unseen dropped (the neighbour's lanes stretch
-    over them, :func:`_cover`): a range with fewer lanes than a neighbour is a lane that
-    opens or ends only when its lines go on in the neighbour where they were (each within
-    :data:`MATCH_M` of one of the neighbour's) and no lane is wider than :data:`MAX_LANE_M`;
-    otherwise a line went unseen (blurred, off the imagery) or the segment strays off the
-    road there (an extracted centreline's end curling across it)."""
-    def unseen(i: int) -> bool:
+    """Ranges that are a longer neighbour seen wrongly dropped (the neighbour's lanes stretch
+    over them, :func:`_cover`). Two ranges of different lane counts are a lane that opens or
+    ends only when every line of the one with fewer goes on in the other where it was
+    (within :data:`MATCH_M`) and no lane of it is wider than :data:`MAX_LANE_M`; otherwise the
+    shorter of the two is a line unseen (blurred, off the imagery), a line that is not one
+    (paint of the next road), or the segment straying off the road there (an extracted
+    centreline's end curling across it)."""
+    def length(r: LaneRange) -> float:
+        return r.station_to_m - r.station_from_m
+
+    def wrong(i: int) -> bool:
         r = ranges[i]
         for j in (i - 1, i + 1):
-            if not 0 <= j < len(ranges):
+            if not 0 <= j < len(ranges) or length(ranges[j]) <= length(r):
                 continue
-            n = ranges[j]
-            if n.forward + n.backward <= r.forward + r.backward:
-                continue
-            carried_on = all(min(abs(o - p) for p in n.offsets) <= MATCH_M for o in r.offsets)
-            if not carried_on or max(r.widths) > MAX_LANE_M:
+            fewer, more = sorted((r, ranges[j]), key=lambda x: x.forward + x.backward)
+            carried_on = all(min(abs(o - p) for p in more.offsets) <= MATCH_M
+                             for o in fewer.offsets)
+            if not carried_on or max(fewer.widths) > MAX_LANE_M:
                 return True
         return False
 
     while True:
-        bad = [i for i in range(len(ranges)) if unseen(i)]
+        bad = [i for i in range(len(ranges)) if wrong(i)]
         if not bad:
             return ranges
         ranges = [r for i, r in enumerate(ranges) if i != bad[0]]

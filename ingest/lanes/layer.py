@@ -6,7 +6,9 @@ sources, windowed to the segments' bounds plus the reach of a cut), and nothing 
 0.2 m/px is read at all. Markings are measured in the UTM zone of the segments (metres, not
 web-mercator's stretched ones), assigned to the nearest segment, cut into lanes and
 boundaries by :mod:`ingest.lanes.assign`, and written in the caller's transaction: the rows
-of every segment with paint are replaced at once, so a failure leaves the old ones.
+of every segment with paint are replaced at once, so a failure leaves the old ones. The
+segment's own lane counts (what routing reads) follow its longest lane range, unless a person
+edited the segment.
 """
 
 from __future__ import annotations
@@ -23,6 +25,11 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.lanelet2.geometry import standard_utm_zone
+from app.network import collections as colls
+from app.network.editing import lock_feature, write_change
+from app.network.resurvey.changes import LANES_FROM_PAINT, MACHINE_ACTIONS
+from app.network.tokens import Principal
+from app.network.validation import lanes_consistent
 from app.tiles.catalog import get_layer
 from app.tiles.store import open_store
 from ingest.lanes import LanesInputError, check_resolution
@@ -31,6 +38,8 @@ from ingest.lanes.extract import extract_markings
 from ingest.roads.layer import LayerSource, layer_mosaic, source_areas
 
 Progress = Callable[[float, str], None]
+MACHINE = "ingest-lanes"
+"""Who wrote the rows ``ingest lanes`` writes (``updated_by``, ``edited_by``)."""
 
 SEGMENTS_SQL = """
 SELECT s.id, ST_AsBinary(s.geom)
@@ -55,6 +64,10 @@ class LanesIngest:
     """Segments with lanes from the paint (their rows replaced)."""
     ranges: list[LaneRange] = field(default_factory=list)
     rows: list[Boundary] = field(default_factory=list)
+    recounted: list[int] = field(default_factory=list)
+    """Segments whose lane counts were set from the paint."""
+    kept: list[int] = field(default_factory=list)
+    """Segments whose lanes a person edited: left as they are."""
 
     def lines(self) -> list[str]:
         """The CLI's report."""
@@ -67,7 +80,11 @@ class LanesIngest:
                 f"found)",
                 f"{len(self.ranges)} lane ranges ({', '.join(counts) or 'none'} lanes "
                 f"forward+backward), {paint} painted boundary stretches, {guessed} offset "
-                f"where no paint, {stops} stop lines"]
+                f"where no paint, {stops} stop lines",
+                f"lane counts of {len(self.recounted)} segments set from the paint (segments a "
+                f"person edited keep theirs)"] + (
+            [f"{len(self.kept)} segments keep the lanes a person edited: "
+             f"{', '.join(map(str, self.kept[:20]))}"] if self.kept else [])
 
 
 def _layer(session: Session, slug: str) -> tuple[int, list[LayerSource]]:
@@ -153,8 +170,11 @@ def ingest_layer_lanes(session: Session, slug: str, network: str,
     tree = shapely.STRtree([p.line for p in paint])
     seg_tree = shapely.STRtree(refs)
     written: list[tuple[int, list[LaneRange], list[Boundary]]] = []
+    done.kept = _edited_lanes(session, net_id, ids)
     for j, (sid, ref) in enumerate(zip(ids.tolist(), refs, strict=True)):
         say(0.65 + 0.3 * j / len(refs), f"lanes of segment {sid}")
+        if sid in done.kept:
+            continue
         near = [paint[k] for k in tree.query(ref, predicate="dwithin", distance=REACH_M)]
         ranges = lane_ranges(ref, near)
         if not ranges:
@@ -168,7 +188,45 @@ def ingest_layer_lanes(session: Session, slug: str, network: str,
     say(0.95, f"storing the lanes of {len(written)} segments")
     _store(session, net_id, written, to_lonlat)
     done.laned = [sid for sid, _, _ in written]
+    done.recounted = _recount(session, colls.Collection(network, net_id, "segments"), written)
     return done
+
+
+def _edited_lanes(session: Session, net_id: int, ids: np.ndarray) -> list[int]:
+    """The segments whose lane boundaries a person edited or deleted: a re-run keeps them
+    (human edits are never overwritten; delete the boundaries to read the paint again)."""
+    return sorted(session.execute(text(
+        "SELECT segment_id FROM lane_boundaries WHERE segment_id = ANY(:ids) "
+        "AND updated_by IS DISTINCT FROM :machine UNION "
+        "SELECT (old->>'segment_id')::bigint FROM lane_boundary_edits WHERE network_id = :net "
+        "AND action = 'delete' AND (old->>'segment_id')::bigint = ANY(:ids)"),
+        {"ids": ids.tolist(), "machine": MACHINE, "net": net_id}).scalars())
+
+
+def _recount(session: Session, c: colls.Collection,
+             written: list[tuple[int, list[LaneRange], list[Boundary]]]) -> list[int]:
+    """Set each segment's ``lanes_forward``/``lanes_backward`` (what routing reads) to the
+    lanes of its longest range, as a new version with a history row (action
+    ``lanes-from-paint``, revertable); not on a segment a person edited (their counts win),
+    nor where the paint's counts break the segment's one-way rule. Returns those changed."""
+    ids = [sid for sid, _, _ in written]
+    edited: set[int] = set(session.execute(text(
+        "SELECT DISTINCT segment_id FROM segment_edits WHERE segment_id = ANY(:ids) "
+        "AND action <> ALL(:machine)"), {"ids": ids, "machine": list(MACHINE_ACTIONS)}
+    ).scalars())
+    machine = Principal(MACHINE, "editor")
+    changed = []
+    for sid, ranges, _ in written:
+        if sid in edited:
+            continue
+        main = max(ranges, key=lambda r: r.station_to_m - r.station_from_m)
+        feature = lock_feature(session, c, sid, None)
+        new = {"lanes_forward": main.forward, "lanes_backward": main.backward}
+        if lanes_consistent({**feature["properties"], **new}):
+            continue
+        if write_change(session, c, feature, new, machine, LANES_FROM_PAINT) is not feature:
+            changed.append(sid)
+    return changed
 
 
 def _store(session: Session, net_id: int,
@@ -194,12 +252,12 @@ def _store(session: Session, net_id: int,
              "kind": b.kind, "colour": b.colour, "width": b.width_m,
              "conf": round(min(max(b.confidence, 0.0), 1.0), 3), "pos": b.position,
              "off": b.offset_m, "lo": b.station_from_m, "hi": b.station_to_m,
-             "src": b.source}
+             "src": b.source, "machine": MACHINE}
             for sid, _, found in written for b in found]
     if rows:
         session.execute(text(
             "INSERT INTO lane_boundaries (network_id, segment_id, geom, kind, colour, width_m, "
             "confidence, position, offset_m, station_from_m, station_to_m, source, updated_by) "
             "VALUES (:net, :seg, ST_GeomFromText(:wkt, 4326), :kind, :colour, :width, :conf, "
-            ":pos, :off, :lo, :hi, :src, 'ingest-lanes')"),
+            ":pos, :off, :lo, :hi, :src, :machine)"),
             rows)

@@ -51,9 +51,11 @@ PREVIEW_ACCEPTED = "accept"
 """History action of a change accepted with a road preview (:mod:`app.previews.accept`)."""
 REVERTED = "resurvey-revert"
 """History action of an accepted change undone by reverting its change set."""
-MACHINE_ACTIONS = (PREVIEW_ACCEPTED, ACCEPTED, REVERTED)
+LANES_FROM_PAINT = "lanes-from-paint"
+"""History action of a segment's lane counts set from its painted lanes (``ingest lanes``)."""
+MACHINE_ACTIONS = (PREVIEW_ACCEPTED, ACCEPTED, REVERTED, LANES_FROM_PAINT)
 """History actions that are not a person's edit (an accepted preview is the model's work;
-an accepted change is the re-survey's line)."""
+an accepted change is the re-survey's line; lane counts read from the paint)."""
 KINDS = ("moved", "new", "missing")
 Kind = Literal["moved", "new", "missing"]
 

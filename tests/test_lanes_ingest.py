@@ -27,6 +27,7 @@ from app.db.session import session_scope
 from cli.main import main
 from ingest.ipm.synthetic import Camera, Drive, LanePaint, frame_times, write_drive
 from ingest.lanes.assign import Paint, boundaries, lane_ranges
+from ingest.queue import tasks
 from testkit.network_helpers import bearer
 from testkit.raster_synth import UTM33, utm_origin, write_tif
 from tests.lanelet2_support import LoadedMap, export
@@ -190,6 +191,21 @@ def test_bad_input_is_refused_and_changes_nothing(drive: dict[str, str],
     assert "network 'lane-road' has no road over layer 'lanes-elsewhere'" in refused(
         "ingest", "lanes", "--layer", "lanes-elsewhere", "--network", "lane-road")
     assert stored("lane-road") == before
+
+
+def test_queued_for_a_worker_it_does_the_same(drive: dict[str, str]) -> None:
+    before = stored("lane-road")
+    said = run("ingest", "lanes", "--layer", "lane-drive", "--network", "lane-road", "--queue")
+    job_id = int(said.split()[2])
+    tasks.run_job(job_id)
+    with session_scope() as session:
+        row = session.execute(text("SELECT kind, status, progress, message FROM ingest_jobs "
+                                   "WHERE id = :id"), {"id": job_id}).one()
+    assert tuple(row)[:3] == ("ingest-lanes", "succeeded", 1.0)
+    assert "lanes from the paint of layer lane-drive on 1 of 1 segments" in row.message
+    after = stored("lane-road")
+    assert [tuple(r)[1:] for r in after[0]] == [tuple(r)[1:] for r in before[0]]  # new ids
+    assert after[1] == before[1]
 
 
 def test_a_lane_that_opens_is_a_range_of_its_own() -> None:

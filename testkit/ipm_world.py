@@ -26,6 +26,8 @@ import numpy as np
 from pyproj import Geod, Transformer
 
 GEOD = Geod(ellps="WGS84")
+MARKER_RGB = ((220, 30, 30), (30, 70, 220), (230, 200, 20))
+MARKER_RADIUS_M = 0.25
 
 
 def rodrigues(axis: tuple[float, float, float], angle_deg: float) -> np.ndarray:
@@ -176,6 +178,17 @@ class World:
         """Seconds the drive takes."""
         return self.length_m / self.speed_mps
 
+    def markers(self) -> np.ndarray:
+        """(n, 2) local centres of the coloured discs: every 11 m along the road,
+        ``marker_out_m`` outside its edges, alternately right and left (none when 0)."""
+        if self.marker_out_m <= 0:
+            return np.zeros((0, 2))
+        s = np.arange(5.0, self.length_m, 11.0)
+        side = np.where(np.arange(len(s)) % 2, 1.0, -1.0)
+        r = self.radius_m + side * (self.width_m / 2 + self.marker_out_m)
+        a = self._angle(s)
+        return np.column_stack([r * np.cos(a), r * np.sin(a)])
+
     # --- the ground as an orthophoto ---
 
     def ortho(self, pad_m: float = 18.0) -> tuple[np.ndarray, float, float]:
@@ -213,15 +226,11 @@ class World:
         if self.edge_lines:
             paint |= np.abs(np.abs(d) - (self.width_m / 2 - 0.25)) <= half
         img[paint] = look.paint_rgb
-        if self.marker_out_m > 0:
-            colours = [(220, 30, 30), (30, 70, 220), (230, 200, 20)]
-            for i, s in enumerate(np.arange(5.0, self.length_m, 11.0)):
-                a = float(self._angle(np.array(s)))
-                side = 1 if i % 2 else -1
-                r = self.radius_m + side * (self.width_m / 2 + self.marker_out_m)
-                cx, cy = (r * math.cos(a) - x0) / res, (y1 - r * math.sin(a)) / res
-                cv2.circle(img, (round(cx * 16), round(cy * 16)), round(0.25 / res * 16),
-                           colours[i % 3], -1, cv2.LINE_AA, shift=4)
+        for i, (mx, my) in enumerate(self.markers()):
+            # OpenCV puts pixel centres on integers; this image's are at +0.5.
+            cx, cy = (mx - x0) / res - 0.5, (y1 - my) / res - 0.5
+            cv2.circle(img, (round(cx * 16), round(cy * 16)), round(MARKER_RADIUS_M / res * 16),
+                       MARKER_RGB[i % 3], -1, cv2.LINE_AA, shift=4)
         return np.clip(img, 0, 255).astype(np.float32), float(x0), float(y1)
 
 
@@ -312,10 +321,10 @@ VARIED: dict[str, tuple[World, Mount]] = {
     "grey-ground": (World(look=Look(road_rgb=(125, 125, 125), road_noise=6,
                                     ground_rgb=(95, 95, 95), ground_noise=25)), Mount()),
     # A wide road, a left bend, edge lines; the vehicle changes from the right lane across
-    # the centre line; a higher camera, turned about another axis.
+    # the centre line; a higher camera, turned about another axis; markers 3 m out.
     "wide-lane-change": (World(lon0=14.9, lat0=40.2, radius_m=45.0, width_m=10.5,
                                clockwise=False, arc_deg=120.0, offsets_m=(2.6, -1.2),
-                               change_at_m=35.0, edge_lines=True, marker_out_m=0.0,
+                               change_at_m=35.0, edge_lines=True, marker_out_m=3.0,
                                look=Look(ground_rgb=(92, 108, 70))),
                          Mount(position_m=(0.3, 0.5, 2.3), tilt_axis=(1.0, -0.3, 0.5),
                                tilt_deg=-5.0)),

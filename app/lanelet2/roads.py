@@ -39,12 +39,12 @@ NODE_IDS_WHERE = "AND n.id = ANY(CAST(:ids AS bigint[]))"
 BOUNDS_SQL = """
 SELECT segment_id, position, kind, colour, width_m, confidence, station_from_m, station_to_m,
        source, offset_m, ST_AsBinary(geom)
-  FROM lane_boundaries WHERE segment_id = ANY(CAST(:ids AS bigint[]))
+  FROM lane_boundaries WHERE network_id = :network_id
  ORDER BY segment_id, station_from_m, id
 """
 RANGES_SQL = """
 SELECT segment_id, station_from_m, station_to_m, lanes_forward, lanes_backward, widths_m
-  FROM segment_lanes WHERE segment_id = ANY(CAST(:ids AS bigint[]))
+  FROM segment_lanes WHERE network_id = :network_id
  ORDER BY segment_id, station_from_m
 """
 CHUNK = 50_000
@@ -117,16 +117,21 @@ class StoredLanes:
     bounds: list[StoredBound] = field(default_factory=list)
 
 
-def read_paint(conn: Connection, segment_ids: np.ndarray) -> dict[int, StoredLanes]:
-    """The stored lanes of the segments that have them."""
-    ids = segment_ids.tolist()
+def read_paint(conn: Connection, network_id: int, segment_ids: np.ndarray
+               ) -> dict[int, StoredLanes]:
+    """The stored lanes of the segments among ``segment_ids`` that have them. Read by
+    network (its index), not by a list of every exported segment's id: a country's export
+    would send a million ids for the few roads that have paint."""
+    wanted = set(segment_ids.tolist())
     out: dict[int, StoredLanes] = {}
-    for r in conn.execute(text(RANGES_SQL), {"ids": ids}):
+    for r in conn.execute(text(RANGES_SQL), {"network_id": network_id}):
+        if int(r.segment_id) not in wanted:
+            continue
         lanes = out.setdefault(int(r.segment_id), StoredLanes())
         lanes.ranges.append((r.station_from_m, r.station_to_m, r.lanes_forward,
                              r.lanes_backward))
         lanes.widths.append(float(sum(r.widths_m)))
-    for r in conn.execute(text(BOUNDS_SQL), {"ids": ids}):
+    for r in conn.execute(text(BOUNDS_SQL), {"network_id": network_id}):
         if int(r[0]) in out:
             out[int(r[0])].bounds.append(StoredBound(
                 r[1], r[2], r[3], r[4], r[5] or 0.0, r[6], r[7], r[8], r[9] or 0.0,
@@ -211,7 +216,7 @@ def read_selection(conn: Connection, network: str,
                                       np.float64).reshape(-1, 2),
                       traffic_light=np.array([r[3] for r in node_rows], bool))
     return NetworkSelection(network, int(row.version), roads, nodes, bbox,
-                            paint=read_paint(conn, roads.ids))
+                            paint=read_paint(conn, row.id, roads.ids))
 
 
 @contextmanager

@@ -2,7 +2,7 @@
 mosaic (``ingest ipm``) -> ``ingest lanes`` over a network -> ``export network --format
 lanelet2`` -> the official lanelet2 library, against the painted truth.
 
-    .venv/bin/python bench/lane_maps.py [--frames 36]
+    .venv/bin/python bench/lane_maps.py [--frames 36] [--lanes 3.5,3.0,3.25,3.75 --forward 2]
 
 Two networks over the same layer: ``truth`` (the road's true centre, imported) and
 ``extracted`` (``ingest roads`` with defaults on the drive's layer). For each: the stored lane
@@ -40,6 +40,8 @@ from testkit.scratch import scratch_database  # noqa: E402
 
 PAINT = LanePaint()
 DRIVE = Drive.in_lane(PAINT)
+"""The drive (``--lanes``/``--forward`` paint another road, driven in its leftmost forward
+lane)."""
 UGVMAP = [str(REPO / ".venv" / "bin" / "python"), "-m", "cli"]
 
 
@@ -121,7 +123,15 @@ def main() -> None:
     """Render the drive, make both networks, ingest their lanes, export and score."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=36)
+    parser.add_argument("--lanes", help="lane widths from the right edge, e.g. 3.0,3.75,3.25")
+    parser.add_argument("--forward", type=int, help="lanes in the drive's direction")
     args = parser.parse_args()
+    global PAINT, DRIVE
+    if args.lanes:
+        widths = tuple(float(w) for w in args.lanes.split(","))
+        forward = args.forward or (len(widths) + 1) // 2
+        PAINT = LanePaint(widths, forward)
+        DRIVE = Drive.in_lane(PAINT, forward - 1)
     with tempfile.TemporaryDirectory() as tmp, scratch_database("ugvmap_bench_lane_maps") as url:
         folder = Path(tmp)
         paths = write_drive(folder, DRIVE, Camera(), frame_times(args.frames))
@@ -132,7 +142,8 @@ def main() -> None:
         ugvmap(["ingest", "network", str(truth_road(folder, args.frames)), "--network",
                 "truth"], env)
         ugvmap(["ingest", "roads", "--layer", "drive", "--network", "extracted"], env)
-        print(f"synthetic drive: {args.frames} frames, 2+2 lanes {PAINT.widths_m} m, "
+        print(f"synthetic drive: {args.frames} frames, {PAINT.forward}+"
+              f"{len(PAINT.widths_m) - PAINT.forward} lanes {PAINT.widths_m} m, "
               "ingest ipm defaults; 2 shared cores")
         for network in ("truth", "extracted"):
             seconds, said = ugvmap(["ingest", "lanes", "--layer", "drive", "--network",

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import shapely
 
 MITRE_LIMIT = 3.0
 """Longest mitred normal, in offsets (a bend of more than ~140° is cut off there)."""
@@ -270,3 +271,22 @@ def spread_lanes(left0: np.ndarray, right0: np.ndarray, t0: np.ndarray, left3: n
     push = width[:, None, None] * np.sin(np.pi * t)
     return (straight_points(left0, left3, samples) + push * normal,
             straight_points(right0, right3, samples) - push * normal)
+
+
+def along_line(line: shapely.LineString, station: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """(point at each station of ``line``, unit direction of the line over the metre around
+    it): a smooth local frame on a polyline, whose vertices' own directions jump."""
+    def at(s: np.ndarray) -> np.ndarray:
+        return shapely.get_coordinates(shapely.line_interpolate_point(line, s))
+
+    t = at(np.minimum(station + 0.5, line.length)) - at(np.maximum(station - 0.5, 0.0))
+    return at(station), t / np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-9)[:, None]
+
+
+def station_offset(line: shapely.LineString, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(station along ``line``, signed offset from it, + left) of each point (metric)."""
+    station = shapely.line_locate_point(line, shapely.points(xy))
+    foot, t = along_line(line, station)
+    d = xy - foot
+    return station, d[:, 1] * t[:, 0] - d[:, 0] * t[:, 1]

@@ -23,6 +23,7 @@ import shapely
 import shapely.ops
 
 from app.lanelet2.frame import Frame
+from app.lanelet2.geometry import station_offset
 from app.lanelet2.roads import (
     NetworkSelection,
     NodeTable,
@@ -106,21 +107,6 @@ class Pieces:
         return Pieces(slots, stops)
 
 
-def _station_offset(centre: shapely.LineString, xy: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """(station, signed offset + left) of points against a metric centreline."""
-    station = shapely.line_locate_point(centre, shapely.points(xy))
-    at = shapely.get_coordinates(shapely.line_interpolate_point(centre, station))
-    ahead = shapely.get_coordinates(shapely.line_interpolate_point(
-        centre, np.minimum(station + 0.5, centre.length)))
-    behind = shapely.get_coordinates(shapely.line_interpolate_point(
-        centre, np.maximum(station - 0.5, 0.0)))
-    t = ahead - behind
-    t /= np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-9)[:, None]
-    d = xy - at
-    return station, d[:, 1] * t[:, 0] - d[:, 0] * t[:, 1]
-
-
 @dataclass
 class _Bound:
     """A stored bound in the map frame, along one segment's centreline."""
@@ -158,12 +144,12 @@ def segment_pieces(centre: shapely.LineString, lanes: StoredLanes, frame: Frame
         xy = frame.local(row.lonlat)
         if row.position is None:
             if row.kind == "stop_line":
-                station, offset = _station_offset(centre, xy)
+                station, offset = station_offset(centre, xy)
                 stops.append((xy[[0, -1]], float(np.median(station)), float(np.median(offset))))
             continue
         line = shapely.simplify(shapely.LineString(xy), SIMPLIFY_M)
         xy = shapely.get_coordinates(line)
-        station, offset = _station_offset(centre, xy)
+        station, offset = station_offset(centre, xy)
         order = np.argsort(station, kind="stable")
         bounds.append(_Bound(row, xy[order], station[order], offset[order],
                              row.station_from_m * scale, row.station_to_m * scale))

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from app.lanelet2.geometry import along_line, station_offset
 from ingest.lanes.across import BOUNDING, sections
 
 MIN_RANGE_M = 6.0
@@ -188,24 +189,6 @@ def _cover(ranges: list[LaneRange], length: float) -> list[LaneRange]:
     return out
 
 
-def _tangents(reference: shapely.LineString, station: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """(point at each station, unit direction of the reference over the metre around it)."""
-    def at(s: np.ndarray) -> np.ndarray:
-        return shapely.get_coordinates(shapely.line_interpolate_point(reference, s))
-
-    t = at(np.minimum(station + 0.5, reference.length)) - at(np.maximum(station - 0.5, 0))
-    return at(station), t / np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-9)[:, None]
-
-
-def _frame(reference: shapely.LineString, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(station along ``reference``, signed offset, + left) of each point."""
-    station = shapely.line_locate_point(reference, shapely.points(points))
-    foot, t = _tangents(reference, station)
-    d = points - foot
-    return station, d[:, 1] * t[:, 0] - d[:, 0] * t[:, 1]
-
-
 def _samples(line: shapely.LineString) -> np.ndarray:
     at = np.append(np.arange(0.0, line.length, SAMPLE_M), line.length)
     return shapely.get_coordinates(shapely.line_interpolate_point(line, at))
@@ -221,7 +204,7 @@ def boundaries(reference: shapely.LineString, paint: list[Paint], ranges: list[L
     starts = np.array([r.station_from_m for r in ranges])
     for p in paint:
         xy = _samples(p.line)
-        station, offset = _frame(reference, xy)
+        station, offset = station_offset(reference, xy)
         mine = (station > 0) & (station < length) & (np.abs(offset) <= REACH_M)
         if elsewhere is not None and not elsewhere.is_empty:
             mine &= shapely.distance(shapely.points(xy), reference) <= \
@@ -294,7 +277,7 @@ def _guessed(reference: shapely.LineString, ranges: list[LaneRange],
 def _offset_line(reference: shapely.LineString, r: LaneRange, k: int, offset: float,
                  lo: float, hi: float) -> Boundary:
     stations = np.append(np.arange(lo, hi, 1.0), hi)
-    centre, t = _tangents(reference, stations)
+    centre, t = along_line(reference, stations)
     xy = centre + offset * np.column_stack([-t[:, 1], t[:, 0]])
     return Boundary(shapely.LineString(xy), r.guessed_kind(k), "unknown", None, 0.0, k,
                     offset, round(float(lo), 3), round(float(hi), 3), "offset")

@@ -288,3 +288,95 @@ def test_edited_like_segments_and_the_lanelet2_map_follows(client, drive: dict[s
              == "solid" and geometry.length2d(ll) > 5]
     assert along and all(loaded.graph.left(ll) is None and loaded.graph.right(ll) is None
                          for ll in along)
+
+
+def _store_lanes(network: str, ranges: list[tuple[float, float, int, int, list[float]]],
+                 lines: list[tuple[float, float, float, int, str]]) -> None:
+    """Stored lanes of the network's one east-going segment at 48 N: ``ranges`` (from, to,
+    forward, backward, offsets right to left) and boundary ``lines`` (from, to, offset
+    metres north of the centreline, position, kind) as ``ingest lanes`` would write them."""
+    with session_scope() as session:
+        seg, net, lon0, lat0 = session.execute(text(
+            "SELECT s.id, s.network_id, ST_X(ST_StartPoint(s.geom)), ST_Y(ST_StartPoint(s.geom))"
+            " FROM road_segments s JOIN networks n ON n.id = s.network_id WHERE n.name = :n"),
+            {"n": network}).one()
+        east = 1 / (111_320 * np.cos(np.radians(lat0)))
+        for lo, hi, f, b, offsets in ranges:
+            session.execute(text(
+                "INSERT INTO segment_lanes (network_id, segment_id, station_from_m, "
+                "station_to_m, lanes_forward, lanes_backward, widths_m, offsets_m) VALUES "
+                "(:net, :seg, :lo, :hi, :f, :b, :w, :o)"),
+                {"net": net, "seg": seg, "lo": lo, "hi": hi, "f": f, "b": b,
+                 "w": np.diff(offsets).tolist(), "o": offsets})
+        for lo, hi, offset, position, kind in lines:
+            xs = np.linspace(lo, hi, 12)
+            wkt = "LINESTRING(" + ", ".join(f"{lon0 + x * east} {lat0 + offset / 111_320}"
+                                              for x in xs) + ")"
+            session.execute(text(
+                "INSERT INTO lane_boundaries (network_id, segment_id, geom, kind, colour, "
+                "width_m, confidence, position, offset_m, station_from_m, station_to_m) VALUES "
+                "(:net, :seg, ST_GeomFromText(:wkt, 4326), :kind, 'white', 0.15, 0.9, :pos, "
+                ":off, :lo, :hi)"),
+                {"net": net, "seg": seg, "wkt": wkt, "kind": kind, "pos": position,
+                 "off": offset, "lo": lo, "hi": hi})
+
+
+def _straight_road(tmp_path: Path, name: str, lat: float) -> None:
+    road = tmp_path / f"{name}.geojson"
+    road.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {"lanes_forward": 1, "lanes_backward": 1},
+        "geometry": {"type": "LineString", "coordinates": [
+            [16.0, lat], [16.0 + 100 / (111_320 * np.cos(np.radians(lat))), lat]]}}]}))
+    run("ingest", "network", str(road), "--network", name)
+
+
+def test_a_lane_line_solid_on_part_of_the_road_forbids_the_change_there(
+        database_url: str, tmp_path: Path) -> None:
+    """A one-way road of a 3.0 and a 3.5 m lane whose lane line is dashed for 60 m, then
+    solid: two lanelets per lane (as wide as painted), the change allowed along the first,
+    not the second."""
+    _straight_road(tmp_path, "solid-part", 48.2)
+    with session_scope() as session:
+        session.execute(text("UPDATE road_segments SET oneway = 'forward', lanes_backward = 0 "
+                             "WHERE network_id = (SELECT id FROM networks WHERE name = "
+                             "'solid-part')"))
+    _store_lanes("solid-part", [(0, 100, 2, 0, [-3.5, -0.5, 3.0])],
+                 [(0, 100, -3.5, 0, "road_edge"), (0, 60, -0.5, 1, "dashed"),
+                  (60, 100, -0.5, 1, "solid"), (0, 100, 3.0, 2, "road_edge")])
+    _, loaded = export("solid-part", tmp_path / "solid-part.osm")
+    lanelets = sorted(loaded.lanelets(), key=lambda ll: geometry.distance(
+        ll.centerline[0], loaded.lanelets()[0].centerline[0]))
+    assert len(lanelets) == 4
+    for ll in lanelets:
+        a = ll.attributes
+        width = _width(ll)
+        assert abs(width - (3.0 if a["lane"] == "1" else 3.5)) <= 0.02, width
+        inner = ll.leftBound if a["lane"] == "1" else ll.rightBound
+        side = "left" if a["lane"] == "1" else "right"
+        neighbour = getattr(loaded.graph, side)(ll)
+        assert (neighbour is not None) == (_bound(inner)[1] == "dashed")
+    kinds = sorted((round(geometry.length2d(ll)), _bound(
+        ll.leftBound if ll.attributes["lane"] == "1" else ll.rightBound)[1])
+        for ll in lanelets)
+    assert kinds == [(40, "solid"), (40, "solid"), (60, "dashed"), (60, "dashed")], kinds
+
+
+def test_a_lane_that_opens_in_the_lanelet2_map(database_url: str, tmp_path: Path) -> None:
+    """1+1 lanes for 50 m, then a second forward lane on the right (a turning lane): the
+    map has one forward lanelet, then two, and both are reached from the first."""
+    _straight_road(tmp_path, "opening", 48.3)
+    _store_lanes("opening", [(0, 50, 1, 1, [-3.0, 0.0, 3.0]),
+                             (50, 100, 2, 1, [-6.0, -3.0, 0.0, 3.0])],
+                 [(0, 50, -3.0, 0, "road_edge"), (0, 50, 0.0, 1, "solid"),
+                  (0, 50, 3.0, 2, "road_edge"), (50, 100, -6.0, 0, "road_edge"),
+                  (50, 100, -3.0, 1, "dashed"), (50, 100, 0.0, 2, "solid"),
+                  (50, 100, 3.0, 3, "road_edge")])
+    _, loaded = export("opening", tmp_path / "opening.osm")
+    forward = [ll for ll in loaded.lanelets() if "direction" in ll.attributes
+               and ll.attributes["direction"] == "forward"]
+    first = min(forward, key=lambda ll: ll.centerline[0].x)
+    after = [ll for ll in forward if ll.centerline[0].x > first.centerline[0].x + 20]
+    assert len(after) == 2 and {ll.attributes["lane"] for ll in after} == {"1", "2"}
+    for ll in after:
+        assert abs(_width(ll) - 3.0) <= 0.05
+        assert loaded.graph.getRoute(first, ll) is not None

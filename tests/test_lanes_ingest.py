@@ -380,3 +380,18 @@ def test_a_lane_that_opens_in_the_lanelet2_map(database_url: str, tmp_path: Path
     for ll in after:
         assert abs(_width(ll) - 3.0) <= 0.05
         assert loaded.graph.getRoute(first, ll) is not None
+
+
+def test_paint_that_breaks_the_one_way_rule_is_not_mapped(database_url: str,
+                                                          tmp_path: Path) -> None:
+    """A two-way road whose line between the directions went unseen reads as 2+0 lanes:
+    the map draws it as a road without paint (1+1, guessed bounds), not with no lane back."""
+    _straight_road(tmp_path, "unseen-centre", 48.4)
+    _store_lanes("unseen-centre", [(0, 100, 2, 0, [-3.0, 0.0, 3.0])],
+                 [(0, 100, -3.0, 0, "road_edge"), (0, 100, 0.0, 1, "dashed"),
+                  (0, 100, 3.0, 2, "road_edge")])
+    _, loaded = export("unseen-centre", tmp_path / "unseen-centre.osm")
+    directions = sorted(ll.attributes["direction"] for ll in loaded.lanelets())
+    assert directions == ["backward", "forward"]
+    assert all(_bound(b)[2] == "" for ll in loaded.lanelets()
+               for b in (ll.leftBound, ll.rightBound))  # no painted colour: not the paint

@@ -32,6 +32,7 @@ from app.lanelet2.roads import (
     StoredLanes,
     concat,
 )
+from app.lanelet2.topology import lanes_fit
 
 MIN_PIECE_M = 3.0
 THICK_M = 0.3
@@ -234,9 +235,14 @@ def _piece_slots(bounds: list[_Bound], owner: list[Cell], inside: np.ndarray,
 def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection, Pieces]:
     """The selection with every painted segment cut into its pieces (rows of the same
     segment id, joined by new nodes of negative ids), still ordered by segment id, and the
-    pieces' paint by row."""
+    pieces' paint by row. A segment whose paint does not fit its one-way rule (lanes against
+    it, none in a direction it may be driven: :func:`~app.lanelet2.topology.lanes_fit`) is
+    mapped as one without paint."""
     roads, nodes = sel.roads, sel.nodes
     has_paint = np.isin(roads.ids, np.fromiter(sel.paint, np.int64, len(sel.paint)))
+    for row in np.flatnonzero(has_paint).tolist():
+        ranges = sel.paint[int(roads.ids[row])].ranges
+        has_paint[row] = all(lanes_fit(str(roads.oneway[row]), f, b) for _, _, f, b in ranges)
     if not has_paint.any():
         return sel, Pieces()
     rest, _ = roads.take(np.flatnonzero(~has_paint))

@@ -91,6 +91,15 @@ def effective_lanes(roads: RoadTable) -> tuple[np.ndarray, np.ndarray, list[Defe
             np.where(backward_ok, np.maximum(bwd, 1), 0), defects)
 
 
+def lanes_fit(oneway: str, forward: int, backward: int) -> bool:
+    """Whether lanes read from the paint are the ones the map draws for the road as they
+    are (:func:`effective_lanes` changes none of them): at least one lane each way it may be
+    driven, none against its one-way direction, at most :data:`MAX_LANES` each way."""
+    return (forward <= MAX_LANES and backward <= MAX_LANES
+            and (forward >= 1) == (oneway != "backward")
+            and (backward >= 1) == (oneway != "forward"))
+
+
 def lane_widths(roads: RoadTable, lanes: np.ndarray) -> np.ndarray:
     """Per segment, the width of one lane: ``width_m`` shared by its mapped lanes, else the
     class default (:data:`LANE_WIDTH_M`), within 1..6 m."""

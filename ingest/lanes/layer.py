@@ -25,11 +25,11 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from app.lanelet2.geometry import standard_utm_zone
+from app.lanelet2.topology import lanes_fit
 from app.network import collections as colls
 from app.network.editing import lock_feature, write_change
 from app.network.resurvey.changes import LANES_FROM_PAINT, MACHINE_ACTIONS
 from app.network.tokens import Principal
-from app.network.validation import lanes_consistent
 from app.tiles.catalog import get_layer
 from app.tiles.store import open_store
 from ingest.lanes import LanesInputError, check_resolution
@@ -208,7 +208,8 @@ def _recount(session: Session, c: colls.Collection,
     """Set each segment's ``lanes_forward``/``lanes_backward`` (what routing reads) to the
     lanes of its longest range, as a new version with a history row (action
     ``lanes-from-paint``, revertable); not on a segment a person edited (their counts win),
-    nor where the paint's counts break the segment's one-way rule. Returns those changed."""
+    nor where the paint's counts do not fit its one-way rule (a two-way road whose line
+    between the directions went unseen reads as all lanes one way). Returns those changed."""
     ids = [sid for sid, _, _ in written]
     edited: set[int] = set(session.execute(text(
         "SELECT DISTINCT segment_id FROM segment_edits WHERE segment_id = ANY(:ids) "
@@ -222,7 +223,7 @@ def _recount(session: Session, c: colls.Collection,
         main = max(ranges, key=lambda r: r.station_to_m - r.station_from_m)
         feature = lock_feature(session, c, sid, None)
         new = {"lanes_forward": main.forward, "lanes_backward": main.backward}
-        if lanes_consistent({**feature["properties"], **new}):
+        if not lanes_fit(feature["properties"]["oneway"], main.forward, main.backward):
             continue
         if write_change(session, c, feature, new, machine, LANES_FROM_PAINT) is not feature:
             changed.append(sid)

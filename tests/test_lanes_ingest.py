@@ -395,3 +395,32 @@ def test_paint_that_breaks_the_one_way_rule_is_not_mapped(database_url: str,
     assert directions == ["backward", "forward"]
     assert all(_bound(b)[2] == "" for ll in loaded.lanelets()
                for b in (ll.leftBound, ll.rightBound))  # no painted colour: not the paint
+
+
+def test_a_stop_line_before_a_traffic_light_is_not_a_stop_sign(database_url: str,
+                                                                tmp_path: Path) -> None:
+    """A painted stop line 90 m along a road whose end node has a traffic light: the lanes
+    are governed by the light's element alone (a stop sign too would stop on green); the
+    painted line is still in the map. Without the light it is a stop sign."""
+    for name, lat, light in (("stop-light", 48.5, True), ("stop-sign", 48.6, False)):
+        _straight_road(tmp_path, name, lat)
+        with session_scope() as session:
+            session.execute(text(
+                "UPDATE road_nodes SET traffic_light = :light WHERE id = (SELECT s.target_node "
+                "FROM road_segments s JOIN networks n ON n.id = s.network_id "
+                "WHERE n.name = :n)"), {"light": light, "n": name})
+        _store_lanes(name, [(0, 100, 1, 1, [-3.0, 0.0, 3.0])],
+                     [(0, 100, -3.0, 0, "road_edge"), (0, 100, 0.0, 1, "solid"),
+                      (0, 100, 3.0, 2, "road_edge"), (89.9, 90.1, -1.5, None, "stop_line")])
+        with session_scope() as session:  # a stop line lies across the lanes, not along
+            session.execute(text(
+                "UPDATE lane_boundaries SET geom = ST_MakeLine(ST_Project(ST_StartPoint(geom)"
+                "::geography, 1.5, radians(180))::geometry, ST_Project(ST_StartPoint(geom)"
+                "::geography, 1.5, 0)::geometry) WHERE kind = 'stop_line' AND network_id = "
+                "(SELECT id FROM networks WHERE name = :n)"), {"n": name})
+        _, loaded = export(name, tmp_path / f"{name}.osm")
+        kinds = sorted(re.attributes["subtype"] for re in loaded.map.regulatoryElementLayer)
+        assert kinds == (["traffic_light"] if light else ["traffic_sign"]), (name, kinds)
+        lines = [ls for ls in loaded.map.lineStringLayer
+                 if ls.attributes["type"] == "stop_line" and "ugvmap:source" in ls.attributes]
+        assert len(lines) == 1, name

@@ -193,10 +193,18 @@ def _painted_inner(plan: Layout, rows: range, slots: np.ndarray, local: np.ndarr
 def _write_stops(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter) -> int:
     """Painted stop lines as ``traffic_sign`` regulatory elements (a stop sign beside the
     road where the line ends, as Autoware's maps draw a stop line without a light), each
-    referenced by the lanelets that end at it; returns how many."""
+    referenced by the lanelets that end at it; a stop line before a traffic light is only
+    its ``stop_line`` way (the light's element governs those lanes: a stop sign there would
+    make the vehicle stop on green). Returns how many elements."""
     ways: list[tuple[int, list[int], dict[str, object]]] = []
     relations: list[tuple[int, list[Member], dict[str, object]]] = []
     for stop in plan.pieces.stops:
+        if stop.lit:
+            line = int(ids.take(1)[0])
+            points = ids.take(2)
+            out.nodes(points, frame.lonlat(stop.xy), stop.xy)
+            ways.append((line, points.tolist(), {"type": "stop_line", "ugvmap:source": "paint"}))
+            continue
         line, sign = ids.take(2).tolist()
         along = stop.xy[1] - stop.xy[0]
         along = along / max(float(np.hypot(*along)), 1e-9)

@@ -121,7 +121,7 @@ def plan_layout(sel: NetworkSelection, frame: Frame, ids: IdSource) -> Layout:
     re_ids[lit] = ids.take(int(lit.sum()))
     speed = effective_speed_kph(table.speed_limit_kph, table.road_class)
     away = np.column_stack([geo.first_dir, -geo.last_dir]).reshape(-1, 2)  # where cut
-    stops = {stop.arm: int(ids.take(1)[0]) for stop in pieces.stops}
+    stops = {stop.arm: int(ids.take(1)[0]) for stop in pieces.stops if not stop.lit}
     return Layout(table, nodes.ids, traffic_light, forward, backward, width, speed, arms,
                  geo.xy, geo.offsets, geo.normals, geo.straight, away, slot_offsets, end_ids,
                  geo.end_xy, re_ids, defects, pieces, geo.cut, stops)

@@ -78,11 +78,13 @@ class PaintedSlot:
 
 @dataclass
 class StopLine:
-    """A painted stop line: its end points (map frame) and the arm whose entering lanes stop
-    at it (arm ``2 p`` is piece ``p``'s start, ``2 p + 1`` its end)."""
+    """A painted stop line: its end points (map frame), the arm whose entering lanes stop
+    at it (arm ``2 p`` is piece ``p``'s start, ``2 p + 1`` its end) and whether those lanes
+    lead to a node with a traffic light (whose element then governs them: no stop sign)."""
 
     xy: np.ndarray
     arm: int
+    lit: bool = False
 
 
 @dataclass
@@ -103,7 +105,7 @@ class Pieces:
         """The same pieces after the road table was reduced to ``rows`` (in that order)."""
         where = {int(r): i for i, r in enumerate(rows.tolist())}
         slots = {(where[r], k): s for (r, k), s in self.slots.items() if r in where}
-        stops = [StopLine(s.xy, 2 * where[s.arm // 2] + s.arm % 2) for s in self.stops
+        stops = [StopLine(s.xy, 2 * where[s.arm // 2] + s.arm % 2, s.lit) for s in self.stops
                  if s.arm // 2 in where]
         return Pieces(slots, stops)
 
@@ -249,7 +251,8 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
     tables = [rest]
     new_nodes: list[tuple[int, np.ndarray]] = []
     slots: list[dict[int, PaintedSlot]] = []
-    stops: list[tuple[np.ndarray, int, float]] = []
+    stops: list[tuple[np.ndarray, int, float, bool]] = []
+    lit = dict(zip(nodes.ids.tolist(), nodes.traffic_light.tolist(), strict=True))
     for row in np.flatnonzero(has_paint).tolist():
         part, _ = roads.take(np.array([row]))
         xy = frame.local(part.lonlat)
@@ -263,7 +266,9 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
             ends.append(new_nodes[-1][0])
         ends.append(int(part.target[0]))
         base = sum(len(t) for t in tables) - len(rest)
-        stops += [(xy_stop, base + p, offset) for xy_stop, p, offset in piece_stops]
+        stops += [(xy_stop, base + p, offset,
+                   lit.get(int(part.target[0] if offset < 0 else part.source[0]), False))
+                  for xy_stop, p, offset in piece_stops]
         for i, (lo, hi, f, b, width) in enumerate(pieces):
             piece_xy = shapely.get_coordinates(shapely.ops.substring(centre, lo, hi))
             tables.append(RoadTable(
@@ -282,8 +287,8 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
     first = len(rest)
     painted = Pieces({(int(where[first + i]), k): slot for i, by_k in enumerate(slots)
                       for k, slot in by_k.items()},
-                     [StopLine(xy, 2 * int(where[first + p]) + (1 if offset < 0 else 0))
-                      for xy, p, offset in stops])
+                     [StopLine(xy, 2 * int(where[first + p]) + (1 if offset < 0 else 0), light)
+                      for xy, p, offset, light in stops])
     ids = np.concatenate([nodes.ids, [i for i, _ in new_nodes]])
     lonlat = np.concatenate([nodes.lonlat, np.array([ll for _, ll in new_nodes]).reshape(-1, 2)])
     light = np.concatenate([nodes.traffic_light, np.zeros(len(new_nodes), bool)])

@@ -114,16 +114,21 @@ def _editable_schema(kind: Kind) -> dict[str, Any]:
         "surface": {"maxLength": v.MAX_SHORT_TEXT},
         "external_id": {"maxLength": v.MAX_NAME},
     }
+    if kind == "lanes":  # a painted line's width, not a carriageway's
+        limits = {"width_m": {"minimum": v.LANE_LINE_WIDTH_RANGE[0],
+                              "maximum": v.LANE_LINE_WIDTH_RANGE[1]},
+                  "position": {"minimum": 0, "maximum": v.MAX_LANE_POSITION}}
     return {"type": "object", "additionalProperties": False, "minProperties": 1,
             "properties": {p.name: {**p.openapi_schema(), **limits.get(p.name, {})}
                            for p in PROPERTIES[kind] if not p.read_only}}
 
 
 def openapi_patch_body() -> dict[str, Any]:
-    """The PATCH body: a merge patch of a segment's or a node's properties, or of the feature
-    (properties and a new geometry: a segment's keeps its end nodes, a node's moves it)."""
+    """The PATCH body: a merge patch of a segment's, a node's or a lane boundary's properties,
+    or of the feature (properties and a new geometry: a segment's keeps its end nodes, a
+    node's moves it)."""
     options: list[dict[str, Any]] = []
-    for kind in ("segments", "nodes"):
+    for kind in ("segments", "nodes", "lanes"):
         editable = _editable_schema(kind)
         options += [editable, {
             "type": "object", "minProperties": 1,

@@ -154,11 +154,13 @@ NODE_RULES: dict[str, Callable[[Any], str | None]] = {
     "traffic_light": _bool,
     "external_id": _text(MAX_NAME),
 }
+LANE_LINE_WIDTH_RANGE = (0.01, 2.0)  # a painted line, metres
+MAX_LANE_POSITION = 32  # as migration 0014's check
 LANE_RULES: dict[str, Callable[[Any], str | None]] = {
     "kind": _one_of(LANE_KINDS),
     "colour": _one_of(LANE_COLOURS),
-    "width_m": _number_in(0.01, 2.0, "m"),
-    "position": _int_in(0, 32),
+    "width_m": _number_in(*LANE_LINE_WIDTH_RANGE, "m"),
+    "position": _int_in(0, MAX_LANE_POSITION),
     "source": _one_of(LANE_SOURCES),
 }
 KIND_RULES: dict[Kind, dict[str, Callable[[Any], str | None]]] = {

@@ -96,6 +96,17 @@ def test_lane_lines_are_drawn_over_the_imagery(browser, lane_world, request,
     assert page.evaluate("(id) => window.ugvmap.map.getPaintProperty(id, 'line-dasharray')",
                          "net-weblanes-lanes-dashed") == [3, 3]
     assert "lane lines from the paint" in page.locator("#legend").inner_text()
+    # a click on a dashed line says what it is and where its feature is
+    x, y = page.evaluate(
+        "() => { const m = window.ugvmap.map; const [f] = m.queryRenderedFeatures("
+        "{layers: ['net-weblanes-lanes-dashed']}); const g = f.geometry; "
+        "const c = g.type === 'MultiLineString' ? g.coordinates.flat() : g.coordinates; "
+        "const p = m.project(c[Math.floor(c.length / 2)]); return [p.x, p.y]; }")
+    page.locator("#map canvas").click(position={"x": x, "y": y})
+    info = page.locator(".lane-info")
+    info.wait_for(timeout=5_000)
+    assert "dashed" in info.inner_text() and "the paint" in info.inner_text()
+    assert "/collections/weblanes-lanes/items/" in info.locator("a").get_attribute("href")
     page.uncheck("#networks li[data-network=weblanes] input.visible")
     assert page.evaluate("(id) => window.ugvmap.map.getLayoutProperty(id, 'visibility')",
                          "net-weblanes-lanes-dashed") == "none"

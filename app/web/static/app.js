@@ -159,10 +159,32 @@ async function start() {
     const hit = networks.segmentAt(ev.point);
     if (hit && isMultiClick(ev)) selection.toggle(hit);
     else if (hit) selection.set([hit]);
+    else showLane(networks.laneAt(ev.point), ev.lngLat);
   });
+
+  // A painted lane boundary clicked beside its road: what it is and where its feature is
+  // (edited over the OGC API: QGIS, scripts).
+  const lanePopup = new maplibregl.Popup({ closeButton: true, maxWidth: '280px' });
+  function showLane(lane, lngLat) {
+    if (!lane) { lanePopup.remove(); return; }
+    const p = lane.properties;
+    const url = `/collections/${encodeURIComponent(`${lane.network}-lanes`)}/items/${lane.id}`;
+    const rows = [['kind', p.kind], ['colour', p.colour], ['from', p.source === 'paint' ? 'the paint' : 'an offset (no paint)'],
+      ['position', p.position ?? '–'], ['segment', p.segment_id], ['confidence', p.confidence ?? '–']];
+    const box = document.createElement('div');
+    box.className = 'lane-info';
+    box.innerHTML = `<strong>Lane boundary ${lane.id}</strong><dl></dl><a target="_blank">feature (OGC API)</a>`;
+    box.querySelector('dl').replaceChildren(...rows.flatMap(([k, v]) => {
+      const dt = document.createElement('dt'); dt.textContent = k;
+      const dd = document.createElement('dd'); dd.textContent = String(v);
+      return [dt, dd];
+    }));
+    box.querySelector('a').href = url;
+    lanePopup.setLngLat(lngLat).setDOMContent(box).addTo(map);
+  }
   map.on('mousemove', (ev) => {
     if (route.isActive() || teach.isActive()) return;
-    map.getCanvas().style.cursor = networks.segmentAt(ev.point) ? 'pointer' : '';
+    map.getCanvas().style.cursor = networks.segmentAt(ev.point) || networks.laneAt(ev.point) ? 'pointer' : '';
   });
 
   // A server that refused the networks for want of a token: once one is pasted, reload
@@ -174,7 +196,7 @@ async function start() {
   const extent = openingView(rasterBounds, networks.extents);
   if (extent && !sharedView) map.fitBounds(extent, { padding: 30, duration: 0, maxZoom: 18 });
   // Exposed for the browser tests and for debugging from the console.
-  window.ugvmap = { map, networks, route, inspector, selection, bulk, teach, review };
+  window.ugvmap = { map, networks, route, inspector, selection, bulk, teach, review, lanePopup };
   document.body.dataset.ready = 'true';
 }
 

@@ -260,6 +260,16 @@ export class Networks {
     return feature ? Networks.segmentOf(feature) : null;
   }
 
+  /** The painted lane boundary under a screen point ({network, id, properties}), or null. */
+  laneAt(point) {
+    const box = [[point.x - 4, point.y - 4], [point.x + 4, point.y + 4]];
+    const layers = this.names.flatMap((name) => this.laneLayers[name]);
+    const [feature] = layers.length ? this.map.queryRenderedFeatures(box, { layers }) : [];
+    if (!feature) return null;
+    const network = this.names.find((name) => this.laneLayers[name].includes(feature.layer.id));
+    return { network, id: feature.id, properties: feature.properties };
+  }
+
   /** Every drawn segment meeting a screen box, once each (a segment cut by tile borders is
    * drawn as several features). */
   segmentsIn(box) {

@@ -143,8 +143,9 @@ def lane(kind: Kind) -> Lane:
 
 def held_on_arrival(kind: Kind) -> Callable[[], AsyncIterator[None]]:
     """A route dependency holding a slot of ``kind``'s lane for the whole request, taken (or
-    queued for, or refused with 503) as the request arrives, before its parameters or body are
-    parsed: the work's own :meth:`Lane.slot` then finds it held."""
+    queued for, or refused with 503) as the request arrives, before its points are parsed (of
+    a POST, FastAPI has only decoded the JSON): the work's own :meth:`Lane.slot` then finds it
+    held."""
     async def lane_slot() -> AsyncIterator[None]:
         async with lane(kind).slot():
             yield

@@ -76,15 +76,12 @@ def accept_preview(session: Session, slug: str, preview_id: int, network: Any,
             f"preview {preview_id} found no roads in its view: nothing to accept (a road "
             "the network has there and should not is deleted in the editor, and the "
             "deletion teaches the next extraction)", errors={"preview": "has no roads"})
-    box = shapely.from_wkt(session.execute(text("SELECT ST_AsText(CAST(:b AS geometry))"),
-                                           {"b": preview.bbox}).scalar_one())
-    layer_id: int = session.execute(text("SELECT id FROM layers WHERE slug = :s"),
-                                    {"s": slug}).scalar_one()
     lines = [changes.SurveyLine([tuple(p[:2]) for p in f["geometry"]["coordinates"]],
                                 dict(f["properties"])) for f in features]
     proposed = changes.propose(session, c.network, lines,
-                               source=f"preview {preview_id} of layer {slug}", coverage=box,
-                               principal=principal, layer=(layer_id, preview.layer_version),
+                               source=f"preview {preview_id} of layer {slug}",
+                               coverage=shapely.from_wkt(preview.bbox), principal=principal,
+                               layer=(preview.layer_id, preview.layer_version),
                                elsewhere=True)
     set_id = proposed["id"]
     ids: tuple[int, ...] = tuple(session.execute(

@@ -105,7 +105,8 @@ def stored_preview(session: Session, slug: str, preview_id: int) -> Any:
     layer is still at the preview's version; the layer row share-locked until the
     transaction ends, so no re-ingest commits while the preview is accepted."""
     row = session.execute(text(
-        "SELECT p.job_id, p.layer_version, l.version AS current, p.result, p.bbox "
+        "SELECT p.job_id, p.layer_version, l.id AS layer_id, l.version AS current, p.result, "
+        "ST_AsText(p.bbox) AS bbox "
         "FROM road_previews p JOIN layers l ON l.id = p.layer_id "
         "WHERE p.job_id = :id AND l.slug = :slug FOR SHARE OF l"),
         {"id": preview_id, "slug": slug}).first() if 0 < preview_id < 2**63 else None

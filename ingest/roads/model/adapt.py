@@ -74,8 +74,9 @@ def logit_of(prob: np.ndarray) -> np.ndarray:
 
 def correction_features(logit: np.ndarray, features: np.ndarray, rgb: np.ndarray,
                         context_px: tuple[float, ...], smooth_px: float) -> np.ndarray:
-    """(rows, cols, C) what the correction sees: decoder features, blurred logits and colour,
-    each with its linear dependence on the logit taken out.
+    """(C, rows, cols) what the correction sees: decoder features (channels first, as
+    :func:`predict` gives them), blurred logits and colour, each with its linear dependence
+    on the logit taken out.
 
     The network's logit is a linear function of its decoder features, so a linear correction
     of them could simply scale the logit down or invert it, and labels chosen by the network's
@@ -84,17 +85,20 @@ def correction_features(logit: np.ndarray, features: np.ndarray, rgb: np.ndarray
     correction can only add what the network did not already say. Every feature is also
     blurred (``smooth_px``), so the correction is smooth across a road: it raises or lowers a
     whole road, never its middle against its edges (which thinning then splits in two)."""
-    parts = [features, *(_blur(logit, s)[..., None] for s in context_px), rgb]
-    x = np.concatenate(parts, axis=-1).astype(np.float32, copy=False)
-    for i in range(x.shape[-1]):
-        x[..., i] = _blur(x[..., i], smooth_px)
-    flat_x, flat_logit = x.reshape(-1, x.shape[-1]), logit.ravel()
+    channels = [*features, *(_blur(logit, s) for s in context_px),
+                *np.moveaxis(rgb.astype(np.float32, copy=False), -1, 0)]
+    x = np.empty((len(channels), *logit.shape), np.float32)
+    for i, channel in enumerate(channels):
+        x[i] = _blur(np.ascontiguousarray(channel, dtype=np.float32), smooth_px)
+    flat_x, flat_logit = x.reshape(len(channels), -1), logit.ravel()
     some = np.random.default_rng(0).choice(len(flat_logit), min(len(flat_logit), 200_000),
                                            replace=False)
     centred = flat_logit[some] - flat_logit[some].mean()
-    slope = (centred @ (flat_x[some] - flat_x[some].mean(axis=0))) / max(
+    seen = flat_x[:, some]
+    slope = ((seen - seen.mean(axis=1, keepdims=True)) @ centred) / max(
         float(centred @ centred), 1e-12)
-    flat_x -= flat_logit[:, None] * slope.astype(np.float32)
+    for i, s in enumerate(slope.astype(np.float32)):
+        flat_x[i] -= flat_logit * s
     return x
 
 
@@ -252,8 +256,9 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     logit = logit_of(prob)
     x = correction_features(logit, feats, rgb, params.context_px, params.smooth_px)
     del feats
-    rows, cols, c = x.shape
-    flat_x, flat_logit = x.reshape(-1, c), logit.ravel()
+    c, rows, cols = x.shape
+    # Pixels as rows: the few thousand the fits read are gathered once into (n, C) arrays.
+    flat_x, flat_logit = x.reshape(c, -1).T, logit.ravel()
     r, cc = np.indices((rows, cols))
     odd = ((r // params.block_px + cc // params.block_px) % 2).astype(bool).ravel()
     learn = training_pixels(labels, prob, params, within=~odd, seed=1)

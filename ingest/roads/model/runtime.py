@@ -125,14 +125,15 @@ def _run(model: RoadModel, x: np.ndarray, names: list[str], tta: int) -> list[np
         back = [_undo_dihedral(o, k) for o in got]
         outs = back if outs is None else [a + b for a, b in zip(outs, back, strict=True)]
     assert outs is not None  # tta >= 1
-    return [o / tta for o in outs]
+    return outs if tta == 1 else [o / tta for o in outs]
 
 
 def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
             tile: int = TILE_PX, overlap: int = OVERLAP_PX, progress: bool = False,
             tta: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
     """Road probability (rows, cols) float32 of normalised RGB on the model grid, and the
-    decoder features (rows, cols, C) when asked for.
+    decoder features (C, rows, cols) when asked for (channels first, as the network gives
+    them: stitching and blurring whole channels is several times faster than strided ones).
 
     ``tile`` and ``overlap`` must be multiples of the 16 px grid; images smaller than a tile
     run as one (padded) tile. ``tta`` > 1 averages the network over that many rotations and
@@ -160,11 +161,15 @@ def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
         acc[r:r + th, c:c + tw] += out[0][0, 0] * window
         weight[r:r + th, c:c + tw] += window
         if features:
-            f = out[1][0].transpose(1, 2, 0)
+            f = out[1][0]
             if feat_acc is None:
-                feat_acc = np.zeros((ph, pw, f.shape[-1]), np.float32)
-            feat_acc[r:r + th, c:c + tw] += f * window[..., None]
+                feat_acc = np.zeros((f.shape[0], ph, pw), np.float32)
+            f *= window  # in place: the tile's outputs are ours, and 16 channels are large
+            feat_acc[:, r:r + th, c:c + tw] += f
     inner = (slice(overlap, overlap + rows), slice(overlap, overlap + cols))
     prob = acc[inner] / weight[inner]
-    feats = None if feat_acc is None else feat_acc[inner] / weight[inner][..., None]
+    feats = None
+    if feat_acc is not None:
+        feats = feat_acc[(slice(None), *inner)]
+        feats /= weight[inner]
     return prob, feats

@@ -21,7 +21,7 @@ from cli.main import main
 from ingest.roads import RoadsInputError
 from ingest.roads.georef import Image
 from ingest.roads.model.data import file_sha16, normalise, training_pairs
-from ingest.roads.model.runtime import MODEL_DIR, load_model, predict
+from ingest.roads.model.runtime import MODEL_DIR, halve, load_model, predict
 from ingest.roads.pipeline import ExtractParams, extract_roads
 from ingest.roads.synthetic import Scene, grid_scene, render
 
@@ -178,6 +178,28 @@ def test_tiled_inference_equals_untiled_away_from_the_border(shipped: object) ->
     assert diff.mean() < 1e-3 and np.percentile(diff, 99) < 0.02, diff.mean()
     same = (whole[inner] >= shipped.threshold) == (tiled[inner] >= shipped.threshold)
     assert same.mean() > 0.999, same.mean()
+
+
+def test_features_come_at_half_resolution_aligned_with_the_image(shipped: object) -> None:
+    """The decoder features the adaptation reads are stitched at half resolution: cell (i, j)
+    is the mean of pixels 2i..2i+1, 2j..2j+1 of the network's own output, odd edges included,
+    and tiling changes them as little as it changes the probability."""
+    rgb, _ = town(300, 100, 8, seed=5)
+    x = normalise(rgb[:283, :277].astype(np.float32) / 255)
+    prob, feats = predict(shipped, x, features=True, tile=512, overlap=64)
+    assert prob.shape == (283, 277) and feats is not None
+    assert feats.shape[1:] == (142, 139)
+    # One tile of 416 px (the image and its overlap rounded up to the 16 px grid), the
+    # image reflected into it as predict pads it.
+    padded = np.pad(x, ((64, 416 - 283 - 64), (64, 416 - 277 - 64), (0, 0)), mode="reflect")
+    whole = shipped.session.run(["features"], {"rgb": padded.transpose(2, 0, 1)[None].copy()})
+    # An odd last row or column's cells also hold the next (padding) pixel's features.
+    expected = halve(whole[0][0][:, 64:64 + 284, 64:64 + 278])
+    np.testing.assert_allclose(feats, expected, atol=1e-5)
+    _, tiled = predict(shipped, x, features=True, tile=256, overlap=64)
+    assert tiled is not None and tiled.shape == feats.shape
+    inner = (slice(None), slice(32, -32), slice(32, -32))
+    assert np.abs(tiled[inner] - feats[inner]).mean() < 0.05 * np.abs(feats[inner]).mean()
 
 
 def synthetic_image(rgb: np.ndarray, resolution_m: float = 1.0) -> Image:

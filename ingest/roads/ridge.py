@@ -77,21 +77,37 @@ def sample(coefficients: np.ndarray, xy: np.ndarray) -> np.ndarray:
                            prefilter=False, mode="nearest").reshape(rows.shape)
 
 
-def _first_below(values: np.ndarray, level: float, inside: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-sample position (in samples from index 0) of each row's first crossing below
-    ``level``, and whether it was found on data."""
-    below = values < level
+_COARSE = 5
+"""Fine samples per coarse step of the edge search: the profile is first read every
+``_COARSE`` samples, and only the step where it first falls below the level is read finely.
+The field is a probability on a 0.5 m grid, smooth at the 0.1 px fine step; reading every
+fine sample (800 per section) took a third of the road graph's time."""
+
+
+def _edge(coefficients: np.ndarray, level: float, points: np.ndarray, normals: np.ndarray,
+          half: int, step_px: float, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-sample position (in fine samples from each point, along its normal) of the first
+    crossing below ``level``, and whether it was found on data (``inside``: the fine samples
+    0..``half`` that are on data)."""
+    ks = np.unique(np.append(np.arange(0, half + 1, _COARSE), half))
+    xy = points[:, None, :] + (ks * step_px)[None, :, None] * normals[:, None, :]
+    below = sample(coefficients, xy) < level
     found = below.any(axis=1)
-    j = np.argmax(below, axis=1)
+    lo = ks[np.maximum(np.argmax(below, axis=1), 1) - 1]
+    # The fine samples of the coarse step where the profile first fell below the level.
+    k = np.minimum(lo[:, None] + np.arange(_COARSE + 1), half)
+    xy = points[:, None, :] + (k * step_px)[..., None] * normals[:, None, :]
+    values = sample(coefficients, xy)
+    jj = np.argmax(values < level, axis=1)
+    j = lo + jj
     off_data = ~inside
-    first_off = np.where(off_data.any(axis=1), np.argmax(off_data, axis=1), values.shape[1])
-    ok = found & (j > 0) & (j < first_off)
+    first_off = np.where(off_data.any(axis=1), np.argmax(off_data, axis=1), half + 1)
+    ok = found & (jj > 0) & (j < first_off)
     rows = np.arange(len(values))
-    jj = np.maximum(j, 1)
+    jj = np.maximum(jj, 1)
     a, b = values[rows, jj - 1], values[rows, jj]
     frac = np.clip((a - level) / np.where(a - b > 1e-12, a - b, 1.0), 0.0, 1.0)
-    return jj - 1 + frac, ok
+    return lo + jj - 1 + frac, ok
 
 
 def cross_sections(coefficients: np.ndarray, field: RoadField, points: np.ndarray,
@@ -108,15 +124,15 @@ def cross_sections(coefficients: np.ndarray, field: RoadField, points: np.ndarra
     for lo in range(0, n, _CHUNK):
         p, nv = points[lo:lo + _CHUNK], normals[lo:lo + _CHUNK]
         xy = p[:, None, :] + t[None, :, None] * nv[:, None, :]
-        prof = sample(coefficients, xy)
         col = np.floor(xy[..., 0]).astype(np.intp)
         row = np.floor(xy[..., 1]).astype(np.intp)
         inside = (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
         if field.valid is not None:
             inside[inside] = field.valid[row[inside], col[inside]]
-        right, ok_r = _first_below(prof[:, half:], field.level, inside[:, half:])
-        left, ok_l = _first_below(prof[:, half::-1], field.level, inside[:, half::-1])
-        good = ok_r & ok_l & (prof[:, half] >= field.level)
+        right, ok_r = _edge(coefficients, field.level, p, nv, half, step_px, inside[:, half:])
+        left, ok_l = _edge(coefficients, field.level, p, -nv, half, step_px,
+                           inside[:, half::-1])
+        good = ok_r & ok_l & (sample(coefficients, p) >= field.level)
         mid = (right - left) / 2 * step_px
         centres[lo:lo + _CHUNK] = np.where(good[:, None], p + mid[:, None] * nv, p)
         widths[lo:lo + _CHUNK] = np.where(good, (right + left) * step_px, np.nan)

@@ -297,24 +297,27 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     # Pixels as rows: the few thousand the fits read are gathered once into (n, C) arrays.
     flat_x, flat_logit = x.reshape(x.shape[0], -1).T, logit.ravel()
     rows, cols = logit.shape
-    r, cc = np.indices((rows, cols))
-    odd = ((r // params.block_px + cc // params.block_px) % 2).astype(bool).ravel()
-    cell = ((r // 2) * half_cols + cc // 2).ravel()
-    del r, cc
+    odd = ((np.arange(rows)[:, None] // params.block_px
+            + np.arange(cols)[None, :] // params.block_px) % 2).astype(bool).ravel()
+
+    def cell(index: np.ndarray) -> np.ndarray:
+        """The half-grid cells (flat) of full-grid pixels (flat): only the sampled pixels'
+        are ever needed, so no whole-image index array is made."""
+        return (index // cols // 2) * half_cols + (index % cols) // 2
+
     learn = training_pixels(labels, prob, params, within=~odd, seed=1)
     held, target, weight = training_pixels(labels, prob, params, within=odd, seed=2)
-    trial = fit_correction(flat_x[cell[learn[0]]], flat_logit[learn[0]], learn[1], learn[2],
+    trial = fit_correction(flat_x[cell(learn[0])], flat_logit[learn[0]], learn[1], learn[2],
                            params)
     said = labels.ravel()[held] != 0  # the cut is judged by the labels, not the anchors
     held, road, weight = held[said], target[said] > 0.5, weight[said]
-    judged = 1 / (1 + np.exp(-(flat_logit[held] + trial(flat_x[cell[held]]))))
+    judged = 1 / (1 + np.exp(-(flat_logit[held] + trial(flat_x[cell(held)]))))
     threshold = best_threshold(judged, road, weight, model.threshold)
     if agreement(judged, road, weight, threshold) <= agreement(
             prob.ravel()[held], road, weight, model.threshold) + params.gate_margin:
         return np.where(labels == NOT_ROAD, 0.0, prob).astype(np.float32), prob, model.threshold
     index, target, weight = training_pixels(labels, prob, params)
-    correction = fit_correction(flat_x[cell[index]], flat_logit[index], target, weight, params)
-    del cell
+    correction = fit_correction(flat_x[cell(index)], flat_logit[index], target, weight, params)
     field = correction.of_channels(x.reshape(x.shape[0], -1)).astype(np.float32).reshape(
         half_rows, half_cols)
     z = logit + cv2.resize(field, (2 * half_cols, 2 * half_rows),

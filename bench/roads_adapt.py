@@ -124,6 +124,7 @@ def main() -> None:
                   f"{before.apls:.3f} | {a.precision:.3f} / {a.recall:.3f} / {after.apls:.3f} "
                   f"| {f1(before):.3f} -> {f1(after):.3f} | {before.seconds:.1f} / "
                   f"{after.seconds:.1f} ({after.seconds / before.seconds:.2f}) |", flush=True)
+            print(f"|   | {adapted.sample_note} | | | | |", flush=True)
     print()
     for kind, pairs in rows.items():
         if not pairs:

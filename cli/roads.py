@@ -103,6 +103,8 @@ def extract_roads(image: Path, train_boxes: list, not_road_boxes: list, train_ma
     junctions = sum(n.is_junction for n in result.graph.nodes)
     click.echo(f"{len(result.graph.edges)} segments, {len(result.graph.nodes)} nodes "
                f"({junctions} junctions), {result.classifier} classifier -> {out_path}")
+    if result.sample_note:
+        click.echo(result.sample_note)
 
 
 @click.command("evaluate-roads")
@@ -222,13 +224,8 @@ def roads() -> None:
     """The road model: train it (needs the ``train`` extra: torch)."""
 
 
-def _augment_option(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
-                    ) -> dict[str, float]:
-    from dataclasses import fields
-
-    from ingest.roads.model.data import Augment
-
-    known = {f.name for f in fields(Augment)}
+def _name_numbers(values: tuple[str, ...]) -> dict[str, float]:
+    """``NAME=NUMBER`` options (repeatable) as a dict."""
     out = {}
     for value in values:
         name, _, number = value.partition("=")
@@ -236,8 +233,29 @@ def _augment_option(ctx: click.Context, param: click.Parameter, values: tuple[st
             out[name] = float(number)
         except ValueError:
             raise click.BadParameter(f"{value!r}: expected NAME=NUMBER") from None
+    return out
+
+
+def _augment_option(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
+                    ) -> dict[str, float]:
+    from dataclasses import fields
+
+    from ingest.roads.model.data import Augment
+
+    known = {f.name for f in fields(Augment)}
+    out = _name_numbers(values)
+    for name in out:
         if name not in known:
             raise click.BadParameter(f"{name!r}: not one of {', '.join(sorted(known))}")
+    return out
+
+
+def _source_weight_option(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
+                          ) -> dict[str, float]:
+    out = _name_numbers(values)
+    for name, weight in out.items():
+        if not name or not weight > 0:
+            raise click.BadParameter(f"{name}={weight}: a source name and a weight above 0")
     return out
 
 
@@ -268,6 +286,10 @@ def _augment_option(ctx: click.Context, param: click.Parameter, values: tuple[st
               help="Change one augmentation (probability or range; repeatable), e.g. "
                    "jpeg_p=0 switches JPEG artefacts off.")
 @click.option("--max-scenes", type=int, help="Use only the first N scenes (quick runs).")
+@click.option("--source-weight", "source_weight", multiple=True, callback=_source_weight_option,
+              metavar="SOURCE=WEIGHT",
+              help="Draw scenes of this pairs.json source WEIGHT times as often (repeatable), "
+                   "e.g. rural_cn_hq=10 for a kind the rest of the data lacks.")
 @click.option("--threads", type=int, default=2, show_default=True,
               help="CPU threads (1 trains faster on a machine busy with other work).")
 @click.option("--resume", is_flag=True,
@@ -285,7 +307,7 @@ def _augment_option(ctx: click.Context, param: click.Parameter, values: tuple[st
 def roads_train(data: Path, out_dir: Path, exclude_dirs: tuple[Path, ...], arch: str,
                 scratch: bool, epochs: int, steps_per_epoch: int, batch: int, crop: int,
                 resolution: float, seed: int, augment: dict[str, float],
-                max_scenes: int | None, threads: int, resume: bool,
+                max_scenes: int | None, source_weight: dict[str, float], threads: int, resume: bool,
                 time_limit: float | None, init: Path | None, lr: float,
                 bf16: bool | None) -> None:
     """Train the road segmentation model and export it to ONNX with its model card."""
@@ -306,7 +328,7 @@ def roads_train(data: Path, out_dir: Path, exclude_dirs: tuple[Path, ...], arch:
                              crop_px=crop, batch=batch, epochs=epochs,
                              steps_per_epoch=steps_per_epoch, seed=seed, max_scenes=max_scenes,
                              threads=threads, augment=replace(Augment(), **augment),
-                             exclude=exclude, lr=lr,
+                             exclude=exclude, lr=lr, source_weight=source_weight,
                              bf16=native_bf16() if bf16 is None else bf16,
                              init=None if init is None else str(init.resolve()),
                              init_sha16=None if init is None else file_sha16(init))

@@ -65,6 +65,7 @@ def test_a_few_road_lines_teach_roads_the_model_does_not_know() -> None:
     labels = _lines(np.zeros(road.shape, np.uint8), ROADS[:2], ROAD)
     adapted = extract_roads(image, labels, ExtractParams())
     assert adapted.classifier == "adapted"
+    assert adapted.sample_note is not None and adapted.sample_note.startswith("sample used")
     p, r = _scores(adapted, road)
     assert _f1(p, r) >= zero + 0.2, (zero, p, r)
     assert p >= 0.8 and r >= 0.8
@@ -138,10 +139,14 @@ def test_a_review_the_network_gets_all_wrong_must_be_clearly_bettered(
     model = RoadModel(Path("network.onnx"), 0.5, 0.3, None)  # type: ignore[arg-type]
     rgb = rng.normal(size=(size, size, 3)).astype(np.float32)
     network = np.where(labels == NOT_ROAD, 0.0, prob)
-    adapted, _, cut = adapt.adapted_probability(model, rgb, labels)
-    assert cut == 0.3 and np.array_equal(adapted, network)
-    used, _, _ = adapt.adapted_probability(model, rgb, labels, AdaptParams(gate_margin=0.0))
-    assert np.abs(used - network).max() > 0.2  # the premise: without a margin it was used
+    adapted = adapt.adapted_probability(model, rgb, labels)
+    assert adapted.threshold == 0.3 and np.array_equal(adapted.prob, network)
+    # ...and says so: a person whose lines changed nothing learns they were read and why
+    assert not adapted.used and adapted.held_adapted > adapted.held_network
+    assert adapted.summary().startswith("sample not used")
+    used = adapt.adapted_probability(model, rgb, labels, AdaptParams(gate_margin=0.0))
+    assert used.used and used.summary().startswith("sample used")
+    assert np.abs(used.prob - network).max() > 0.2  # the premise: without a margin it was
 
 
 def test_labels_count_for_the_pixels_they_cover() -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -83,6 +84,10 @@ def test_a_sample_adapts_the_road_model_by_default(files: dict[str, Path], tmp_p
                     "--resolution", 0.5, "--out", out)
     assert result.exit_code == 0, result.output
     assert "adapted classifier" in result.output
+    # whether the sample was used, with the held-out figures that decided it
+    assert re.search(r"^sample (not )?used: on the held-out half of the labels the adapted "
+                     r"model agreed [0-9.]+ and the network [0-9.]+", result.output, re.M), \
+        result.output
     assert len(json.loads(out.read_text())["features"]) >= 4
 
 

@@ -330,3 +330,11 @@ def test_bf16_only_where_the_cpu_does_it(tmp_path: Path, flags: str, native: boo
     cpuinfo.write_text(f"processor\t: 0\nflags\t\t: {flags}\n", encoding="utf-8")
     assert native_bf16(cpuinfo) is native
     assert native_bf16(tmp_path / "missing") is False
+
+
+@pytest.mark.parametrize("weight", ["rural", "rural=x", "rural=0", "=2"])
+def test_a_bad_source_weight_is_refused_before_training(tmp_path: Path, weight: str) -> None:
+    result = CliRunner().invoke(main, ["roads", "train", "--data", str(tmp_path), "--out",
+                                       str(tmp_path / "out"), "--source-weight", weight])
+    assert result.exit_code == 2 and "--source-weight" in result.output, result.output
+    assert not (tmp_path / "out").exists()

@@ -53,3 +53,18 @@ def test_the_sampler_mixes_procedural_crops_at_the_asked_share() -> None:
     half = CropSampler([grey], 64, seed=1, augment=replace(Augment(), procedural_p=0.5))
     with_road = sum(half.crop()[1].sum() > 0 for _ in range(80))
     assert 20 <= with_road <= 60, with_road
+
+
+def test_a_source_weight_draws_its_scenes_more_often() -> None:
+    """Two scenes of the same size, one all road ("rural"), one with none: equally often
+    unweighted, about 9 in 10 with the rural source weighed 9 (``--source-weight``)."""
+    size = (200, 200)
+    urban = Scene("u", "urban", np.full((*size, 3), 90, np.uint8), np.zeros(size, np.uint8),
+                  np.ones(size, np.uint8))
+    rural = Scene("r", "rural", np.full((*size, 3), 160, np.uint8), np.ones(size, np.uint8),
+                  np.ones(size, np.uint8))
+    plain = CropSampler([urban, rural], 64, seed=2)
+    weighed = CropSampler([urban, rural], 64, seed=2, source_weight={"rural": 9.0})
+    assert np.allclose(plain.p, [0.5, 0.5]) and np.allclose(weighed.p, [0.1, 0.9])
+    drawn = sum(weighed.crop()[1].mean() > 0.5 for _ in range(200))
+    assert 160 <= drawn <= 195, drawn

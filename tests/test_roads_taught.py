@@ -137,6 +137,7 @@ def test_a_false_road_a_reviewer_deleted_stays_out_of_the_re_extraction(client,
                                  "--replace"])
     assert again.exit_code == 0, again.output
     assert "(model classifier" not in again.output  # adapted, to the review
+    assert "sample used: on the held-out half of the labels" in again.output, again.output
     assert (f"sample: {len(false)} review label{'s' if len(false) > 1 else ''} from network "
             f"{network} ({len(false)} deleted)") in again.output
     assert sum(m for _, m, _ in along_canal()) <= 25  # where the roads cross it, at most

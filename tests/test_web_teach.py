@@ -100,6 +100,7 @@ def test_teach_label_preview_then_accept(browser, teach_world, request, tmp_path
         "document.getElementById('teach-result').textContent)", timeout=120_000)
     summary = page.locator("#teach-result").inner_text()
     assert "1 road / 0 not-road labels" in summary, summary
+    assert re.search(r"\(sample (not )?used: on the held-out half", summary), summary
     wait_idle(page)
     drawn = page.evaluate("() => window.ugvmap.map.queryRenderedFeatures("
                           "{layers: ['teach-preview-line']}).length")

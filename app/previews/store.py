@@ -84,8 +84,9 @@ def request_preview(session: Session, slug: str, bbox: tuple[float, float, float
 
 def read_preview(session: Session, slug: str, preview_id: int) -> dict[str, Any]:
     """The preview as the API shows it: its job's state and, once done, its roads (a GeoJSON
-    FeatureCollection with each road's confidence), the classifier, the labels it learned
-    from and its seconds. 404 unless it is a preview of this layer."""
+    FeatureCollection with each road's confidence), the classifier, whether the labels were
+    used (``sample``: the held-out figures that decided it; null when zero-shot), the labels
+    it learned from and its seconds. 404 unless it is a preview of this layer."""
     row = session.execute(text(
         "SELECT j.status, j.progress, j.message, j.error, j.params, p.result "
         "FROM ingest_jobs j LEFT JOIN road_previews p ON p.job_id = j.id "

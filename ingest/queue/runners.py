@@ -91,7 +91,7 @@ def road_preview(job_id: int, params: PreviewParams) -> None:
         with session_scope() as session:
             team = taught(session, params.layer)
             try:
-                lines, classifier = window_roads(session, params.layer, params.bbox,
+                lines, extraction = window_roads(session, params.layer, params.bbox,
                                                  team.sample, ExtractParams())
             except Exception:  # a re-ingest may have taken the files: say that instead
                 _refuse_stale(session, params)
@@ -100,7 +100,8 @@ def road_preview(job_id: int, params: PreviewParams) -> None:
         features = [{"type": "Feature", "geometry": {"type": "LineString",
                                                      "coordinates": line.coords},
                      "properties": dataclasses.asdict(line.attributes)} for line in lines]
-        result = {"type": "FeatureCollection", "features": features, "classifier": classifier,
+        result = {"type": "FeatureCollection", "features": features,
+                  "classifier": extraction.classifier, "sample": extraction.sample_note,
                   "labels": taught_counts(team),
                   "seconds": round(time.monotonic() - started, 2)}
         with session_scope() as session:
@@ -113,7 +114,9 @@ def road_preview(job_id: int, params: PreviewParams) -> None:
                  "x0": params.bbox[0], "y0": params.bbox[1], "x1": params.bbox[2],
                  "y1": params.bbox[3], "result": json.dumps(result)})
             succeed_in(session.connection(), job_id,
-                       f"{len(lines)} roads in {result['seconds']} s ({classifier})")
+                       f"{len(lines)} roads in {result['seconds']} s "
+                       f"({extraction.classifier}"
+                       + (f"; {extraction.sample_note})" if extraction.sample_note else ")"))
 
 
 def _refuse_stale(session: Session, params: PreviewParams) -> int:

@@ -174,6 +174,9 @@ class LayerExtraction:
     """The layer's labels and review labels the sample held."""
     change_set: dict[str, Any] | None = None
     """With ``--update``: the change set proposed (id, counts) instead of a written network."""
+    sample_notes: list[str] = dataclasses.field(default_factory=list)
+    """Per area the road model adapted in: whether the sample was used, and why
+    (:meth:`ingest.roads.model.adapt.Adapted.summary`)."""
 
     def lines(self) -> list[str]:
         """The CLI's report: what was written, from what, and the attributes it got."""
@@ -183,12 +186,13 @@ class LayerExtraction:
         junctions = sum(a.is_junction for a in self.stored)
         areas = (f" in {len(self.classifiers)} separate areas"
                  if len(self.classifiers) > 1 else "")
-        used = self.taught.describe()
+        used = [described] if (described := self.taught.describe()) else []
+        notes = list(dict.fromkeys(self.sample_notes))
         if self.change_set is not None:
             c = self.change_set
             return [f"change set {c['id']} for network {c['network']} from layer {self.layer} "
                     f"({len(self.stored)} lines extracted): " + ", ".join(
-                        f"{n} {kind}" for kind, n in c["counts"].items()),
+                        f"{n} {kind}" for kind, n in c["counts"].items()), *notes,
                     f"review it: ugvmap network changes {c['network']} {c['id']}"]
         return [
             f"network {s.network}: {s.segments} segments, {s.nodes} nodes, "
@@ -197,7 +201,7 @@ class LayerExtraction:
             "classes: " + ", ".join(f"{n} {c}" for c, n in classes)
             + f"; {junctions} junction segments; confidence mean "
               f"{np.mean(confidence):.2f}, min {min(confidence):.2f}",
-        ] + ([used] if used else [])
+            *used, *notes]
 
 
 def _layer_sources(session: Session, slug: str) -> tuple[str, list[LayerSource]]:
@@ -300,6 +304,7 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
     areas = source_areas(sources)
     lines: list[RoadLine] = []
     classifiers: list[str] = []
+    notes: list[str] = []
     labelled = False
     for area in areas:
         image = layer_mosaic([s.path for s in area], [s.name for s in area])
@@ -308,6 +313,7 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
         labelled = labelled or burnt is not None
         extraction = extract_roads(image, burnt, params, progress=progress)
         classifiers.append(extraction.classifier)
+        notes += [extraction.sample_note] if extraction.sample_note else []
         lines += road_lines(extraction, applied, {"extracted_from": slug,
                                                   "classifier": extraction.classifier})
     if required and not labelled:
@@ -321,15 +327,17 @@ def ingest_layer_roads(session: Session, slug: str, network: str, sample: GeoSam
                                      (layer_id, version), tol=Tolerances(**(tolerances or {})))
         summary = ImportSummary(network, 0, 0, 0, 0.0, len(lines))
         return LayerExtraction(slug, classifiers, summary, " + ".join(used) or "none",
-                               applied, [line.attributes for line in lines], team, proposed)
+                               applied, [line.attributes for line in lines], team, proposed,
+                               notes)
     summary = write_network(session, network, lines, replace=replace, node_crossings=False)
     return LayerExtraction(slug, classifiers, summary, " + ".join(used) or "none", applied,
-                           [line.attributes for line in lines], team)
+                           [line.attributes for line in lines], team, sample_notes=notes)
 
 
 def window_roads(session: Session, slug: str, bbox: LonLatBox, sample: GeoSample | None,
-                 params: ExtractParams) -> tuple[list[RoadLine], str]:
-    """(roads, classifier) of one lon/lat window of layer ``slug``: a preview of the view on
+                 params: ExtractParams) -> tuple[list[RoadLine], Extraction]:
+    """(roads, the extraction: its classifier and what it made of the sample) of one lon/lat
+    window of layer ``slug``: a preview of the view on
     the map. Only the sources meeting the window are read, and only that window of them
     (:func:`layer_mosaic` with bounds), so its cost follows the window, not the layer. The
     sample's labels there make the model adapt (zero-shot where they label nothing there).
@@ -355,4 +363,4 @@ def window_roads(session: Session, slug: str, bbox: LonLatBox, sample: GeoSample
         labels = burnt if burnt.any() else None
     extraction = extract_roads(image, labels, params)
     attrs = {"extracted_from": slug, "classifier": extraction.classifier}
-    return road_lines(extraction, AttributeRules(), attrs), extraction.classifier
+    return road_lines(extraction, AttributeRules(), attrs), extraction

@@ -101,6 +101,10 @@ class Extraction:
     classifier: str
     stages: dict[str, np.ndarray]
     source_resolution_m: float
+    sample_note: str | None = None
+    """What the adapted model made of the sample
+    (:meth:`ingest.roads.model.adapt.Adapted.summary`): whether it was used, and the held-out
+    figures that decided it; ``None`` for other classifiers."""
 
     def geojson(self) -> dict:
         """The result as a GeoJSON FeatureCollection (map coordinates with a ``crs`` member when the
@@ -135,8 +139,9 @@ def _on_grid(labels: np.ndarray, shape: tuple[int, int], need_road: bool = True)
 
 
 def model_mask(image: Image, labels: np.ndarray | None, adapt: bool, params: ExtractParams,
-               progress: bool = False) -> tuple[np.ndarray, RoadField, Frame]:
-    """(road mask, road probability as a field, frame) from the road model on its own grid."""
+               progress: bool = False) -> tuple[np.ndarray, RoadField, Frame, str | None]:
+    """(road mask, road probability as a field, frame, what the sample did: ``None`` when
+    zero-shot) from the road model on its own grid."""
     from ingest.roads.model.adapt import adapted_probability
     from ingest.roads.model.data import rgb_bands, stretch, stretch_limits
     from ingest.roads.model.runtime import load_model, predict
@@ -155,8 +160,9 @@ def model_mask(image: Image, labels: np.ndarray | None, adapt: bool, params: Ext
         if labels is None:
             raise RoadsInputError("--classifier adapted needs a training sample (--train-box, "
                                   "--train-mask or --train-lines)")
-        prob, _, low = adapted_probability(model, rgb, _on_grid(labels, rgb.shape[:2], False),
-                                           params.adapt, progress=progress)
+        adapted = adapted_probability(model, rgb, _on_grid(labels, rgb.shape[:2], False),
+                                      params.adapt, progress=progress)
+        prob, low, note = adapted.prob, adapted.threshold, adapted.summary()
         binary = prob >= low
     else:
         # Zero-shot: one cut, the model's own (hold-out F1) threshold. A second, absolute seed
@@ -165,11 +171,11 @@ def model_mask(image: Image, labels: np.ndarray | None, adapt: bool, params: Ext
         # the look) the two are equal in F1: P/R at 2 m with seeds 0.674/0.548, APLS 0.358;
         # one cut, no opening, 20 m² pieces 0.625/0.574, APLS 0.375 (roads-v2 at 6 epochs).
         prob, _ = predict(model, rgb, progress=progress, tta=params.tta)
-        low = model.threshold
+        low, note = model.threshold, None
         binary = prob >= low
     if valid is not None:
         binary &= valid
-    return binary, RoadField(prob, low, valid), frame
+    return binary, RoadField(prob, low, valid), frame, note
 
 
 def extract_roads(image: Image, labels: np.ndarray | None = None,
@@ -188,8 +194,10 @@ def extract_roads(image: Image, labels: np.ndarray | None = None,
     method = choose_classifier(params.classifier, labels)
     field = None
     valid = None
+    sample_note = None
     if method in ("model", "adapted"):
-        binary, field, frame = model_mask(image, labels, method == "adapted", params, progress)
+        binary, field, frame, sample_note = model_mask(image, labels, method == "adapted",
+                                                       params, progress)
         valid = field.valid
     else:
         if labels is None:
@@ -230,7 +238,7 @@ def extract_roads(image: Image, labels: np.ndarray | None = None,
         if method in ("model", "adapted"):
             cv2.imwrite(str(debug_dir / "0_probability.png"),
                         np.round(field.values * 255).astype(np.uint8))
-    return Extraction(graph, frame, method, stages, image.resolution_m)
+    return Extraction(graph, frame, method, stages, image.resolution_m, sample_note)
 
 
 def write_debug_images(stages: dict[str, np.ndarray], debug_dir: Path) -> None:

@@ -26,7 +26,8 @@ export function previewSummary(result) {
   const mean = conf.length ? (conf.reduce((a, b) => a + b, 0) / conf.length).toFixed(2) : '–';
   const { road = 0, not_road: notRoad = 0 } = result.labels || {};
   const sample = road + notRoad ? `${road} road / ${notRoad} not-road labels` : 'no labels (zero-shot)';
-  return `${roads} roads, confidence mean ${mean}; ${sample}, ${result.seconds} s`;
+  const used = result.sample ? ` (${result.sample})` : '';
+  return `${roads} roads, confidence mean ${mean}; ${sample}${used}, ${result.seconds} s`;
 }
 
 export class TeachTool {

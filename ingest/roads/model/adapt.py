@@ -269,11 +269,46 @@ def best_threshold(prob: np.ndarray, road: np.ndarray, weight: np.ndarray, defau
     return float(cuts[best])
 
 
+@dataclass(frozen=True)
+class Adapted:
+    """What a sample made of the network's road probability, and whether it was used.
+
+    A person who drew roads must learn when their sample changed nothing (the network's own
+    result, their "not road" areas removed): otherwise the same lines come back and they
+    cannot tell a sample that was judged and turned away from one that was never read."""
+
+    prob: np.ndarray
+    """The road probability to cut (the network's own where the sample was not used; 0 where
+    a person said "not road" either way)."""
+    network: np.ndarray
+    """The network's own probability."""
+    threshold: float
+    used: bool
+    """Whether the correction learnt from the sample was applied (it agreed with the held-out
+    half of the labels better than the network by ``gate_margin``)."""
+    held_network: float
+    """The network's agreement (F1, or share right for one class) with the held-out labels."""
+    held_adapted: float
+    """The trial correction's agreement with them."""
+    margin: float
+    """How much better than the network it had to be (``AdaptParams.gate_margin``)."""
+
+    def summary(self) -> str:
+        """One line for a person: used or not, and the held-out figures that decided it."""
+        scores = (f"on the held-out half of the labels the adapted model agreed "
+                  f"{self.held_adapted:.2f} and the network {self.held_network:.2f}")
+        if self.used:
+            return f"sample used: {scores}"
+        return (f"sample not used: {scores}, not better by {self.margin:g}, so this is the "
+                "network's own result (its \"not road\" areas removed); label roads it misses "
+                "and its false ones to teach it")
+
+
 def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
                         params: AdaptParams = DEFAULT_ADAPT, progress: bool = False
-                        ) -> tuple[np.ndarray, np.ndarray, float]:
-    """(adapted road probability, the network's own probability, the adapted threshold) on
-    the model grid, from ``labels`` (255 road / 128 not road / 0) on the same grid.
+                        ) -> Adapted:
+    """The road probability on the model grid adapted to ``labels`` (255 road / 128 not road
+    / 0) on the same grid.
 
     The correction is first learnt on half of the image's blocks and judged on the other
     half, labels and anchors alike: that chooses the threshold, and where the held-out half
@@ -313,9 +348,11 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     held, road, weight = held[said], target[said] > 0.5, weight[said]
     judged = 1 / (1 + np.exp(-(flat_logit[held] + trial(flat_x[cell(held)]))))
     threshold = best_threshold(judged, road, weight, model.threshold)
-    if agreement(judged, road, weight, threshold) <= agreement(
-            prob.ravel()[held], road, weight, model.threshold) + params.gate_margin:
-        return np.where(labels == NOT_ROAD, 0.0, prob).astype(np.float32), prob, model.threshold
+    held_adapted = agreement(judged, road, weight, threshold)
+    held_network = agreement(prob.ravel()[held], road, weight, model.threshold)
+    if held_adapted <= held_network + params.gate_margin:
+        return Adapted(np.where(labels == NOT_ROAD, 0.0, prob).astype(np.float32), prob,
+                       model.threshold, False, held_network, held_adapted, params.gate_margin)
     index, target, weight = training_pixels(labels, prob, params)
     correction = fit_correction(flat_x[cell(index)], flat_logit[index], target, weight, params)
     field = correction.of_channels(x.reshape(x.shape[0], -1)).astype(np.float32).reshape(
@@ -326,4 +363,4 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     # Where a person said "not road" it is not: a deleted false road never comes back where it
     # was, whatever the correction learnt from it for the rest of the image.
     adapted[labels == NOT_ROAD] = 0.0
-    return adapted, prob, threshold
+    return Adapted(adapted, prob, threshold, True, held_network, held_adapted, params.gate_margin)

@@ -71,6 +71,9 @@ class TrainConfig:
     augment: Augment = field(default_factory=Augment)
     widths: tuple[int, ...] = WIDTHS
     """``unet`` only: channels per level."""
+    source_weight: dict[str, float] = field(default_factory=dict)
+    """How much more often than its area says a scene of this source is drawn (``pairs.json``'s
+    ``source``; :class:`~ingest.roads.model.data.CropSampler`)."""
     max_scenes: int | None = None
     """Use only the first N training scenes (CI-sized runs)."""
     exclude: list[str] = field(default_factory=list)
@@ -215,7 +218,7 @@ def train(data: Path, out: Path, config: TrainConfig, progress: bool = True,
     scenes = [load_scene(data, p, config.resolution_m) for p in load]
     train_scenes, hold_scenes = scenes[:len(train_pairs)], scenes[len(train_pairs):]
     sampler = CropSampler(train_scenes, config.crop_px, config.seed, config.augment,
-                          config.resolution_m)
+                          config.resolution_m, config.source_weight)
     model = _network(config)
     if config.init is not None:
         _load_init(model, Path(config.init))

@@ -45,6 +45,7 @@ from ingest.lanes.across import Section, frame_at, sections  # noqa: E402
 from ingest.lanes.assign import LaneRange, Paint, lane_ranges  # noqa: E402
 from ingest.lanes.extract import extract_markings, rgb_of  # noqa: E402
 from ingest.lanes.paint import brightness, paint_mask, top_hat  # noqa: E402
+from ingest.lanes.road import model_road  # noqa: E402
 from ingest.roads.evaluate import buffer_scores, rasterize_lines  # noqa: E402
 from ingest.roads.georef import read_image  # noqa: E402
 from ingest.roads.skeleton import thin  # noqa: E402
@@ -75,7 +76,7 @@ def real_rows(within_m: float = 0.5) -> list[dict]:
             img = read_image(DATA / folder / pair["image"], pair["m_per_px"])
             shape = img.pixels.shape[:2]
             start = time.perf_counter()
-            found = extract_markings(img)
+            found = extract_markings(img, road=model_road(img))
             seconds = time.perf_counter() - start
             label = DATA / folder / pair["label"]
             hat = top_hat(brightness(rgb_of(img.pixels)), img.resolution_m, None)
@@ -133,7 +134,7 @@ def drive_markings(frames: int) -> tuple[list[Paint], shapely.Geometry, float]:
             assert img.transform is not None and img.crs is not None
             to_lonlat = Transformer.from_crs(img.crs, "EPSG:4326", always_xy=True)
             start = time.perf_counter()
-            found = extract_markings(img)
+            found = extract_markings(img, road=model_road(img))
             seconds += time.perf_counter() - start
             pixels += img.pixels.shape[0] * img.pixels.shape[1]
 

@@ -25,7 +25,12 @@ from cli.jobs import enqueue_job, queue_option
               help="Metres per pixel (required without georeference; at most 0.2).")
 @click.option("--out", "out_path", type=click.Path(path_type=Path, dir_okay=False), required=True,
               help="Output GeoJSON (LineStrings with kind, colour, width_m, confidence).")
-def extract_lanes(image: Path, resolution: float | None, out_path: Path) -> None:
+@click.option("--road-model/--no-road-model", default=True, show_default=True,
+              help="Keep only paint on or beside road as the road model sees it (aerial "
+                   "imagery of 0.1-0.2 m/px spanning 48 m or more, where it sees road: roofs "
+                   "and car parks are not road).")
+def extract_lanes(image: Path, resolution: float | None, out_path: Path,
+                  road_model: bool) -> None:
     """Extract the painted lane markings of IMAGE into GeoJSON.
 
     Each marking is a line with a kind (solid, dashed, stop_line, road_edge, other), a colour
@@ -42,14 +47,22 @@ def extract_lanes(image: Path, resolution: float | None, out_path: Path) -> None
         img = read_image(image, resolution)
     except MemoryError as exc:
         raise UserError(f"{image}: too big to read into memory") from exc
-    markings = extract_markings(img)
+    road = None
+    if road_model:
+        from ingest.lanes.road import model_road
+
+        road = model_road(img)
+    markings = extract_markings(img, road=road)
     try:
         out_path.write_text(json.dumps(markings_geojson(markings, img)))
     except OSError as exc:
         raise UserError(f"cannot write {out_path}: {exc.strerror}") from exc
     kinds = Counter(m.kind for m in markings)
     summary = ", ".join(f"{n} {kind}" for kind, n in kinds.most_common()) or "no marking found"
-    click.echo(f"{len(markings)} markings ({summary}) -> {out_path}")
+    where = ("" if not road_model else " on the road model's roads" if road is not None
+             else " (the road model not used: finer than 0.1 m/px, under 48 m across, or no road "
+             "seen)")
+    click.echo(f"{len(markings)} markings ({summary}){where} -> {out_path}")
 
 
 @click.command("lanes")

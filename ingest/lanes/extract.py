@@ -27,8 +27,11 @@ def rgb_of(pixels: np.ndarray) -> np.ndarray:
 
 
 def extract_markings(image: Image, paint: PaintParams | None = None,
-                     params: ClassifyParams | None = None) -> list[Marking]:
-    """Every marking line in ``image`` (pixel coordinates); refuses imagery too coarse."""
+                     params: ClassifyParams | None = None,
+                     road: np.ndarray | None = None) -> list[Marking]:
+    """Every marking line in ``image`` (pixel coordinates); refuses imagery too coarse.
+    ``road`` (bool, the image's grid), where given, is where paint may be
+    (:func:`ingest.lanes.road.model_road`), beside the colour test."""
     check_resolution(image.resolution_m)
     paint, params = paint or PaintParams(), params or ClassifyParams()
     rgb = rgb_of(image.pixels)
@@ -37,6 +40,8 @@ def extract_markings(image: Image, paint: PaintParams | None = None,
     res = image.resolution_m
     surface = road_surface(hsv, params.asphalt_saturation)
     mask = paint_mask(hat, paint) & near_road(surface, res)
+    if road is not None:
+        mask &= road
     return classify(pieces(mask, res, params.min_length_m), hsv, hat, surface, res, params)
 
 

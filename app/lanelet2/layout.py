@@ -157,10 +157,14 @@ class _Placed:
 def _laterals(n: np.ndarray, width: np.ndarray, slot_offsets: np.ndarray, pieces: Pieces,
               cut: np.ndarray) -> np.ndarray:
     """(2, slots): how far left of its line each bound starts and ends: lanes side by side
-    centred on the line, or where the paint is at the cut stations."""
+    centred on the line, as the stored range places them where it has lanes, or where the
+    paint is at the cut stations."""
     seg = np.repeat(np.arange(len(n)), n + 1)
     k = np.arange(slot_offsets[-1]) - slot_offsets[seg]
     out = np.tile((n[seg] / 2.0 - k) * width[seg], (2, 1))
+    for s, lateral in pieces.laterals.items():
+        if len(lateral) == n[s] + 1:
+            out[:, slot_offsets[s]:slot_offsets[s + 1]] = lateral
     for (s, slot_k), slot in pieces.slots.items():
         out[0, slot_offsets[s] + slot_k] = slot.offset_at(float(cut[0, s]))
         out[1, slot_offsets[s] + slot_k] = slot.offset_at(float(cut[1, s]))

@@ -35,6 +35,9 @@ from app.lanelet2.roads import (
 from app.lanelet2.topology import lanes_fit
 
 MIN_PIECE_M = 3.0
+FIT_M = 0.75
+"""How far from its range's boundary a stored bound may lie (``ingest lanes`` puts a line on
+a boundary within the same distance)."""
 THICK_M = 0.3
 """Painted lines at least this wide are ``line_thick``."""
 GRID_M = 0.5
@@ -94,6 +97,9 @@ class Pieces:
     slots: dict[tuple[int, int], PaintedSlot] = field(default_factory=dict)
     """(row, slot k counted from the left edge along the geometry) -> its paint."""
     stops: list[StopLine] = field(default_factory=list)
+    laterals: dict[int, np.ndarray] = field(default_factory=dict)
+    """row -> each slot's offset left of the line (from the left edge) as its stored range
+    says, for the slots no paint bounds: lanes as wide as stored, not evenly split."""
 
     def painted_rows(self, n_rows: int) -> np.ndarray:
         """Which rows have any painted bound."""
@@ -107,7 +113,8 @@ class Pieces:
         slots = {(where[r], k): s for (r, k), s in self.slots.items() if r in where}
         stops = [StopLine(s.xy, 2 * where[s.arm // 2] + s.arm % 2, s.lit) for s in self.stops
                  if s.arm // 2 in where]
-        return Pieces(slots, stops)
+        return Pieces(slots, stops, {where[r]: lat for r, lat in self.laterals.items()
+                                     if r in where})
 
 
 @dataclass
@@ -132,16 +139,20 @@ def _cuts(length: float, strong: list[float], weak: list[float]) -> list[float]:
     return kept
 
 
+Piece = tuple[float, float, int, int, float, list[float]]
+"""(from, to, forward, backward, road width, boundary offsets right to left) of a piece."""
+
+
 def segment_pieces(centre: shapely.LineString, lanes: StoredLanes, frame: Frame
-                   ) -> tuple[list[tuple[float, float, int, int, float]],
-                              list[dict[int, PaintedSlot]], list[tuple[np.ndarray, int, float]]]:
-    """Cut one painted segment (its metric centreline ``centre``): (pieces as (from, to,
-    forward, backward, road width), per piece its painted slots by position from the right,
-    stop lines as (end points, piece, offset))."""
+                   ) -> tuple[list[Piece], list[dict[int, PaintedSlot]],
+                              list[tuple[np.ndarray, int, float]]]:
+    """Cut one painted segment (its metric centreline ``centre``): (pieces, per piece its
+    painted slots by position from the right, stop lines as (end points, piece, offset))."""
     length = centre.length
     scale = length / max(lanes.ranges[-1][1], 1e-9)
     ranges = [(lo * scale, hi * scale, f, b) for lo, hi, f, b in lanes.ranges]
     width = dict(zip(ranges, lanes.widths, strict=True))
+    offsets = dict(zip(ranges, lanes.offsets, strict=True))
     bounds, stops = [], []
     for row in lanes.bounds:
         xy = frame.local(row.lonlat)
@@ -156,8 +167,9 @@ def segment_pieces(centre: shapely.LineString, lanes: StoredLanes, frame: Frame
         order = np.argsort(station, kind="stable")
         bounds.append(_Bound(row, xy[order], station[order], offset[order],
                              row.station_from_m * scale, row.station_to_m * scale))
+    by_range = [[b for b in bounds if _fits(b, r, offsets[r])] for r in ranges]
     grid = np.arange(GRID_M / 2, length, GRID_M)
-    owner = _owners(grid, ranges, bounds)
+    owner = _owners(grid, ranges, by_range)
     keys = [_lane_change_key(cell) for cell in owner]
     change = [float(grid[i]) for i in range(1, len(grid)) if keys[i] != keys[i - 1]]
     cuts = _cuts(length, [hi for _, hi, _, _ in ranges[:-1]] + [s for _, s, _ in stops],
@@ -165,11 +177,13 @@ def segment_pieces(centre: shapely.LineString, lanes: StoredLanes, frame: Frame
     pieces, slots = [], []
     for lo, hi in itertools.pairwise(cuts):
         mid = (lo + hi) / 2
-        r = next((x for x in ranges if x[0] <= mid <= x[1]), ranges[-1])
-        pieces.append((lo, hi, r[2], r[3], width[r]))
+        i = next((j for j, x in enumerate(ranges) if x[0] <= mid <= x[1]), len(ranges) - 1)
+        r = ranges[i]
+        pieces.append((lo, hi, r[2], r[3], width[r], offsets[r]))
         inside = (grid >= lo) & (grid < hi)
-        slots.append(_piece_slots(bounds, owner, inside, r, lo))
-    stop_lines = [(xy, int(np.argmin([abs(p[1 if offset < 0 else 0] - s) for p in pieces])),
+        slots.append(_piece_slots(by_range[i], owner, inside, r, lo))
+    ends = [(p[0], p[1]) for p in pieces]
+    stop_lines = [(xy, int(np.argmin([abs(e[1 if offset < 0 else 0] - s) for e in ends])),
                    offset) for xy, s, offset in stops]
     return pieces, slots, stop_lines
 
@@ -177,14 +191,27 @@ def segment_pieces(centre: shapely.LineString, lanes: StoredLanes, frame: Frame
 Cell = tuple[int, tuple["_Bound | None", ...]]
 
 
+def _fits(b: _Bound, r: tuple[float, float, int, int], offsets: list[float]) -> bool:
+    """Whether a stored bound is one of range ``r``'s: it runs along the range and lies
+    where the range says its position's boundary is (within :data:`FIT_M`). Ranges read
+    from the paint always fit their own bounds; ranges a person edited (``PUT .../lanes``)
+    may no longer: a line of the old lanes is then not drawn as a bound of the new ones."""
+    if b.row.position is None or b.row.position >= len(offsets) or not (
+            b.hi > r[0] and b.lo < r[1]):
+        return False
+    along = (b.station >= r[0]) & (b.station <= r[1])
+    offset = float(np.median(b.offset[along] if along.any() else b.offset))
+    return abs(offset - offsets[b.row.position]) <= FIT_M
+
+
 def _owners(grid: np.ndarray, ranges: list[tuple[float, float, int, int]],
-            bounds: list[_Bound]) -> list[Cell]:
+            by_range: list[list[_Bound]]) -> list[Cell]:
     """Per grid station, the range it lies in and the bound covering each of its positions."""
     out = []
     for s in grid.tolist():
         r = next((i for i, x in enumerate(ranges) if x[0] <= s <= x[1]), len(ranges) - 1)
         n = ranges[r][2] + ranges[r][3]
-        out.append((r, tuple(_cover(bounds, k, s) for k in range(n + 1))))
+        out.append((r, tuple(_cover(by_range[r], k, s) for k in range(n + 1))))
     return out
 
 
@@ -208,12 +235,13 @@ def _tags(row: StoredBound) -> dict[str, str]:
 
 def _piece_slots(bounds: list[_Bound], owner: list[Cell], inside: np.ndarray,
                  r: tuple[float, float, int, int], lo: float) -> dict[int, PaintedSlot]:
-    """The painted slots of one piece (stations relative to its start), by position; a
-    slot's tags are those most of the piece's paint has (guessed ones where none is)."""
+    """The painted slots of one piece (stations relative to its start), by position, from
+    the ``bounds`` of its range (:func:`_fits`); a slot's tags are those most of the piece's
+    paint has (guessed ones where none is)."""
     out = {}
     cells = [owner[i] for i in np.flatnonzero(inside)]
     for k in range(r[2] + r[3] + 1):
-        mine = [b for b in bounds if b.row.position == k and b.hi > r[0] and b.lo < r[1]]
+        mine = [b for b in bounds if b.row.position == k]
         votes: dict[tuple[tuple[str, str], ...], tuple[int, int]] = {}
         for _, covers in cells:
             b = covers[k] if k < len(covers) else None
@@ -251,6 +279,7 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
     tables = [rest]
     new_nodes: list[tuple[int, np.ndarray]] = []
     slots: list[dict[int, PaintedSlot]] = []
+    laterals: list[np.ndarray] = []
     stops: list[tuple[np.ndarray, int, float, bool]] = []
     lit = dict(zip(nodes.ids.tolist(), nodes.traffic_light.tolist(), strict=True))
     for row in np.flatnonzero(has_paint).tolist():
@@ -260,7 +289,7 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
         pieces, piece_slots, piece_stops = segment_pieces(centre, sel.paint[int(part.ids[0])],
                                                           frame)
         ends = [int(part.source[0])]
-        for lo, _, _, _, _ in pieces[1:]:
+        for lo, *_ in pieces[1:]:
             new_nodes.append((-(len(new_nodes) + 1),
                               frame.lonlat(shapely.get_coordinates(centre.interpolate(lo)))[0]))
             ends.append(new_nodes[-1][0])
@@ -269,7 +298,7 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
         stops += [(xy_stop, base + p, offset,
                    lit.get(int(part.target[0] if offset < 0 else part.source[0]), False))
                   for xy_stop, p, offset in piece_stops]
-        for i, (lo, hi, f, b, width) in enumerate(pieces):
+        for i, (lo, hi, f, b, width, offsets) in enumerate(pieces):
             piece_xy = shapely.get_coordinates(shapely.ops.substring(centre, lo, hi))
             tables.append(RoadTable(
                 ids=part.ids, source=np.array([ends[i]]), target=np.array([ends[i + 1]]),
@@ -279,6 +308,7 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
                 speed_limit_kph=part.speed_limit_kph, road_class=part.road_class,
                 name=part.name, width_m=np.array([width])))
             slots.append({f + b - k: slot for k, slot in piece_slots[i].items()})
+            laterals.append(np.array(offsets[::-1], np.float64))
     table = concat(tables)
     order = np.argsort(table.ids, kind="stable")
     split, _ = table.take(order)
@@ -288,7 +318,8 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
     painted = Pieces({(int(where[first + i]), k): slot for i, by_k in enumerate(slots)
                       for k, slot in by_k.items()},
                      [StopLine(xy, 2 * int(where[first + p]) + (1 if offset < 0 else 0), light)
-                      for xy, p, offset, light in stops])
+                      for xy, p, offset, light in stops],
+                     {int(where[first + i]): lat for i, lat in enumerate(laterals)})
     ids = np.concatenate([nodes.ids, [i for i, _ in new_nodes]])
     lonlat = np.concatenate([nodes.lonlat, np.array([ll for _, ll in new_nodes]).reshape(-1, 2)])
     light = np.concatenate([nodes.traffic_light, np.zeros(len(new_nodes), bool)])

@@ -43,7 +43,8 @@ SELECT segment_id, position, kind, colour, width_m, confidence, station_from_m, 
  ORDER BY segment_id, station_from_m, id
 """
 RANGES_SQL = """
-SELECT segment_id, station_from_m, station_to_m, lanes_forward, lanes_backward, widths_m
+SELECT segment_id, station_from_m, station_to_m, lanes_forward, lanes_backward, widths_m,
+       offsets_m
   FROM segment_lanes WHERE network_id = :network_id
  ORDER BY segment_id, station_from_m
 """
@@ -114,6 +115,8 @@ class StoredLanes:
     ranges: list[tuple[float, float, int, int]] = field(default_factory=list)
     widths: list[float] = field(default_factory=list)
     """Each range's road width (its lanes' widths summed)."""
+    offsets: list[list[float]] = field(default_factory=list)
+    """Each range's boundary offsets, right to left (+ left of the segment)."""
     bounds: list[StoredBound] = field(default_factory=list)
 
 
@@ -131,6 +134,7 @@ def read_paint(conn: Connection, network_id: int, segment_ids: np.ndarray
         lanes.ranges.append((r.station_from_m, r.station_to_m, r.lanes_forward,
                              r.lanes_backward))
         lanes.widths.append(float(sum(r.widths_m)))
+        lanes.offsets.append([float(o) for o in r.offsets_m])
     for r in conn.execute(text(BOUNDS_SQL), {"network_id": network_id}):
         if int(r[0]) in out:
             out[int(r[0])].bounds.append(StoredBound(

@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session
 
 from app.errors import InvalidValueError, PreconditionFailedError, PreconditionRequiredError
 from app.network import collections as colls
+from app.network import lane_ranges
 from app.network.segment_rows import geodesic_length, on_nodes
 from app.network.tokens import Principal
 from app.settings import get_settings
@@ -35,7 +36,8 @@ HISTORY: dict[colls.Kind, tuple[str, str]] = {"segments": ("segment_edits", "seg
                                               "lanes": ("lane_boundary_edits", "boundary_id")}
 # Edits a revert may undo: attribute and geometry changes. A split, merge or node move
 # changed the topology (restoring one segment's old line would detach it from its nodes).
-REVERTIBLE = ("update", "replace", "revert", "resurvey", "resurvey-revert", "lanes-from-paint")
+REVERTIBLE = ("update", "replace", "revert", "resurvey", "resurvey-revert", "lanes-from-paint",
+              "lanes")
 
 
 def unprocessable(errors: dict[str, str]) -> InvalidValueError:
@@ -114,13 +116,17 @@ def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
     version, and log it (with ``note`` in the history row's ``new``: why, e.g. the change
     set an accepted re-survey change came from)."""
     props = feature["properties"]
+    if lane_ranges.KEY in new:  # not a column: the segment's rows of segment_lanes
+        props = {**props, lane_ranges.KEY: lane_ranges.read_ranges(session, feature["id"])}
     old = {k: (feature["geometry"] if k == "geometry" else props[k]) for k in new}
     changed = {k: v for k, v in new.items() if old[k] != v}
     if not changed:
         return feature
-    assignments = [f"{k} = :{k}" for k in changed if k not in ("geometry", "attrs")]
-    params: dict[str, Any] = {k: v for k, v in changed.items()
-                              if k not in ("geometry", "attrs")}
+    special = ("geometry", "attrs", lane_ranges.KEY)
+    assignments = [f"{k} = :{k}" for k in changed if k not in special]
+    params: dict[str, Any] = {k: v for k, v in changed.items() if k not in special}
+    if lane_ranges.KEY in changed:
+        lane_ranges.store_ranges(session, c.network_id, feature["id"], changed[lane_ranges.KEY])
     if "attrs" in changed:
         assignments.append("attrs = CAST(:attrs AS jsonb)")
         params["attrs"] = json.dumps(changed["attrs"])
@@ -133,7 +139,7 @@ def write_change(session: Session, c: colls.Collection, feature: dict[str, Any],
         assignments.append(f"geom = {geom}")
         params["geometry"] = json.dumps(changed["geometry"])
     version: int | None = session.execute(text(
-        f"UPDATE {c.table} SET {', '.join(assignments)}, version = version + 1, "
+        f"UPDATE {c.table} SET {''.join(a + ', ' for a in assignments)}version = version + 1, "
         "updated_at = now(), updated_by = :who WHERE id = :id AND version = :version "
         "RETURNING version"),
         {**params, "who": principal.name, "id": feature["id"],

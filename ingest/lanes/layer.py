@@ -193,13 +193,16 @@ def ingest_layer_lanes(session: Session, slug: str, network: str,
 
 
 def _edited_lanes(session: Session, net_id: int, ids: np.ndarray) -> list[int]:
-    """The segments whose lane boundaries a person edited or deleted: a re-run keeps them
-    (human edits are never overwritten; delete the boundaries to read the paint again)."""
+    """The segments whose lane boundaries a person edited or deleted, or whose lane ranges a
+    person set (``PUT .../lanes``): a re-run keeps them (human edits are never overwritten;
+    delete the boundaries, and PUT an empty list of ranges, to read the paint again)."""
     return sorted(session.execute(text(
         "SELECT segment_id FROM lane_boundaries WHERE segment_id = ANY(:ids) "
         "AND updated_by IS DISTINCT FROM :machine UNION "
         "SELECT (old->>'segment_id')::bigint FROM lane_boundary_edits WHERE network_id = :net "
-        "AND action = 'delete' AND (old->>'segment_id')::bigint = ANY(:ids)"),
+        "AND action = 'delete' AND (old->>'segment_id')::bigint = ANY(:ids) UNION "
+        "SELECT segment_id FROM segment_lanes WHERE segment_id = ANY(:ids) "
+        "AND source = 'edited'"),
         {"ids": ids.tolist(), "machine": MACHINE, "net": net_id}).scalars())
 
 

@@ -48,7 +48,10 @@ DUMP = "database.dump"
 RASTERS = "rasters"
 FORMAT = 1
 COUNTED = ("layers", "raster_sources", "networks", "road_segments", "road_nodes",
-           "segment_edits", "api_tokens")
+           "segment_edits", "node_edits", "api_tokens", "layer_labels", "change_sets",
+           "proposed_changes", "segment_lanes", "lane_boundaries", "lane_boundary_edits")
+"""Tables whose rows the manifest counts and a restore checks: everything a person made or
+edited (the dump holds every table; these are what a silent loss would cost)."""
 CHUNK = 1 << 20
 
 Progress = Callable[[str, int], None]

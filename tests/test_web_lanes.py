@@ -11,6 +11,7 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -19,6 +20,7 @@ from rasterio.transform import from_origin
 
 from cli.main import main
 from ingest.ipm.synthetic import Drive, LanePaint
+from testkit.network_helpers import token
 from testkit.raster_synth import write_tif
 from testkit.server import running_server
 from tests.test_web_map import finish, wait_idle
@@ -65,7 +67,7 @@ def lane_world(module_database: str, tmp_path_factory: pytest.TempPathFactory
     env = {"DATABASE_URL": module_database,
            "UGVMAP_RASTER_STORE": os.environ["UGVMAP_RASTER_STORE"]}
     with running_server(env) as base:
-        yield {"base": base, "centre": list(centre)}
+        yield {"base": base, "centre": list(centre), "token": token("editor")}
 
 
 def test_lane_lines_are_drawn_over_the_imagery(browser, lane_world, request,
@@ -106,7 +108,27 @@ def test_lane_lines_are_drawn_over_the_imagery(browser, lane_world, request,
     info = page.locator(".lane-info")
     info.wait_for(timeout=5_000)
     assert "dashed" in info.inner_text() and "the paint" in info.inner_text()
-    assert "/collections/weblanes-lanes/items/" in info.locator("a").get_attribute("href")
+    href = info.locator("a").get_attribute("href")
+    assert "/collections/weblanes-lanes/items/" in href
+    # ...and, with an editor token, changes its kind: refused and said without one, then
+    # saved as the next version of what the popup read, and drawn solid
+    version = httpx.get(lane_world["base"] + href).json()["properties"]["version"]
+    info.locator("select[name=kind]").select_option("solid")
+    info.locator("button", has_text="Save").click()
+    page.wait_for_function("() => /Not saved/.test("
+                           "document.querySelector('.lane-said').textContent)", timeout=10_000)
+    page.fill("#token", lane_world["token"])
+    info.locator("button", has_text="Save").click()
+    page.wait_for_function("() => /Saved \\(version/.test("
+                           "document.querySelector('.lane-said').textContent)", timeout=10_000)
+    saved = httpx.get(lane_world["base"] + href).json()["properties"]
+    assert (saved["kind"], saved["version"]) == ("solid", version + 1)
+    history = httpx.get(lane_world["base"] + href + "/history").json()["edits"]
+    assert history[-1]["new"] == {"kind": "solid"} and history[-1]["conditional"] is True
+    page.wait_for_function(
+        "(id) => window.ugvmap.map.queryRenderedFeatures({layers: ['net-weblanes-lanes-solid']})"
+        ".some((f) => f.id === id && f.properties.kind === 'solid')",
+        arg=int(href.rsplit("/", 1)[1]), timeout=15_000)
     page.uncheck("#networks li[data-network=weblanes] input.visible")
     assert page.evaluate("(id) => window.ugvmap.map.getLayoutProperty(id, 'visibility')",
                          "net-weblanes-lanes-dashed") == "none"

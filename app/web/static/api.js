@@ -24,6 +24,11 @@ export function readHeaders(url) {
   return { Authorization: `Bearer ${token}` };
 }
 
+/** Headers of a write with the token pasted in the panel. */
+export function editorHeaders() {
+  return { Authorization: `Bearer ${savedToken()}`, 'Content-Type': 'application/json' };
+}
+
 /** Fetch JSON; resolves to {ok, status, body, etag} and never throws for HTTP errors. */
 export async function request(url, options = {}) {
   let response;

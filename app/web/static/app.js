@@ -2,6 +2,7 @@
 import { readHeaders, setStatus } from './api.js';
 import { BulkEditor } from './bulk.js';
 import { Inspector } from './inspector.js';
+import { LanePopup } from './lanes.js';
 import { Networks, reviewFilter } from './networks.js';
 import { loadRasterLayers } from './rasters.js';
 import { ReviewTool } from './review.js';
@@ -159,29 +160,12 @@ async function start() {
     const hit = networks.segmentAt(ev.point);
     if (hit && isMultiClick(ev)) selection.toggle(hit);
     else if (hit) selection.set([hit]);
-    else showLane(networks.laneAt(ev.point), ev.lngLat);
+    else lanes.show(networks.laneAt(ev.point), ev.lngLat);
   });
 
-  // A painted lane boundary clicked beside its road: what it is and where its feature is
-  // (edited over the OGC API: QGIS, scripts).
-  const lanePopup = new maplibregl.Popup({ closeButton: true, maxWidth: '280px' });
-  function showLane(lane, lngLat) {
-    if (!lane) { lanePopup.remove(); return; }
-    const p = lane.properties;
-    const url = `/collections/${encodeURIComponent(`${lane.network}-lanes`)}/items/${lane.id}`;
-    const rows = [['kind', p.kind], ['colour', p.colour], ['from', p.source === 'paint' ? 'the paint' : 'an offset (no paint)'],
-      ['position', p.position ?? '–'], ['segment', p.segment_id], ['confidence', p.confidence ?? '–']];
-    const box = document.createElement('div');
-    box.className = 'lane-info';
-    box.innerHTML = `<strong>Lane boundary ${lane.id}</strong><dl></dl><a target="_blank">feature (OGC API)</a>`;
-    box.querySelector('dl').replaceChildren(...rows.flatMap(([k, v]) => {
-      const dt = document.createElement('dt'); dt.textContent = k;
-      const dd = document.createElement('dd'); dd.textContent = String(v);
-      return [dt, dd];
-    }));
-    box.querySelector('a').href = url;
-    lanePopup.setLngLat(lngLat).setDOMContent(box).addTo(map);
-  }
+  // A painted lane boundary clicked beside its road: what it is, and its kind and colour
+  // edited with an editor token.
+  const lanes = new LanePopup(map, maplibregl, (name) => changed([name]));
   map.on('mousemove', (ev) => {
     if (route.isActive() || teach.isActive()) return;
     map.getCanvas().style.cursor = networks.segmentAt(ev.point) || networks.laneAt(ev.point) ? 'pointer' : '';
@@ -196,7 +180,7 @@ async function start() {
   const extent = openingView(rasterBounds, networks.extents);
   if (extent && !sharedView) map.fitBounds(extent, { padding: 30, duration: 0, maxZoom: 18 });
   // Exposed for the browser tests and for debugging from the console.
-  window.ugvmap = { map, networks, route, inspector, selection, bulk, teach, review, lanePopup };
+  window.ugvmap = { map, networks, route, inspector, selection, bulk, teach, review, lanes };
   document.body.dataset.ready = 'true';
 }
 

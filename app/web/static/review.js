@@ -2,16 +2,12 @@
 // one drawn over the imagery in its own style (moved: orange dashes, new: cyan, missing: red
 // dots; decided ones faded), and accept / reject one by one (click a proposal), in the view,
 // by kind or all, and revert a whole set (/change-sets/{id}/...).
-import { request, describeError, savedToken } from './api.js';
+import { request, describeError, editorHeaders } from './api.js';
 
 const SOURCE = 'review-changes';
 const EMPTY = { type: 'FeatureCollection', features: [] };
 const COLOURS = ['match', ['get', 'kind'], 'moved', '#ff9f1c', 'new', '#00d5ff', '#ff3b30'];
 export const REVIEW_LAYERS = ['review-missing', 'review-moved-new'];
-
-function editorHeaders() {
-  return { Authorization: `Bearer ${savedToken()}`, 'Content-Type': 'application/json' };
-}
 
 /** One line on a change set for its list: id, source and what is still to decide. */
 export function setLabel(set) {

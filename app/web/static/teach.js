@@ -1,17 +1,13 @@
 // Teach tool: labels drawn on a raster layer (road lines, "not road" boxes) through
 // /layers/{slug}/labels, a preview of the view re-extracted with them (a job the server's
 // workers run), drawn dashed magenta over the networks, and Accept into a network.
-import { request, describeError, savedToken } from './api.js';
+import { request, describeError, editorHeaders } from './api.js';
 
 const DRAFT = 'teach-draft';
 const LABELS = 'teach-labels';
 const PREVIEW = 'teach-preview';
 const POLL_MS = 400;
 const EMPTY = { type: 'FeatureCollection', features: [] };
-
-function editorHeaders() {
-  return { Authorization: `Bearer ${savedToken()}`, 'Content-Type': 'application/json' };
-}
 
 /** Lon/lat box of two corners, as a closed polygon ring. */
 function boxPolygon([x0, y0], [x1, y1]) {

@@ -17,7 +17,7 @@ from sqlalchemy.exc import InterfaceError, OperationalError
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp
 
-from app import collector, errors
+from app import collector, errors, malloc
 from app.api import document, landing, middleware
 from app.api.body_limit import JsonPayloadTooLarge
 from app.api.errors import api_error, database_unavailable, http_error, validation_error
@@ -57,8 +57,10 @@ class UgvmapApp(FastAPI):
 
 @asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-    """Once the process serves: garbage-collector settings for serving (:mod:`app.collector`)."""
+    """Once the process serves: garbage-collector settings for serving (:mod:`app.collector`)
+    and a cap on malloc's arenas (:mod:`app.malloc`)."""
     collector.tune_for_serving()
+    malloc.cap_arenas()
     yield
 
 

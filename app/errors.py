@@ -77,6 +77,12 @@ class ServiceBusyError(UgvmapError):
 class InvalidValueError(UgvmapError):
     """Well-formed input whose values break a rule; ``errors`` says which field and why."""
 
+    @classmethod
+    def naming(cls, errors: dict[str, str]) -> InvalidValueError:
+        """One error naming every field that breaks a rule (its message lists them all), so
+        a form can mark them all at once."""
+        return cls("; ".join(f"{k}: {v}" for k, v in errors.items()), errors=errors)
+
 
 class PreconditionRequiredError(UgvmapError):
     """A write without ``If-Match``: refused so edits cannot silently overwrite each other."""

@@ -229,5 +229,4 @@ def validate_job(kind: Any, params: Any) -> JobParams:
         for err in exc.errors():
             field = ".".join(str(p) for p in ("params", *err["loc"]))
             errors.setdefault(field, err["msg"])
-        raise InvalidValueError("; ".join(f"{k}: {v}" for k, v in errors.items()),
-                                errors=errors) from None
+        raise InvalidValueError.naming(errors) from None

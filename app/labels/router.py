@@ -19,7 +19,7 @@ from app.api.dependencies import SessionDep, require_role
 from app.api.errors import PayloadTooLargeError, UnsupportedMediaTypeError, responses
 from app.api.query import only_query
 from app.labels import store
-from app.network.editing_router import FEATURE_TYPES, _body_doc, _in_session, json_body
+from app.network.editing_router import FEATURE_TYPES, body_doc, in_session, json_body
 from app.network.features_router import GEOJSON, GeoJSONResponse
 from app.network.tokens import Principal
 from app.params import Int, LayerSlug
@@ -76,7 +76,7 @@ def labels(slug: LayerSlug, session: SessionDep) -> GeoJSONResponse:
 
 
 @router.post(LABELS, status_code=201, response_class=GeoJSONResponse,
-             openapi_extra=_body_doc(LABELS_BODY, FEATURE_TYPES),
+             openapi_extra=body_doc(LABELS_BODY, FEATURE_TYPES),
              responses={201: {"description": "Stored: the new labels with their ids",
                               **COLLECTION_200[200]},
                         **WRITE_ERRORS,
@@ -91,7 +91,7 @@ async def add_labels(slug: LayerSlug, request: Request, principal: EditorDep) ->
         store.layer_id(session.connection(), slug)  # an unknown layer is a 404 before all
         return store.add_labels(session, slug, store.parse_labels(body), principal.name)
 
-    return GeoJSONResponse(_collection(await _in_session(add)), status_code=201)
+    return GeoJSONResponse(_collection(await in_session(add)), status_code=201)
 
 
 @router.delete(LABELS + "/{label_id}", status_code=204, response_class=Response,
@@ -100,11 +100,11 @@ async def add_labels(slug: LayerSlug, request: Request, principal: EditorDep) ->
                           **responses(errors.NotFoundError)})
 async def delete_label(slug: LayerSlug, label_id: LabelId, principal: EditorDep) -> Response:
     """Delete one label (editor)."""
-    await _in_session(lambda session: store.delete_label(session, slug, label_id))
+    await in_session(lambda session: store.delete_label(session, slug, label_id))
     return Response(status_code=204)
 
 
 @router.delete(LABELS, openapi_extra={"security": [{"bearer": []}]}, responses=WRITE_ERRORS)
 async def clear_labels(slug: LayerSlug, principal: EditorDep) -> dict[str, int]:
     """Delete all of the layer's labels (editor); how many there were."""
-    return {"deleted": await _in_session(lambda session: store.clear_labels(session, slug))}
+    return {"deleted": await in_session(lambda session: store.clear_labels(session, slug))}

@@ -42,8 +42,7 @@ REVERTIBLE = ("update", "replace", "revert", "resurvey", "resurvey-revert", "lan
 
 def unprocessable(errors: dict[str, str]) -> InvalidValueError:
     """One 422 naming every field that breaks a rule, so a form can mark them all at once."""
-    return InvalidValueError("; ".join(f"{k}: {v}" for k, v in errors.items()),
-                             errors=errors)
+    return InvalidValueError.naming(errors)
 
 
 def parse_if_match(header: str | None, count: int = 1) -> list[int] | None:

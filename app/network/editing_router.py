@@ -120,7 +120,7 @@ def feature_response(feature: dict[str, Any], status_code: int = 200,
     return GeoJSONResponse(feature, status_code=status_code, headers=headers)
 
 
-def _body_doc(schema: dict[str, Any], media_types: tuple[str, ...],
+def body_doc(schema: dict[str, Any], media_types: tuple[str, ...],
               *params: dict[str, Any]) -> dict[str, Any]:
     """API document of an edit: its JSON body, header/query parameters and bearer token."""
     return {"requestBody": {"required": True,
@@ -146,7 +146,7 @@ PRECONDITIONS = (errors.PreconditionFailedError, errors.PreconditionRequiredErro
 SEGMENTS_ONLY = (MethodNotAllowedError,)
 
 
-async def _in_session(work: Callable[[Session], Any]) -> Any:
+async def in_session(work: Callable[[Session], Any]) -> Any:
     """Run blocking DB work in the thread pool, in one transaction, tried again when it lost
     a deadlock or serialization failure (:func:`app.db.session.retried`: 409 if it keeps
     losing)."""
@@ -176,7 +176,7 @@ def item_options(collection_id: str, request: Request, session: SessionDep) -> R
 
 
 @router.post(ITEMS, status_code=201, response_class=GeoJSONResponse,
-             openapi_extra=_body_doc({"$ref": "#/components/schemas/FeatureInput"}, FEATURE_TYPES,
+             openapi_extra=body_doc({"$ref": "#/components/schemas/FeatureInput"}, FEATURE_TYPES,
                                      CONTENT_CRS),
              responses={201: {"description": "Created; `Location` is the new item",
                               "content": {GEOJSON: {"schema": {
@@ -198,12 +198,12 @@ async def create_item(collection_id: str, request: Request, principal: EditorDep
                                      f"{feature['id']}", "rel": "self", "type": GEOJSON}]
         return feature
 
-    feature = await _in_session(create)
+    feature = await in_session(create)
     return feature_response(feature, 201, feature["links"][0]["href"])
 
 
 @router.put(ITEM, response_class=GeoJSONResponse,
-            openapi_extra=_body_doc({"$ref": "#/components/schemas/FeatureInput"}, FEATURE_TYPES,
+            openapi_extra=body_doc({"$ref": "#/components/schemas/FeatureInput"}, FEATURE_TYPES,
                                     IF_MATCH, CONTENT_CRS),
             responses={**FEATURE_200, **responses(*WRITE_ERRORS, *BODY_ERRORS,
                                                          *PRECONDITIONS)})
@@ -219,7 +219,7 @@ async def replace_item(collection_id: str, fid: str, request: Request,
 
 
 @router.patch(ITEM, response_class=GeoJSONResponse,
-              openapi_extra=_body_doc(schemas.openapi_patch_body(), PATCH_TYPES, IF_MATCH,
+              openapi_extra=body_doc(schemas.openapi_patch_body(), PATCH_TYPES, IF_MATCH,
                                       CONTENT_CRS),
               responses={**FEATURE_200, **responses(*WRITE_ERRORS, *BODY_ERRORS,
                                                            *PRECONDITIONS)})
@@ -247,7 +247,7 @@ async def _edit_item(request: Request, collection_id: str, fid: str, body: Any,
                                             editing.expected_version(if_match), body, crs,
                                             principal)
 
-    return feature_response(await _in_session(write))
+    return feature_response(await in_session(write))
 
 
 @router.delete(ITEM, status_code=204, response_class=Response,
@@ -270,7 +270,7 @@ async def delete_item(collection_id: str, fid: str, request: Request,
                           lane_editing.delete_lane)
         remove(session, c, parse_fid(fid), editing.expected_version(if_match), principal)
 
-    await _in_session(delete)
+    await in_session(delete)
     return Response(status_code=204)
 
 
@@ -302,11 +302,11 @@ async def revert_item(collection_id: str, fid: str, to: Version, request: Reques
         return editing.revert_feature(session, c, parse_fid(fid), to,
                                       editing.expected_version(if_match), principal)
 
-    return feature_response(await _in_session(revert))
+    return feature_response(await in_session(revert))
 
 
 @router.post(ITEM + "/split", response_class=GeoJSONResponse,
-             openapi_extra=_body_doc(schemas.SPLIT_BODY, ("application/json",), IF_MATCH),
+             openapi_extra=body_doc(schemas.SPLIT_BODY, ("application/json",), IF_MATCH),
              responses={200: {"content": {GEOJSON: {"schema": schemas.SPLIT_ANSWER}}},
                  **responses(*WRITE_ERRORS, *SEGMENTS_ONLY, *BODY_ERRORS,
                                     *PRECONDITIONS)})
@@ -322,11 +322,11 @@ async def split_item(collection_id: str, fid: str, request: Request,
                                             editing.expected_version(if_match), body,
                                             principal)
 
-    return GeoJSONResponse(await _in_session(split))
+    return GeoJSONResponse(await in_session(split))
 
 
 @router.post("/collections/{collection_id}/merge", response_class=GeoJSONResponse,
-             openapi_extra=_body_doc(schemas.MERGE_BODY, ("application/json",), {
+             openapi_extra=body_doc(schemas.MERGE_BODY, ("application/json",), {
                  **IF_MATCH, "description": "Both segments' ETags, in the order of `segments`, "
                                             'e.g. `"3", "5"`'}),
              responses={**FEATURE_200, **responses(*WRITE_ERRORS, *SEGMENTS_ONLY,
@@ -344,4 +344,4 @@ async def merge_items(collection_id: str, request: Request,
                                              editing.parse_if_match(if_match, count=2),
                                              principal)
 
-    return feature_response(await _in_session(merge))
+    return feature_response(await in_session(merge))

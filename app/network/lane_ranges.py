@@ -147,8 +147,7 @@ def check_ranges(body: Any, length_m: float, oneway: str) -> list[dict[str, Any]
                              f"backward do not fit the segment's oneway {oneway!r} (a lane "
                              "each way it may be driven, none against it)")
     if errors:
-        raise InvalidValueError("; ".join(f"{k}: {v}" for k, v in errors.items()),
-                                errors=errors)
+        raise InvalidValueError.naming(errors)
     return [r for r in ranges if r is not None]
 
 

@@ -22,8 +22,8 @@ from app.network.editing_router import (
     PRECONDITIONS,
     WRITE_ERRORS,
     EditorDep,
-    _body_doc,
-    _in_session,
+    body_doc,
+    in_session,
     json_body,
 )
 from app.network.features_router import READ_ERRORS, etag, parse_fid
@@ -78,7 +78,7 @@ def segment_lanes(collection_id: str, fid: str, session: SessionDep) -> JSONResp
 
 
 @router.put(LANES,
-            openapi_extra=_body_doc({"type": "object", "required": ["ranges"], "properties": {
+            openapi_extra=body_doc({"type": "object", "required": ["ranges"], "properties": {
                 "ranges": {"type": "array", "items": RANGE}}}, ("application/json",),
                 IF_MATCH),
             responses={200: {"content": {"application/json": {"schema": ANSWER}}},
@@ -103,5 +103,5 @@ async def put_segment_lanes(collection_id: str, fid: str, request: Request,
                                        principal, "lanes", conditional=expected is not None)
         return _answer(session, written)
 
-    answer: JSONResponse = await _in_session(put)
+    answer: JSONResponse = await in_session(put)
     return answer

@@ -15,7 +15,7 @@ from fastapi.responses import JSONResponse
 from app import errors
 from app.api.dependencies import SessionDep, require_role
 from app.api.errors import PayloadTooLargeError, UnsupportedMediaTypeError, responses
-from app.network.editing_router import _body_doc, _in_session, json_body
+from app.network.editing_router import body_doc, in_session, json_body
 from app.network.tokens import Principal
 from app.params import Int, LayerSlug
 from app.previews import store
@@ -38,7 +38,7 @@ ACCEPT_BODY = {"type": "object", "required": ["network"],
                "properties": {"network": {"type": "string"}}}
 
 
-@router.post(PREVIEWS, status_code=202, openapi_extra=_body_doc(BBOX_BODY, JSON),
+@router.post(PREVIEWS, status_code=202, openapi_extra=body_doc(BBOX_BODY, JSON),
              responses={202: {"description": "Queued: the preview's id; `Location` is where "
                                              "to read it"}, **WRITE_ERRORS})
 async def request_preview(slug: LayerSlug, request: Request,
@@ -46,7 +46,7 @@ async def request_preview(slug: LayerSlug, request: Request,
     """Extract the roads of a view of the layer (at most 2048 x 2048 px of its finest
     resolution) with its labels as the sample, zero-shot without labels."""
     bbox = store.parse_bbox(await json_body(request, JSON))
-    preview_id = await _in_session(lambda s: store.request_preview(s, slug, bbox))
+    preview_id = await in_session(lambda s: store.request_preview(s, slug, bbox))
     return JSONResponse({"id": preview_id, "status": "queued"}, status_code=202,
                         headers={"Location": f"{PREVIEWS.format(slug=slug)}/{preview_id}"})
 
@@ -60,7 +60,7 @@ def read_preview(slug: LayerSlug, preview_id: PreviewId, session: SessionDep
     return store.read_preview(session, slug, preview_id)
 
 
-@router.post(PREVIEWS + "/{preview_id}/accept", openapi_extra=_body_doc(ACCEPT_BODY, JSON),
+@router.post(PREVIEWS + "/{preview_id}/accept", openapi_extra=body_doc(ACCEPT_BODY, JSON),
              responses={**WRITE_ERRORS, **responses(errors.NotFoundError,
                                                     errors.ConflictError)})
 async def accept(slug: LayerSlug, preview_id: PreviewId, request: Request,
@@ -72,6 +72,6 @@ async def accept(slug: LayerSlug, preview_id: PreviewId, request: Request,
     if not isinstance(body, dict) or set(body) != {"network"}:
         raise errors.InvalidValueError('the body must be {"network": NAME}',
                                        errors={"body": "must have only 'network'"})
-    result: dict[str, int] = await _in_session(
+    result: dict[str, int] = await in_session(
         lambda s: accept_preview(s, slug, preview_id, body["network"], principal))
     return result

@@ -17,7 +17,7 @@ from fastapi import APIRouter, Depends, Request
 from app import errors
 from app.api.dependencies import SessionDep, read_access, require_role
 from app.api.errors import PayloadTooLargeError, UnsupportedMediaTypeError, responses
-from app.network.editing_router import _body_doc, _in_session, json_body
+from app.network.editing_router import body_doc, in_session, json_body
 from app.network.resurvey import changes
 from app.network.tokens import Principal
 from app.params import Int, NetworkName
@@ -88,25 +88,25 @@ def read_change_set(set_id: SetId, session: SessionDep) -> dict[str, Any]:
     return changes.change_set(session, changes.network_of(session, set_id), set_id)
 
 
-@router.post(SET + "/accept", openapi_extra=_body_doc(SELECTION_BODY, JSON),
+@router.post(SET + "/accept", openapi_extra=body_doc(SELECTION_BODY, JSON),
              responses=WRITE_ERRORS)
 async def accept(set_id: SetId, request: Request, principal: EditorDep) -> dict[str, int]:
     """Accept proposals: each becomes an edit of the network (history action ``resurvey``
     naming the change set), seen by routing at once. Counts accepted, edited (left for a look
     one by one), stale (the segment changed since) and refused."""
     chosen = selection(await json_body(request, JSON))
-    result: dict[str, int] = await _in_session(
+    result: dict[str, int] = await in_session(
         lambda s: changes.accept(s, changes.network_of(s, set_id), set_id, chosen,
                                  principal))
     return result
 
 
-@router.post(SET + "/reject", openapi_extra=_body_doc(SELECTION_BODY, JSON),
+@router.post(SET + "/reject", openapi_extra=body_doc(SELECTION_BODY, JSON),
              responses=WRITE_ERRORS)
 async def reject(set_id: SetId, request: Request, principal: EditorDep) -> dict[str, int]:
     """Reject proposals: the network is not changed."""
     chosen = selection(await json_body(request, JSON))
-    result: dict[str, int] = await _in_session(
+    result: dict[str, int] = await in_session(
         lambda s: changes.reject(s, changes.network_of(s, set_id), set_id, chosen,
                                  principal))
     return result
@@ -117,6 +117,6 @@ async def reject(set_id: SetId, request: Request, principal: EditorDep) -> dict[
 async def revert(set_id: SetId, principal: EditorDep) -> dict[str, int]:
     """Undo every accepted change of the set (newest first, history action
     ``resurvey-revert``) and close it."""
-    result: dict[str, int] = await _in_session(
+    result: dict[str, int] = await in_session(
         lambda s: changes.revert(s, changes.network_of(s, set_id), set_id, principal))
     return result

@@ -21,7 +21,7 @@ from cli.main import main
 from ingest.roads import RoadsInputError
 from ingest.roads.georef import Image
 from ingest.roads.model.data import file_sha16, normalise, training_pairs
-from ingest.roads.model.runtime import MODEL_DIR, halve, load_model, predict
+from ingest.roads.model.runtime import MODEL_DIR, load_model, predict, quarter
 from ingest.roads.pipeline import ExtractParams, extract_roads
 from ingest.roads.synthetic import Scene, grid_scene, render
 
@@ -87,32 +87,37 @@ def test_the_bigger_encoder_trains_and_exports_too(dataset: Path, tmp_path: Path
     losses = [h["loss"] for h in report["history"]]
     assert losses[-1] < 0.8 * initial_loss(config, dataset), losses
     x = np.random.default_rng(3).random((1, 3, 64, 96), dtype=np.float32)
-    (prob, _), (prob_onnx, _) = _torch_and_onnx("lite2", tmp_path, x)
+    (prob, *_), (prob_onnx, *_) = _torch_and_onnx("lite2", tmp_path, x)
     np.testing.assert_allclose(prob_onnx, prob, atol=1e-5)
     assert "EfficientNet-Lite2" in (tmp_path / "README.md").read_text()
 
 
 def _torch_and_onnx(arch: str, out: Path, x: np.ndarray
                     ) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """(probability, features) of ``x`` from ``out``'s weights.pt run by torch, and from its
-    model.onnx run by onnxruntime."""
+    """(probability, features, encoder context) of ``x`` from ``out``'s weights.pt run by
+    torch, and from its model.onnx run by onnxruntime."""
     from ingest.roads.model.net import build
 
     net = build(arch, pretrained=False)
     net.load_state_dict(torch.load(out / "weights.pt"))
     net.eval()
     with torch.no_grad():
-        logit, feats = net(torch.from_numpy(x))
-    return ([torch.sigmoid(logit).numpy(), feats.numpy()],
+        logit, feats, context = net.with_context(torch.from_numpy(x))
+    return ([torch.sigmoid(logit).numpy(), feats.numpy(), context.numpy()],
             load_model(out / "model.onnx").session.run(None, {"rgb": x}))
 
 
 def test_onnx_and_torch_agree(tiny_run: tuple[Path, dict]) -> None:
     out, _ = tiny_run
     x = np.random.default_rng(1).random((2, 3, 96, 160), dtype=np.float32)
-    (prob, feats), (prob_onnx, feats_onnx) = _torch_and_onnx("lite0", out, x)
+    (prob, feats, context), (prob_onnx, feats_onnx, context_onnx) = _torch_and_onnx(
+        "lite0", out, x)
     np.testing.assert_allclose(prob_onnx, prob, atol=1e-5)
     np.testing.assert_allclose(feats_onnx, feats, atol=1e-4)
+    # The encoder's stride 4, 8 and 16 maps at stride 4 (24 + 40 + 112 channels)
+    assert context_onnx.shape == (2, 176, 24, 40)
+    np.testing.assert_allclose(context_onnx, context, atol=1e-4)
+    assert load_model(out / "model.onnx").feature_outputs == ("features", "context")
 
 
 def test_training_is_reproducible(dataset: Path, tiny_run: tuple[Path, dict],
@@ -180,25 +185,32 @@ def test_tiled_inference_equals_untiled_away_from_the_border(shipped: object) ->
     assert same.mean() > 0.999, same.mean()
 
 
-def test_features_come_at_half_resolution_aligned_with_the_image(shipped: object) -> None:
-    """The decoder features the adaptation reads are stitched at half resolution: cell (i, j)
-    is the mean of pixels 2i..2i+1, 2j..2j+1 of the network's own output, odd edges included,
-    and tiling changes them as little as it changes the probability."""
+def test_features_come_at_quarter_resolution_aligned_with_the_image(shipped: object) -> None:
+    """What the adaptation reads is stitched at a quarter of the resolution: the decoder's
+    features, cell (i, j) the mean of pixels 4i..4i+3, 4j..4j+3 of the network's own output
+    (odd edges included), then (asked for) the encoder's context as the network gives it at
+    stride 4;
+    tiling changes them as little as it changes the probability."""
     rgb, _ = town(300, 100, 8, seed=5)
     x = normalise(rgb[:283, :277].astype(np.float32) / 255)
-    prob, feats = predict(shipped, x, features=True, tile=512, overlap=64)
+    prob, feats = predict(shipped, x, features=True, context=True, tile=512, overlap=64)
     assert prob.shape == (283, 277) and feats is not None
-    assert feats.shape[1:] == (142, 139)
+    assert feats.shape == (16 + 176, 71, 70)
+    decoder_only = predict(shipped, x, features=True, tile=512, overlap=64)[1]
+    assert decoder_only is not None
+    np.testing.assert_array_equal(decoder_only, feats[:16])
     # One tile of 416 px (the image and its overlap rounded up to the 16 px grid), the
     # image reflected into it as predict pads it.
     padded = np.pad(x, ((64, 416 - 283 - 64), (64, 416 - 277 - 64), (0, 0)), mode="reflect")
-    whole = shipped.session.run(["features"], {"rgb": padded.transpose(2, 0, 1)[None].copy()})
-    # An odd last row or column's cells also hold the next (padding) pixel's features.
-    expected = halve(whole[0][0][:, 64:64 + 284, 64:64 + 278])
-    np.testing.assert_allclose(feats, expected, atol=1e-5)
-    _, tiled = predict(shipped, x, features=True, tile=256, overlap=64)
+    decoder, context = shipped.session.run(["features", "context"],
+                                           {"rgb": padded.transpose(2, 0, 1)[None].copy()})
+    # A last cell past the image's edge also holds the next (padding) pixels' features.
+    np.testing.assert_allclose(feats[:16], quarter(decoder[0][:, 64:64 + 284, 64:64 + 280]),
+                               atol=1e-5)
+    np.testing.assert_allclose(feats[16:], context[0][:, 16:16 + 71, 16:16 + 70], atol=1e-5)
+    _, tiled = predict(shipped, x, features=True, context=True, tile=256, overlap=64)
     assert tiled is not None and tiled.shape == feats.shape
-    inner = (slice(None), slice(32, -32), slice(32, -32))
+    inner = (slice(None), slice(16, -16), slice(16, -16))
     assert np.abs(tiled[inner] - feats[inner]).mean() < 0.05 * np.abs(feats[inner]).mean()
 
 

@@ -3,7 +3,9 @@
 The shipped network already separates roads from most clutter; what a new survey changes is
 which look-alikes count (parking aisles, field tracks, canals) and how its roads look. So the
 network stays frozen and a small *correction* is learnt on top of it: the adapted road logit
-is the network's own logit plus a function of the network's 16 decoder features, its logit
+is the network's own logit plus a function of the network's 16 decoder features, the principal
+components of its pretrained encoder's context (what tells a survey's roads from their
+look-alikes is often only there: the decoder kept what its training scenes needed), its logit
 blurred at two scales (is there road around here) and the pixel's colour, regularised towards
 zero. With few labels the correction stays near zero and the result is close to the
 zero-shot one; with many it learns where the team disagrees with the network. The earlier
@@ -17,6 +19,8 @@ confidently "not road"). Learnt from those alone, a correction inverts the netwo
 unlabelled pixel is therefore an *anchor* whose target is the network's own probability: it
 costs nothing where the correction leaves it alone and resists every change there, so the
 correction must keep what nobody contradicted, in proportion to how much of the image that is.
+Where a person labelled every pixel of an area, road and not road, that area is a fair sample
+and the anchors nearly step aside (``complete_anchor_weight``).
 
 The correction is learnt on half of the image's blocks and judged by the labels of the other
 half: that chooses the threshold of the adapted probability (never below the network's own),
@@ -35,7 +39,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ingest.roads.classify import NOT_ROAD, ROAD
-from ingest.roads.model.runtime import RoadModel, halve, predict
+from ingest.roads.model.runtime import RoadModel, predict, quarter
 
 
 @dataclass(frozen=True)
@@ -55,7 +59,24 @@ class AdaptParams:
     anchors: int = 20_000
     """Unlabelled pixels that hold the correction to the network's own opinion..."""
     anchor_weight: float = 0.5
-    """...each weighing this much of a labelled pixel."""
+    """...each weighing this much of a labelled pixel, where the labels are partial (lines,
+    strokes, a review's deletions: chosen by the network's mistakes)..."""
+    complete_anchor_weight: float = 0.01
+    """...and this much where they are complete (every pixel of an area labelled, road and
+    not road: a random sample of what the team wants, which the network's opinion must not
+    outvote; with 0.5 a labelled quadrant's F1 was 0.49-0.69 where 0.01 gives 0.52-0.81 on
+    DeepGlobe and Vegas, while a review's fell 0.74-0.81 -> 0.21-0.62 with 0.01)."""
+    complete_share: float = 0.9
+    """A block is completely labelled when this share of its pixels is."""
+    context_from: float = 0.5
+    """The encoder's context is read where at least this share of the sample labels whole
+    areas (:func:`completeness`). Strokes and reviews label what the network got wrong, or
+    the middle of clear roads; the context's freedom fits that selection instead of the
+    roads (DeepGlobe 113's review: F1 0.761 -> 0.654 with it, 0.775 without)."""
+    context_components: int = 24
+    """The encoder context's 176 channels are reduced to this many principal components of
+    the image's own (the fit's cost grows with the square of its inputs: 3.4 s with all of
+    them on a DeepGlobe tile)."""
     block_px: int = 64
     """Side of the blocks the sample is split by to choose the threshold."""
     gate_margin: float = 0.02
@@ -105,6 +126,23 @@ def correction_features(logit: np.ndarray, features: np.ndarray, rgb: np.ndarray
     for i, s in enumerate(slope.astype(np.float32)):
         flat_x[i] -= flat_logit * s
     return x
+
+
+def principal_components(x: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
+    """(k, rows, cols) the ``k`` principal components of the image's channels ``x`` (C, rows,
+    cols), each channel standardised first (found on at most 20,000 pixels: the axes of a
+    few hundred thousand agree to the third decimal)."""
+    flat = x.reshape(x.shape[0], -1)
+    some = np.random.default_rng(seed).choice(flat.shape[1], min(flat.shape[1], 20_000),
+                                              replace=False)
+    seen = flat[:, some].astype(np.float64)
+    mean, scale = seen.mean(axis=1), seen.std(axis=1) + 1e-6
+    standard = (seen - mean[:, None]) / scale[:, None]
+    # The axes are the covariance's eigenvectors: 176 x 176, 20x faster than an SVD of the
+    # pixels themselves, the largest eigenvalues last.
+    _, vectors = np.linalg.eigh(standard @ standard.T)
+    project = (vectors[:, ::-1][:, :k].T / scale).astype(np.float32)
+    return (project @ flat - (project @ mean)[:, None]).reshape(-1, *x.shape[1:])
 
 
 @dataclass(frozen=True)
@@ -203,13 +241,35 @@ def fit_correction(x: np.ndarray, offset: np.ndarray, y: np.ndarray, weight: np.
                       tuple(a.astype(np.float32) for a in weights))
 
 
+def completeness(labels: np.ndarray, block_px: int, share: float) -> float:
+    """The share (0..1) of labelled pixels that lie in blocks of ``block_px`` labelled at
+    least ``share`` of their area, when those blocks hold both road and not road; 0 when
+    they hold one class (a not-road box says nothing about how roads look)."""
+    rows, cols = labels.shape
+    pad = ((0, -rows % block_px), (0, -cols % block_px))
+    said = np.pad(labels != 0, pad)
+    road = np.pad(labels == ROAD, pad)
+    shape = (said.shape[0] // block_px, block_px, said.shape[1] // block_px, block_px)
+    full = said.reshape(shape).mean(axis=(1, 3)) >= share
+    if not full.any():
+        return 0.0
+    road_in = road.reshape(shape).sum(axis=(1, 3))[full].sum()
+    said_in = said.reshape(shape).sum(axis=(1, 3))[full].sum()
+    if road_in == 0 or road_in == said_in:
+        return 0.0
+    return float(said_in / max(said.sum(), 1))
+
+
 def training_pixels(labels: np.ndarray, prob: np.ndarray, params: AdaptParams,
-                    within: np.ndarray | None = None, seed: int = 0
+                    within: np.ndarray | None = None, seed: int = 0,
+                    complete: float | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(flat pixel indices, targets in 0..1, weights in thousands of pixels): labelled pixels
     (target 0 or 1) and anchors (unlabelled pixels, target the network's own probability),
     each drawn uniformly and weighed by how many pixels it stands for, an anchor
-    ``anchor_weight`` of a labelled pixel; only pixels ``within`` (flat) if given.
+    ``anchor_weight`` of a labelled pixel (``complete_anchor_weight`` in the share
+    ``complete`` of the sample that labels whole areas, :func:`completeness` of ``labels`` if
+    not given); only pixels ``within`` (flat) if given.
 
     An anchor's target is what the uncorrected model already says, so it pulls nothing
     towards itself and only resists change: the correction pays for every unlabelled pixel it
@@ -223,12 +283,16 @@ def training_pixels(labels: np.ndarray, prob: np.ndarray, params: AdaptParams,
     picked = rng.choice(labelled, min(len(labelled), params.pixels), replace=False)
     free = np.flatnonzero(inside & (flat == 0))
     anchors = rng.choice(free, min(len(free), params.anchors), replace=False)
+    if complete is None:
+        complete = completeness(labels, params.block_px, params.complete_share)
+    anchor_weight = (1 - complete) * params.anchor_weight + \
+        complete * params.complete_anchor_weight
     index = np.concatenate([picked, anchors])
     target = np.concatenate([(flat[picked] == ROAD).astype(np.float64),
                              prob.ravel()[anchors].astype(np.float64)])
     weight = np.concatenate([
         np.full(len(picked), len(labelled) / max(len(picked), 1)),
-        np.full(len(anchors), params.anchor_weight * len(free) / max(len(anchors), 1))])
+        np.full(len(anchors), anchor_weight * len(free) / max(len(anchors), 1))])
     return index, target, weight / 1000.0
 
 
@@ -316,18 +380,24 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     too few to learn from, or labels the network gets all wrong either way), the network's own
     probability and threshold are returned unchanged.
 
-    The correction is computed at half the model grid's resolution, as the network's features
-    come (:func:`predict`), and added to the full-resolution logit resampled: everything it
-    sees is blurred by ``smooth_px`` (1.5 m) first, so it is smooth at that scale anyway, and
-    it costs a quarter of the memory and time. A labelled pixel learns from the half-grid
-    cell it lies in.
+    The correction is computed at a quarter of the model grid's resolution (2 m), as the
+    network's features come (:func:`predict`: the encoder's context is native there), and
+    added to the full-resolution logit resampled: everything it sees is blurred by
+    ``smooth_px`` (1.5 m) first, so it is smooth at that scale anyway, and the 190-odd
+    channels of a 3000 px grid take 430 MB there (1.7 GB at half resolution). A labelled
+    pixel learns from the quarter-grid cell it lies in.
     """
-    prob, feats = predict(model, rgb, features=True, progress=progress)
+    complete = completeness(labels, params.block_px, params.complete_share)
+    prob, feats = predict(model, rgb, features=True, progress=progress,
+                          context=complete >= params.context_from)
     assert feats is not None  # asked for
     logit = logit_of(prob)
-    half_rows, half_cols = feats.shape[1:]
-    x = correction_features(halve(logit), feats, halve(np.moveaxis(rgb, -1, 0)),
-                            tuple(s / 2 for s in params.context_px), params.smooth_px / 2)
+    q_rows, q_cols = feats.shape[1:]
+    if len(feats) > model.decoder_channels:
+        feats = np.concatenate([feats[:model.decoder_channels], principal_components(
+            feats[model.decoder_channels:], params.context_components)])
+    x = correction_features(quarter(logit), feats, quarter(np.moveaxis(rgb, -1, 0)),
+                            tuple(s / 4 for s in params.context_px), params.smooth_px / 4)
     del feats
     # Pixels as rows: the few thousand the fits read are gathered once into (n, C) arrays.
     flat_x, flat_logit = x.reshape(x.shape[0], -1).T, logit.ravel()
@@ -336,12 +406,13 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
             + np.arange(cols)[None, :] // params.block_px) % 2).astype(bool).ravel()
 
     def cell(index: np.ndarray) -> np.ndarray:
-        """The half-grid cells (flat) of full-grid pixels (flat): only the sampled pixels'
-        are ever needed, so no whole-image index array is made."""
-        return (index // cols // 2) * half_cols + (index % cols) // 2
+        """The quarter-grid cells (flat) of full-grid pixels (flat): only the sampled
+        pixels' are ever needed, so no whole-image index array is made."""
+        return (index // cols // 4) * q_cols + (index % cols) // 4
 
-    learn = training_pixels(labels, prob, params, within=~odd, seed=1)
-    held, target, weight = training_pixels(labels, prob, params, within=odd, seed=2)
+    learn = training_pixels(labels, prob, params, within=~odd, seed=1, complete=complete)
+    held, target, weight = training_pixels(labels, prob, params, within=odd, seed=2,
+                                           complete=complete)
     trial = fit_correction(flat_x[cell(learn[0])], flat_logit[learn[0]], learn[1], learn[2],
                            params)
     said = labels.ravel()[held] != 0  # the cut is judged by the labels, not the anchors
@@ -353,11 +424,11 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     if held_adapted <= held_network + params.gate_margin:
         return Adapted(np.where(labels == NOT_ROAD, 0.0, prob).astype(np.float32), prob,
                        model.threshold, False, held_network, held_adapted, params.gate_margin)
-    index, target, weight = training_pixels(labels, prob, params)
+    index, target, weight = training_pixels(labels, prob, params, complete=complete)
     correction = fit_correction(flat_x[cell(index)], flat_logit[index], target, weight, params)
     field = correction.of_channels(x.reshape(x.shape[0], -1)).astype(np.float32).reshape(
-        half_rows, half_cols)
-    z = logit + cv2.resize(field, (2 * half_cols, 2 * half_rows),
+        q_rows, q_cols)
+    z = logit + cv2.resize(field, (4 * q_cols, 4 * q_rows),
                            interpolation=cv2.INTER_LINEAR)[:rows, :cols]
     adapted = (1 / (1 + np.exp(-z))).astype(np.float32)
     # Where a person said "not road" it is not: a deleted false road never comes back where it

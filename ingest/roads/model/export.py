@@ -3,7 +3,9 @@
 The ONNX file carries everything inference needs in its metadata (ground resolution,
 probability threshold, output names), so ``models/roads-v2/model.onnx`` alone is a usable
 model and onnxruntime never needs torch. The graph outputs the road *probability* (sigmoid
-applied inside) and the last decoder feature map (for per-job adaptation).
+applied inside), the last decoder feature map and (pretrained encoders) the encoder's context
+at stride 4, both for adaptation to a sample: the extra outputs cost no extra computation,
+the encoder runs for the road output anyway.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ import onnx
 import torch
 from torch import nn
 
+from ingest.roads.model.net import LiteUNet
+
 OPSET = 17
 
 
@@ -23,7 +27,10 @@ class _Exported(nn.Module):
         super().__init__()
         self.net = net
 
-    def forward(self, rgb: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, rgb: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        if isinstance(self.net, LiteUNet):
+            logit, features, context = self.net.with_context(rgb)
+            return torch.sigmoid(logit), features, context
         logit, features = self.net(rgb)
         return torch.sigmoid(logit), features
 
@@ -33,15 +40,18 @@ def export_onnx(model: nn.Module, path: Path, resolution_m: float, threshold: fl
     model.eval()
     example = torch.rand(1, 3, 64, 64)
     tmp = path.with_suffix(".tmp.onnx")
+    names = ["road", "features", *(["context"] if isinstance(model, LiteUNet) else [])]
     torch.onnx.export(_Exported(model), (example,), str(tmp), input_names=["rgb"],
-                      output_names=["road", "features"], opset_version=OPSET, dynamo=False,
+                      output_names=names, opset_version=OPSET, dynamo=False,
                       dynamic_axes={"rgb": {0: "n", 2: "h", 3: "w"},
-                                    "road": {0: "n", 2: "h", 3: "w"},
-                                    "features": {0: "n", 2: "h", 3: "w"}})
+                                    **{name: {0: "n", 2: "h", 3: "w"} for name in names}})
     proto = onnx.load(str(tmp))
+    outputs = "road probability (N, 1, H, W); decoder features (N, C, H, W)"
+    if "context" in names:
+        outputs += "; encoder context (N, C, H / 4, W / 4)"
     meta = {"resolution_m": resolution_m, "threshold": threshold, "grid_px": 16,
             "input": "RGB float32 (N, 3, H, W) in [0, 1], normalised per image",
-            "outputs": "road probability (N, 1, H, W); decoder features (N, C, H, W)"}
+            "outputs": outputs}
     for key, value in meta.items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, json.dumps(value)
@@ -114,7 +124,8 @@ Apache-2.0.
   own m/px (`ugvmap extract-roads` does this), contrast-stretched between its 0.5th and 99.5th
   percentiles (any dtype, 1 or 3+ bands).
 - Architecture: {description}; {report['parameters']:,} parameters. Outputs the probability
-  (sigmoid in the graph) and the last decoder feature map (used by per-job adaptation).
+  (sigmoid in the graph), the last decoder feature map and, from a pretrained encoder, its
+  stride 4/8/16 maps at stride 4 (the context; both used by adaptation to a sample).
 - Runtime: `model.onnx` (opset {OPSET}) on onnxruntime, tiled with overlap, reflected borders
   and blending; torch is only needed to train (`pip install -e .[train]`).
 

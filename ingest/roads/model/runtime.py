@@ -42,6 +42,12 @@ class RoadModel:
     """Probability threshold chosen on the training hold-out."""
     session: ort.InferenceSession
     """The loaded network (onnxruntime is imported only when a model is opened)."""
+    feature_outputs: tuple[str, ...] = ("features",)
+    """What adaptation reads: the decoder ``features``, and the encoder ``context`` where
+    the file has it (models exported before it, and roads-v1, lack it)."""
+    decoder_channels: int = 16
+    """How many of :func:`predict`'s feature channels are the decoder's (the context's
+    follow)."""
 
 
 def default_model_path() -> Path:
@@ -68,8 +74,12 @@ def load_model(path: Path | None = None, threads: int = 2) -> RoadModel:
     meta = {k: json.loads(v) for k, v in session.get_modelmeta().custom_metadata_map.items()}
     if "resolution_m" not in meta:
         raise RoadsInputError(f"{path}: ONNX file lacks ugvmap's metadata (resolution_m)")
+    outputs = {o.name: o.shape for o in session.get_outputs()}
+    decoder = outputs.get("features", [None, 0])[1]
     return RoadModel(path=path, resolution_m=float(meta["resolution_m"]),
-                     threshold=float(meta.get("threshold", 0.5)), session=session)
+                     threshold=float(meta.get("threshold", 0.5)), session=session,
+                     feature_outputs=tuple(n for n in ("features", "context") if n in outputs),
+                     decoder_channels=decoder if isinstance(decoder, int) else 16)
 
 
 def _ramp(n: int, overlap: int) -> np.ndarray:
@@ -144,14 +154,23 @@ def halve(a: np.ndarray) -> np.ndarray:
     return out
 
 
+def quarter(a: np.ndarray) -> np.ndarray:
+    """:func:`halve` twice: a quarter of the resolution, cell (i, j) covering pixels 4i..4i+3,
+    4j..4j+3 (the encoder context's stride)."""
+    return halve(halve(a))
+
+
 def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
+            context: bool = False,
             tile: int = TILE_PX, overlap: int = OVERLAP_PX, progress: bool = False,
             tta: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
-    """Road probability (rows, cols) float32 of normalised RGB on the model grid, and the
-    decoder features when asked for: (C, ceil(rows / 2), ceil(cols / 2)), at half the
-    resolution (:func:`halve`) and channels first, as the network gives them. The one user,
-    the adaptation, blurs them by 1.5 m anyway; at full resolution the 16 channels of a
-    3000 px image take 600 MB and seconds to stitch.
+    """Road probability (rows, cols) float32 of normalised RGB on the model grid, and when
+    asked for, what the adaptation reads: (C, ceil(rows / 4), ceil(cols / 4)), channels first
+    as the network gives them, at a quarter of the resolution (:func:`quarter`): the decoder's
+    features, then, with ``context``, the encoder's context where the model has it (its
+    native stride). The one
+    user, the adaptation, blurs them by 1.5 m anyway; at full resolution the decoder's 16
+    channels of a 3000 px image alone take 600 MB, the context's 176 would take 6 GB.
 
     ``tile`` and ``overlap`` must be multiples of the 16 px grid; images smaller than a tile
     run as one (padded) tile. ``tta`` > 1 averages the network over that many rotations and
@@ -171,26 +190,27 @@ def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
     weight = np.zeros((ph, pw), np.float32)
     feat_acc = None
     window = np.outer(_ramp(th, overlap), _ramp(tw, overlap))
-    half_window = halve(window)
+    quarter_window = quarter(window)
     boxes = [(r, c) for r in row_starts for c in col_starts]
-    names = ["road", "features"] if features else ["road"]
+    names = ["road", *(model.feature_outputs if context else ("features",))] if features \
+        else ["road"]
     for r, c in tqdm(boxes, desc="road model", unit="tile", disable=not progress, leave=False):
         x = np.ascontiguousarray(padded[r:r + th, c:c + tw].transpose(2, 0, 1))[None]
         out = _run(model, x, names, tta)
         acc[r:r + th, c:c + tw] += out[0][0, 0] * window
         weight[r:r + th, c:c + tw] += window
         if features:
-            f = halve(out[1][0])
+            f = np.concatenate([quarter(out[1][0]), *(o[0] for o in out[2:])])
             if feat_acc is None:
-                feat_acc = np.zeros((f.shape[0], ph // 2, pw // 2), np.float32)
-            f *= half_window
-            feat_acc[:, r // 2:(r + th) // 2, c // 2:(c + tw) // 2] += f
+                feat_acc = np.zeros((f.shape[0], ph // 4, pw // 4), np.float32)
+            f *= quarter_window
+            feat_acc[:, r // 4:(r + th) // 4, c // 4:(c + tw) // 4] += f
     inner = (slice(overlap, overlap + rows), slice(overlap, overlap + cols))
     prob = acc[inner] / weight[inner]
     feats = None
     if feat_acc is not None:
-        half = (slice(overlap // 2, overlap // 2 + -(-rows // 2)),
-                slice(overlap // 2, overlap // 2 + -(-cols // 2)))
-        feats = feat_acc[(slice(None), *half)]
-        feats /= halve(weight)[half]
+        cells = (slice(overlap // 4, overlap // 4 + -(-rows // 4)),
+                 slice(overlap // 4, overlap // 4 + -(-cols // 4)))
+        feats = feat_acc[(slice(None), *cells)]
+        feats /= quarter(weight)[cells]
     return prob, feats

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from pyproj import CRS
+from pyproj import CRS, Transformer
 from rasterio.transform import from_origin
 from shapely.geometry import LineString, Polygon, box
 from sqlalchemy import text
@@ -22,7 +22,8 @@ from ingest.roads import RoadsInputError
 from ingest.roads.classify import NOT_ROAD, ROAD
 from ingest.roads.georef import Image, as_image
 from ingest.roads.layer import LayerSource, _area_labels
-from ingest.roads.sample import GeoSample
+from ingest.roads.model.adapt import completeness
+from ingest.roads.sample import ROAD_EDGE_M, GeoSample, burn_sample
 from ingest.roads.synthetic import Scene
 from ingest.roads.taught import merged
 from testkit.network_helpers import bearer
@@ -165,6 +166,32 @@ def test_not_road_labels_alone_reach_the_road_model_only() -> None:
     # Labels off this image (another area of the layer): zero-shot there.
     far = GeoSample(not_road_areas=[box(1, 1, 1.001, 1.001)])
     assert _area_labels(_image(), far, source, 2, "auto", required=False) is None
+
+
+def test_a_boxed_area_with_its_roads_drawn_is_a_complete_sample() -> None:
+    """A person who boxes an area "not road" and draws every road in it has labelled the area
+    completely: the lines' bands are road, the box elsewhere not road, and the roads' edges
+    (within ``ROAD_EDGE_M`` of a line) say nothing rather than "not road"; the adaptation
+    reads it as a complete sample (anchors step aside, the encoder's context is used)."""
+    crs = CRS.from_epsg(32633)
+    to_map = from_origin(500_000, 5_000_100, 0.5, 0.5)  # 0.5 m pixels, 100 m across
+    lonlat = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+
+    def geo(*xy: tuple[float, float]) -> list[tuple[float, float]]:
+        return [lonlat.transform(500_000 + x, 5_000_100 - y) for x, y in xy]
+
+    (w, s), (e, n) = geo((0, 100), (100, 0))
+    road = LineString(geo((50, 0), (50, 100)))  # a north-south road at x = 50 m
+    sample = GeoSample(road_lines=[road], not_road_boxes=[(w, s, e, n)], line_width_m=3.0)
+    labels = burn_sample((200, 200), to_map, crs, sample)
+    row = labels[100]  # across the road, one pixel per 0.5 m
+    assert row[100] == ROAD and row[100 + 2] == ROAD  # the band: 1.5 m each side
+    assert (row[100 + 4:100 + 2 * int(ROAD_EDGE_M) - 1] == 0).all()  # its edges: unsaid
+    assert row[100 + 2 * int(ROAD_EDGE_M) + 2] == NOT_ROAD and row[10] == NOT_ROAD
+    assert completeness(labels, 64, 0.6) > 0.9
+    # The same box without its road holds one class: no complete sample of how roads look.
+    box_only = burn_sample((200, 200), to_map, crs, GeoSample(not_road_boxes=[(w, s, e, n)]))
+    assert completeness(box_only, 64, 0.6) == 0.0
 
 
 def test_merged_keeps_how_the_first_sample_reads_its_lines() -> None:

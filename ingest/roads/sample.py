@@ -36,6 +36,11 @@ from ingest.roads.georef import pixel_size_m
 LonLatBox = tuple[float, float, float, float]
 OPEN_END_M = 50.0
 """How far ahead of an open line end nothing is labelled "not road" (beyond a drive's view)."""
+ROAD_EDGE_M = 6.0
+"""A road line says where a road's middle is, not how wide it is: within this distance of it
+a not-road *area* (a box or a painted polygon) says nothing, so a person who boxes an area and
+draws every road in it labels the area completely without calling the roads' edges "not
+road" (a 10 m road drawn as a 3 m band would teach the model 3.5 m of not road each side)."""
 
 
 @dataclass(frozen=True)
@@ -102,7 +107,8 @@ def burn_sample(shape: tuple[int, int], to_map: Affine, crs: CRS, sample: GeoSam
 
     Widths are ground metres, turned into map units at the image (a web-mercator metre is
     1/cos(latitude) ground metres). Road wins where a road and a not-road label overlap: a
-    person's road line crossing a painted area is the more specific statement.
+    person's road line crossing a painted area is the more specific statement, and the area
+    says nothing within ``ROAD_EDGE_M`` of it (the road's edges).
     """
     transformer = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
     units_per_m = abs(to_map.a) / pixel_size_m(to_map, crs, shape)
@@ -118,10 +124,14 @@ def burn_sample(shape: tuple[int, int], to_map: Affine, crs: CRS, sample: GeoSam
 
     half = sample.line_width_m / 2 * units_per_m
     labels = np.zeros(shape, np.uint8)
-    burn([projected(box(*b)) for b in sample.not_road_boxes]
-         + [projected(g) for g in sample.not_road_areas]
-         + [projected(g).buffer(half) for g in sample.not_road_lines], NOT_ROAD, labels)
     lines = [projected(g) for g in sample.road_lines]
+    burn([projected(box(*b)) for b in sample.not_road_boxes]
+         + [projected(g) for g in sample.not_road_areas], NOT_ROAD, labels)
+    if lines and labels.any():
+        edges = np.zeros(shape, np.uint8)
+        burn([g.buffer(ROAD_EDGE_M * units_per_m) for g in lines], 1, edges)
+        labels[edges == 1] = 0
+    burn([projected(g).buffer(half) for g in sample.not_road_lines], NOT_ROAD, labels)
     if lines and sample.not_road_beyond_m is not None:
         beyond = sample.not_road_beyond_m * units_per_m
         near = np.zeros(shape, np.uint8)

@@ -66,8 +66,10 @@ class AdaptParams:
     not road: a random sample of what the team wants, which the network's opinion must not
     outvote; with 0.5 a labelled quadrant's F1 was 0.49-0.69 where 0.01 gives 0.52-0.81 on
     DeepGlobe and Vegas, while a review's fell 0.74-0.81 -> 0.21-0.62 with 0.01)."""
-    complete_share: float = 0.9
-    """A block is completely labelled when this share of its pixels is."""
+    complete_share: float = 0.6
+    """A block is completely labelled when this share of its pixels is (a boxed area whose
+    roads are drawn as lines leaves their edges unlabelled: 6 m each side of a line,
+    :data:`ingest.roads.sample.ROAD_EDGE_M`)."""
     context_from: float = 0.5
     """The encoder's context is read where at least this share of the sample labels whole
     areas (:func:`completeness`). Strokes and reviews label what the network got wrong, or
@@ -242,22 +244,25 @@ def fit_correction(x: np.ndarray, offset: np.ndarray, y: np.ndarray, weight: np.
 
 
 def completeness(labels: np.ndarray, block_px: int, share: float) -> float:
-    """The share (0..1) of labelled pixels that lie in blocks of ``block_px`` labelled at
-    least ``share`` of their area, when those blocks hold both road and not road; 0 when
-    they hold one class (a not-road box says nothing about how roads look)."""
+    """The share (0..1) of labelled pixels that lie in completely labelled areas: connected
+    blocks of ``block_px``, each labelled over at least ``share`` of its area, that together
+    hold both road and not road. A not-road box alone says nothing about how roads look, and
+    strokes or a review's lines never fill a block."""
     rows, cols = labels.shape
     pad = ((0, -rows % block_px), (0, -cols % block_px))
     said = np.pad(labels != 0, pad)
     road = np.pad(labels == ROAD, pad)
     shape = (said.shape[0] // block_px, block_px, said.shape[1] // block_px, block_px)
-    full = said.reshape(shape).mean(axis=(1, 3)) >= share
-    if not full.any():
-        return 0.0
-    road_in = road.reshape(shape).sum(axis=(1, 3))[full].sum()
-    said_in = said.reshape(shape).sum(axis=(1, 3))[full].sum()
-    if road_in == 0 or road_in == said_in:
-        return 0.0
-    return float(said_in / max(said.sum(), 1))
+    said_in = said.reshape(shape).sum(axis=(1, 3))
+    road_in = road.reshape(shape).sum(axis=(1, 3))
+    full = (said_in >= share * block_px * block_px).astype(np.uint8)
+    count, area = cv2.connectedComponents(full, connectivity=8)
+    complete = 0
+    for k in range(1, count):
+        roads, labelled = road_in[area == k].sum(), said_in[area == k].sum()
+        if 0 < roads < labelled:
+            complete += int(labelled)
+    return complete / max(int(said.sum()), 1)
 
 
 def training_pixels(labels: np.ndarray, prob: np.ndarray, params: AdaptParams,

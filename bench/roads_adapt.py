@@ -5,7 +5,9 @@
 
 Per image, in the same run: the road model zero-shot, then adapted to each of three samples
 drawn from the image's own truth (:mod:`testkit.adapt_samples`): (a) ``quadrant``, one fully
-labelled quadrant; (b) ``person``, the 5 longest roads as lines and 3 not-road boxes of 40 m;
+labelled quadrant (and ``boxed``, the same quadrant as a person labels it completely: boxed
+"not road", its roads drawn as lines); (b) ``person``, the 5 longest roads as lines and 3
+not-road boxes of 40 m;
 (c) ``review``, the zero-shot segments far from every road deleted and the missed roads of one
 quadrant drawn. Every row is scored against the truth outside what its sample labelled (the
 zero-shot row of a sample on the same region), as precision / recall at 2 m and APLS, with the
@@ -38,6 +40,7 @@ from ingest.roads.model.runtime import load_model  # noqa: E402
 from ingest.roads.pipeline import ExtractParams, extract_roads  # noqa: E402
 from testkit.adapt_samples import (  # noqa: E402
     AdaptSample,
+    boxed_sample,
     person_sample,
     quadrant_sample,
     review_sample,
@@ -45,7 +48,7 @@ from testkit.adapt_samples import (  # noqa: E402
 from testkit.roads_accuracy import SAMPLES, Evaluation, load_sample, score_lines  # noqa: E402
 
 DATA = REPO.parent / "shared" / "data" / "road_imagery"
-KINDS = ("quadrant", "person", "review")
+KINDS = ("quadrant", "boxed", "person", "review")
 
 
 def f1(ev: Evaluation) -> float:
@@ -102,6 +105,7 @@ def main() -> None:
         zero_lines = zero.source_lines()
         made: dict[str, AdaptSample] = {
             "quadrant": quadrant_sample(truth),
+            "boxed": boxed_sample(truth),
             "person": person_sample(truth, zero_lines),
             "review": review_sample(truth, zero_lines)}
         for kind in args.kinds:

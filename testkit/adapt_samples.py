@@ -4,6 +4,8 @@
 
 - **quadrant**: one fully labelled quadrant (the one with the most road), as
   :func:`testkit.roads_accuracy.quadrant_labels` makes it;
+- **boxed**: the same quadrant labelled as a person does it completely: boxed "not road",
+  every true road in it drawn as a line;
 - **person**: what a person draws in about two minutes: the 5 longest roads of the truth as
   lines along their centrelines, and 3 boxes of 40 m with no road in them, put where the
   zero-shot result draws the most false road (a person boxes the mistakes they see);
@@ -28,6 +30,7 @@ from shapely.geometry import LineString, box
 
 from ingest.roads.classify import NOT_ROAD, ROAD
 from ingest.roads.curve import arc_length
+from ingest.roads.sample import ROAD_EDGE_M
 from testkit.roads_accuracy import Truth
 
 LINE_HALF_WIDTH_M = 1.5
@@ -85,6 +88,18 @@ def quadrant_sample(truth: Truth) -> AdaptSample:
     """(a) The labelled quadrant of :func:`testkit.roads_accuracy.load_sample`."""
     return AdaptSample(truth.labels, truth.region,
                        "one fully labelled quadrant")
+
+
+def boxed_sample(truth: Truth) -> AdaptSample:
+    """(a') The same quadrant as a person labels it completely in the Teach tool: boxed "not
+    road", every true road in it drawn as a line (a 3 m band), and nothing said within
+    ``ROAD_EDGE_M`` of a line (:func:`ingest.roads.sample.burn_sample`'s rule for the roads'
+    edges)."""
+    res = truth.resolution_m
+    labels = np.where(truth.region, NOT_ROAD, 0).astype(np.uint8)
+    labels[_near(labels.shape, truth.lines, ROAD_EDGE_M / res) & truth.region] = 0
+    labels[_near(labels.shape, truth.lines, LINE_HALF_WIDTH_M / res) & truth.region] = ROAD
+    return AdaptSample(labels, truth.region, "the quadrant boxed, its roads drawn as lines")
 
 
 def person_sample(truth: Truth, zero_shot_lines: Sequence[np.ndarray], lines: int = 5,

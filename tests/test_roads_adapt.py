@@ -94,6 +94,43 @@ def test_a_deleted_false_road_is_left_out_of_the_next_extraction() -> None:
     assert p >= 0.95 and r >= 0.7
 
 
+def test_a_labelled_quadrant_teaches_the_rest_of_the_image(monkeypatch: pytest.MonkeyPatch
+                                                           ) -> None:
+    """Purple roads on pale ground and a canal the model takes for a road, one quadrant
+    labelled pixel by pixel: a complete sample, so the correction reads the encoder's context
+    too; outside the quadrant the canal is left out and the roads found (measured: zero-shot
+    P / R 0.53 / 0.41 with 166 canal pixels drawn outside, adapted 1.00 / 0.94 and none)."""
+    image, road = _scene(decoys=[CANAL], decoy_rgb=(80, 95, 115), road_rgb=(150, 60, 140),
+                         ground_rgb=(170, 160, 150))
+    canal = cv2.polylines(np.zeros(road.shape, np.uint8), [np.array(CANAL)], False, 1,
+                          8).astype(bool)
+    labels = np.zeros(road.shape, np.uint8)
+    half = SIZE // 2
+    labels[:half, :half] = np.where(road[:half, :half], ROAD, NOT_ROAD)
+    outside = labels == 0
+
+    def canal_outside(result: object) -> int:
+        lines = result.source_lines()  # type: ignore[attr-defined]
+        return int((rasterize_lines(lines, road.shape) & canal & outside).sum())
+
+    zero = extract_roads(image, None, ExtractParams())
+    assert canal_outside(zero) > 100  # the premise: zero-shot draws the canal there
+    asked: list[dict] = []
+    predict = adapt.predict
+
+    def spy(*args: object, **kwargs: object) -> object:
+        asked.append(kwargs)
+        return predict(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(adapt, "predict", spy)
+    adapted = extract_roads(image, labels, ExtractParams())
+    assert [k["context"] for k in asked] == [True]
+    assert adapted.sample_note is not None and adapted.sample_note.startswith("sample used")
+    assert canal_outside(adapted) == 0
+    p, r = _scores(adapted, road)
+    assert _f1(p, r) >= _f1(*_scores(zero, road)) + 0.3 and p >= 0.9 and r >= 0.85, (p, r)
+
+
 def test_no_evidence_means_no_correction() -> None:
     """Labels the network already agrees with leave its logit as it is (the weight decay
     pulls the correction to 0), so a sample cannot make a confident network worse."""

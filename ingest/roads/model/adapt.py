@@ -64,8 +64,9 @@ class AdaptParams:
     complete_anchor_weight: float = 0.01
     """...and this much where they are complete (every pixel of an area labelled, road and
     not road: a random sample of what the team wants, which the network's opinion must not
-    outvote; with 0.5 a labelled quadrant's F1 was 0.49-0.69 where 0.01 gives 0.52-0.81 on
-    DeepGlobe and Vegas, while a review's fell 0.74-0.81 -> 0.21-0.62 with 0.01)."""
+    outvote; with the encoder's context and 0.5, a labelled quadrant's F1 was 0.38-0.78 on
+    DeepGlobe and Vegas, with 0.01 0.47-0.81, while a review's fell 0.74-0.81 -> 0.21-0.62
+    with 0.01)."""
     complete_share: float = 0.6
     """A block is completely labelled when this share of its pixels is (a boxed area whose
     roads are drawn as lines leaves their edges unlabelled: 6 m each side of a line,

@@ -168,9 +168,9 @@ def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
     asked for, what the adaptation reads: (C, ceil(rows / 4), ceil(cols / 4)), channels first
     as the network gives them, at a quarter of the resolution (:func:`quarter`): the decoder's
     features, then, with ``context``, the encoder's context where the model has it (its
-    native stride). The one
-    user, the adaptation, blurs them by 1.5 m anyway; at full resolution the decoder's 16
-    channels of a 3000 px image alone take 600 MB, the context's 176 would take 6 GB.
+    native stride). The one user, the adaptation, blurs them by 1.5 m anyway; at full
+    resolution the decoder's 16 channels of a 3000 px image alone take 600 MB, the context's
+    176 would take 6 GB.
 
     ``tile`` and ``overlap`` must be multiples of the 16 px grid; images smaller than a tile
     run as one (padded) tile. ``tta`` > 1 averages the network over that many rotations and

@@ -87,8 +87,9 @@ def main() -> None:
 
         base_s, _ = fastest(args.repeat, whole)
         zero_s, (zero, _) = fastest(args.repeat, lambda: preview(None))
-        taught_s, (taught, classifier) = fastest(
+        taught_s, (taught, extraction) = fastest(
             args.repeat, lambda: preview(GeoSample(road_lines=lines)))
+    classifier = f"{extraction.classifier}; {extraction.sample_note or 'no sample'}"
     print(f"baseline: whole layer (1536 x 1792 px) zero-shot extraction {base_s:.1f} s")
     for name, seconds, roads in (("preview, zero-shot", zero_s, len(zero)),
                                  (f"preview, 5 road lines ({classifier})", taught_s,

@@ -92,12 +92,23 @@ class LiteUNet(nn.Module):
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Encode, then upsample (bilinear) and merge with each finer map down to full size."""
-        logit, y, _ = self.with_context(x)
+        logit, y, _ = self._run(x)
         return logit, y
+
+    def _run(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
+        """(logit, last decoder features, the encoder's maps, finest first)."""
+        encoded = self.encoder(x)
+        skips = [self.full(x - 0.5), *encoded]
+        y = skips.pop()
+        for merge, skip in zip(self.merge, reversed(skips), strict=True):
+            y = F.interpolate(y, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            y = merge(torch.cat([y, skip], dim=1))
+        return self.head(y), y, encoded
 
     def with_context(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(logit, last decoder features, encoder context): the encoder's stride 4, 8 and 16
-        maps, the coarser two resized (bilinear) to stride 4 and stacked.
+        maps, the coarser two resized (bilinear) to stride 4 and stacked (only the export
+        asks for it: training never pays for the resizing).
 
         The decoder's 16 channels are what the network needed to say "road" on its training
         scenes; what tells a survey's own roads from its look-alikes (a farm track from the
@@ -105,17 +116,12 @@ class LiteUNet(nn.Module):
         ImageNet-pretrained encoder's wider features. A sample's correction
         (:mod:`ingest.roads.model.adapt`) reads both: on a labelled quadrant, held-out pixel
         F1 of a linear fit went 0.57 -> 0.87 (DeepGlobe 343) and 0.79 -> 0.91 (Vegas)."""
-        encoded = self.encoder(x)
-        skips = [self.full(x - 0.5), *encoded]
-        y = skips.pop()
-        for merge, skip in zip(self.merge, reversed(skips), strict=True):
-            y = F.interpolate(y, size=skip.shape[-2:], mode="bilinear", align_corners=False)
-            y = merge(torch.cat([y, skip], dim=1))
+        logit, y, encoded = self._run(x)
         size = encoded[1].shape[-2:]
         context = torch.cat([encoded[1], *(
             F.interpolate(e, size=size, mode="bilinear", align_corners=False)
             for e in encoded[2:])], dim=1)
-        return self.head(y), y, context
+        return logit, y, context
 
     def encoder_parameters(self) -> list[nn.Parameter]:
         """The pretrained part (trained with a smaller learning rate)."""

@@ -75,11 +75,11 @@ def load_model(path: Path | None = None, threads: int = 2) -> RoadModel:
     if "resolution_m" not in meta:
         raise RoadsInputError(f"{path}: ONNX file lacks ugvmap's metadata (resolution_m)")
     outputs = {o.name: o.shape for o in session.get_outputs()}
-    decoder = outputs.get("features", [None, 0])[1]
+    channels = outputs.get("features", [None, None])[1]
     return RoadModel(path=path, resolution_m=float(meta["resolution_m"]),
                      threshold=float(meta.get("threshold", 0.5)), session=session,
                      feature_outputs=tuple(n for n in ("features", "context") if n in outputs),
-                     decoder_channels=decoder if isinstance(decoder, int) else 16)
+                     decoder_channels=channels if isinstance(channels, int) else 16)
 
 
 def _ramp(n: int, overlap: int) -> np.ndarray:

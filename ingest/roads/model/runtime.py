@@ -160,6 +160,13 @@ def quarter(a: np.ndarray) -> np.ndarray:
     return halve(halve(a))
 
 
+def _cells(start: int, size: int, limit: int) -> tuple[slice, slice]:
+    """(cells of the image, cells of the tile) where a tile's ``size`` cells starting at image
+    cell ``start`` (negative in the padding) overlap the image's ``limit`` cells."""
+    to = slice(max(start, 0), min(start + size, limit))
+    return to, slice(to.start - start, to.stop - start)
+
+
 def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
             context: bool = False,
             tile: int = TILE_PX, overlap: int = OVERLAP_PX, progress: bool = False,
@@ -188,7 +195,10 @@ def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
                     mode="reflect" if min(rows, cols) > 1 else "edge")
     acc = np.zeros((ph, pw), np.float32)
     weight = np.zeros((ph, pw), np.float32)
-    feat_acc = None
+    # The features are gathered straight onto the image's quarter grid (no padding, C-ordered),
+    # so the adaptation reads their 190-odd channels as one matrix without a copy of them.
+    o4, q_rows, q_cols = overlap // 4, -(-rows // 4), -(-cols // 4)
+    feat_acc: np.ndarray | None = None
     window = np.outer(_ramp(th, overlap), _ramp(tw, overlap))
     quarter_window = quarter(window)
     boxes = [(r, c) for r in row_starts for c in col_starts]
@@ -200,17 +210,23 @@ def predict(model: RoadModel, rgb: np.ndarray, *, features: bool = False,
         acc[r:r + th, c:c + tw] += out[0][0, 0] * window
         weight[r:r + th, c:c + tw] += window
         if features:
-            f = np.concatenate([quarter(out[1][0]), *(o[0] for o in out[2:])])
+            n = out[1].shape[1]
             if feat_acc is None:
-                feat_acc = np.zeros((f.shape[0], ph // 4, pw // 4), np.float32)
-            f *= quarter_window
-            feat_acc[:, r // 4:(r + th) // 4, c // 4:(c + tw) // 4] += f
+                feat_acc = np.zeros((n + sum(o.shape[1] for o in out[2:]), q_rows, q_cols),
+                                    np.float32)
+            rows_to, rows_from = _cells(r // 4 - o4, th // 4, q_rows)
+            cols_to, cols_from = _cells(c // 4 - o4, tw // 4, q_cols)
+            w = quarter_window[rows_from, cols_from]
+            # Weighed in place: a product's temporary of 190-odd channels took 3x the time.
+            parts = [(slice(None, n), quarter(out[1][0]))]
+            if len(out) > 2:
+                parts.append((slice(n, None), out[2][0]))
+            for to, got in parts:
+                got = got[:, rows_from, cols_from]
+                got *= w
+                feat_acc[to, rows_to, cols_to] += got
     inner = (slice(overlap, overlap + rows), slice(overlap, overlap + cols))
     prob = acc[inner] / weight[inner]
-    feats = None
     if feat_acc is not None:
-        cells = (slice(overlap // 4, overlap // 4 + -(-rows // 4)),
-                 slice(overlap // 4, overlap // 4 + -(-cols // 4)))
-        feats = feat_acc[(slice(None), *cells)]
-        feats /= quarter(weight)[cells]
-    return prob, feats
+        feat_acc /= quarter(weight)[o4:o4 + q_rows, o4:o4 + q_cols]
+    return prob, feat_acc

@@ -18,6 +18,7 @@ from click.testing import CliRunner
 from pyproj import CRS, Transformer
 from rasterio.transform import from_origin
 
+from app.db.models import LANE_COLOURS, LANE_KINDS
 from cli.main import main
 from ingest.ipm.synthetic import Drive, LanePaint
 from testkit.network_helpers import token
@@ -79,6 +80,9 @@ def test_lane_lines_are_drawn_over_the_imagery(browser, lane_world, request,
     outside: list[str] = []
     page.on("request", lambda r: None if r.url.startswith(lane_world["base"])
             or r.url.startswith(("data:", "blob:")) else outside.append(r.url))
+    schema_read: list[str] = []
+    page.on("request", lambda r: schema_read.append(r.url) if r.url.endswith("/schema")
+            else None)
     request.addfinalizer(lambda: finish(page, context, request, tmp_path, errors, outside))
     page.goto(lane_world["base"] + "/")
     page.wait_for_selector("body[data-ready=true]", timeout=20_000)
@@ -110,6 +114,12 @@ def test_lane_lines_are_drawn_over_the_imagery(browser, lane_world, request,
     assert "dashed" in info.inner_text() and "the paint" in info.inner_text()
     href = info.locator("a").get_attribute("href")
     assert "/collections/weblanes-lanes/items/" in href
+    # the kinds and colours offered are the collection schema's, read from the server
+    assert schema_read and all(url.endswith("/collections/weblanes-lanes/schema")
+                               for url in schema_read), schema_read
+    offered = [info.locator(f"select[name={name}] option").evaluate_all(
+        "(os) => os.map((o) => o.value)") for name in ("kind", "colour")]
+    assert offered == [list(LANE_KINDS), list(LANE_COLOURS)]
     # ...and, with an editor token, changes its kind: refused and said without one, then
     # saved as the next version of what the popup read, and drawn solid
     version = httpx.get(lane_world["base"] + href).json()["properties"]["version"]

@@ -2,8 +2,21 @@
 // token, its kind and colour changed in place (PATCH with the If-Match of the version shown).
 import { describeError, editorHeaders, request } from './api.js';
 
-export const KINDS = ['solid', 'dashed', 'solid_solid', 'road_edge', 'stop_line', 'other'];
-export const COLOURS = ['white', 'yellow', 'unknown'];
+const choices = new Map();
+
+/** The kinds and colours a boundary may take, as the collection's JSON Schema lists them (the
+ * server's own enums: a copy here would fall behind them when a kind is added); read once per
+ * collection, and again after a failed read. */
+function choicesOf(collection) {
+  if (!choices.has(collection)) {
+    choices.set(collection, request(`${collection}/schema`).then((answer) => {
+      if (!answer.ok) choices.delete(collection);
+      const props = (answer.ok && answer.body.properties) || {};
+      return { kind: props.kind?.enum, colour: props.colour?.enum };
+    }));
+  }
+  return choices.get(collection);
+}
 
 function select(name, options, value) {
   const el = document.createElement('select');
@@ -28,8 +41,9 @@ export class LanePopup {
    * its feature is read first, so the form shows (and the save names) its current version. */
   async show(lane, lngLat) {
     if (!lane) { this.remove(); return; }
-    const url = `/collections/${encodeURIComponent(`${lane.network}-lanes`)}/items/${lane.id}`;
-    const current = await request(url);
+    const collection = `/collections/${encodeURIComponent(`${lane.network}-lanes`)}`;
+    const url = `${collection}/items/${lane.id}`;
+    const [current, allowed] = await Promise.all([request(url), choicesOf(collection)]);
     const p = current.ok ? current.body.properties : lane.properties;
     const box = document.createElement('div');
     box.className = 'lane-info';
@@ -46,8 +60,8 @@ export class LanePopup {
       return [dt, dd];
     }));
     const [kindLabel, colourLabel] = box.querySelectorAll('label');
-    kindLabel.append(select('kind', KINDS, p.kind));
-    colourLabel.append(select('colour', COLOURS, p.colour));
+    kindLabel.append(select('kind', allowed.kind ?? [p.kind], p.kind));
+    colourLabel.append(select('colour', allowed.colour ?? [p.colour], p.colour));
     const form = box.querySelector('form');
     const said = box.querySelector('.lane-said');
     if (!current.ok) said.textContent = ` ${describeError(current)}`;

@@ -9,6 +9,7 @@ run for real (onnxruntime), as ``extract-roads`` and ``ingest roads`` run it.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -196,7 +197,7 @@ def test_labels_count_for_the_pixels_they_cover() -> None:
     labels[:, :2] = NOT_ROAD  # a thin deleted line
     prob = np.full((100, 100), 0.99, np.float32)  # the network is sure: road everywhere
     params = AdaptParams(pixels=50, anchors=100, anchor_weight=0.1)  # the arithmetic, any weight
-    _, target, weight = training_pixels(labels, prob, params)
+    _, target, weight = training_pixels(labels, prob, params, 0.0)
     labelled = target == 0
     assert weight.sum() == pytest.approx((200 + 0.1 * 9800) / 1000)
     assert weight[labelled].sum() / weight[~labelled].sum() == pytest.approx(200 / (0.1 * 9800))
@@ -211,25 +212,53 @@ def test_a_labelled_area_is_complete_and_strokes_are_not() -> None:
     labels = np.zeros((256, 256), np.uint8)
     labels[:128, :128] = NOT_ROAD
     labels[:128, 60:70] = ROAD  # a labelled quadrant, a road across it
-    assert completeness(labels, 64, 0.9) == 1.0
+    params = AdaptParams(complete_share=0.9, complete_min_blocks=4)
+    assert completeness(labels, params, 0.5) == 1.0
     lines = np.zeros((256, 256), np.uint8)
     lines[:, 60:66] = ROAD
     lines[:, 150:156] = NOT_ROAD
-    assert completeness(lines, 64, 0.9) == 0.0
+    assert completeness(lines, params, 0.5) == 0.0
     box = np.zeros((256, 256), np.uint8)
     box[128:, 128:] = NOT_ROAD  # complete, but it says nothing of how roads look
-    assert completeness(box, 64, 0.9) == 0.0
+    assert completeness(box, params, 0.5) == 0.0
     both = np.where(lines > 0, lines, labels)  # the quadrant and the lines outside it
-    share = completeness(both, 64, 0.9)
+    share = completeness(both, params, 0.5)
     assert share == pytest.approx(128 * 128 / np.count_nonzero(both))
+    assert completeness(labels, replace(params, complete_min_blocks=5), 0.5) == 0.0
     prob = np.full((256, 256), 0.5, np.float32)
-    params = AdaptParams(pixels=500, anchors=1000, anchor_weight=0.5, complete_anchor_weight=0.01)
+    params = replace(params, pixels=500, anchors=1000, anchor_weight=0.5,
+                     complete_anchor_weight=0.01)
     for sample, anchor in ((labels, 0.01), (lines, 0.5)):
-        _, target, weight = training_pixels(sample, prob, params)
+        _, target, weight = training_pixels(sample, prob, params,
+                                            completeness(sample, params, 0.5))
         said = (sample != 0).sum()
         anchors = weight[target == 0.5].sum()
         assert anchors / weight[target != 0.5].sum() == pytest.approx(
             anchor * (sample.size - said) / said, rel=1e-6)
+
+
+def test_a_town_boxed_with_its_streets_drawn_is_complete() -> None:
+    """In a town a 32 m block holds streets, and a person who boxes an area "not road" and
+    draws its streets as lines leaves 6 m each side of them unlabelled (the roads' edges):
+    most of each block is unsaid. Those edges count as covered, so the area is read as
+    complete, as the same box is in the country; a line along a road beside a small box is
+    still a stroke, and so are a review's lines among drawn streets."""
+    town = np.full((640, 640), NOT_ROAD, np.uint8)  # 0.5 m pixels: 320 m boxed
+    streets = np.zeros(town.shape, bool)
+    for c in range(40, 640, 80):  # a street every 40 m, north-south and east-west
+        streets[:, c - 3:c + 3] = streets[c - 3:c + 3, :] = True
+    town[cv2.dilate(streets.astype(np.uint8), np.ones((25, 25), np.uint8)).astype(bool)] = 0
+    town[streets] = ROAD
+    params = AdaptParams()
+    assert completeness(town, replace(params, complete_edge_m=0.0), 0.5) == 0.0
+    assert completeness(town, params, 0.5) == 1.0
+    person = np.zeros(town.shape, np.uint8)
+    person[100:180, 100:180] = NOT_ROAD  # a 40 m box
+    person[:, 197:203] = ROAD  # a road line beside it
+    assert completeness(person, params, 0.5) == 0.0
+    review = np.where(streets, ROAD, 0).astype(np.uint8)  # drawn streets, edges unsaid...
+    review[300:303, :] = NOT_ROAD  # ...and a deleted line among them
+    assert completeness(review, params, 0.5) == 0.0
 
 
 def test_principal_components_keep_what_varies() -> None:

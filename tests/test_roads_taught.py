@@ -22,7 +22,7 @@ from ingest.roads import RoadsInputError
 from ingest.roads.classify import NOT_ROAD, ROAD
 from ingest.roads.georef import Image, as_image
 from ingest.roads.layer import LayerSource, _area_labels
-from ingest.roads.model.adapt import completeness
+from ingest.roads.model.adapt import AdaptParams, completeness
 from ingest.roads.sample import ROAD_EDGE_M, GeoSample, burn_sample
 from ingest.roads.synthetic import Scene
 from ingest.roads.taught import merged
@@ -188,10 +188,10 @@ def test_a_boxed_area_with_its_roads_drawn_is_a_complete_sample() -> None:
     assert row[100] == ROAD and row[100 + 2] == ROAD  # the band: 1.5 m each side
     assert (row[100 + 4:100 + 2 * int(ROAD_EDGE_M) - 1] == 0).all()  # its edges: unsaid
     assert row[100 + 2 * int(ROAD_EDGE_M) + 2] == NOT_ROAD and row[10] == NOT_ROAD
-    assert completeness(labels, 64, 0.6) > 0.9
+    assert completeness(labels, AdaptParams(), 0.5) > 0.9
     # The same box without its road holds one class: no complete sample of how roads look.
     box_only = burn_sample((200, 200), to_map, crs, GeoSample(not_road_boxes=[(w, s, e, n)]))
-    assert completeness(box_only, 64, 0.6) == 0.0
+    assert completeness(box_only, AdaptParams(), 0.5) == 0.0
 
 
 def test_merged_keeps_how_the_first_sample_reads_its_lines() -> None:

@@ -40,6 +40,7 @@ from scipy.optimize import minimize
 
 from ingest.roads.classify import NOT_ROAD, ROAD
 from ingest.roads.model.runtime import RoadModel, predict, quarter
+from ingest.roads.sample import ROAD_EDGE_M
 
 
 @dataclass(frozen=True)
@@ -68,9 +69,17 @@ class AdaptParams:
     DeepGlobe and Vegas, with 0.01 0.47-0.81, while a review's fell 0.74-0.81 -> 0.21-0.62
     with 0.01)."""
     complete_share: float = 0.6
-    """A block is completely labelled when this share of its pixels is (a boxed area whose
-    roads are drawn as lines leaves their edges unlabelled: 6 m each side of a line,
-    :data:`ingest.roads.sample.ROAD_EDGE_M`)."""
+    """A block is completely labelled when this share of its pixels is labelled or lies within
+    ``complete_edge_m`` of a road label..."""
+    complete_edge_m: float = ROAD_EDGE_M
+    """...(a boxed area whose roads are drawn as lines leaves their edges unlabelled: 6 m
+    each side of a line, :data:`ingest.roads.sample.ROAD_EDGE_M`)..."""
+    complete_not_road: float = 0.1
+    """...and at least this share of it is labelled not road (an area: a 3 m deleted line
+    across a 32 m block is 9 %)..."""
+    complete_min_blocks: int = 9
+    """...in a connected area of at least this many blocks (about 100 m square: three 40 m
+    boxes beside a person's road lines are not a labelled area)."""
     context_from: float = 0.5
     """The encoder's context is read where at least this share of the sample labels whole
     areas (:func:`completeness`). Strokes and reviews label what the network got wrong, or
@@ -81,7 +90,8 @@ class AdaptParams:
     the image's own (the fit's cost grows with the square of its inputs: 3.4 s with all of
     them on a DeepGlobe tile)."""
     block_px: int = 64
-    """Side of the blocks the sample is split by to choose the threshold."""
+    """Side of the blocks (model-grid pixels: 32 m) the sample is split by to choose the
+    threshold, and judged complete in (:func:`completeness`)."""
     gate_margin: float = 0.02
     """How much better (in F1 on the held-out half's labels) than the network alone the trial
     correction must agree with them to be used. A review's labels all lie where the network
@@ -244,38 +254,60 @@ def fit_correction(x: np.ndarray, offset: np.ndarray, y: np.ndarray, weight: np.
                       tuple(a.astype(np.float32) for a in weights))
 
 
-def completeness(labels: np.ndarray, block_px: int, share: float) -> float:
-    """The share (0..1) of labelled pixels that lie in completely labelled areas: connected
-    blocks of ``block_px``, each labelled over at least ``share`` of its area, that together
-    hold both road and not road. A not-road box alone says nothing about how roads look, and
-    strokes or a review's lines never fill a block."""
+def completeness(labels: np.ndarray, params: AdaptParams, resolution_m: float) -> float:
+    """The share (0..1) of labelled pixels (on a grid of ``resolution_m``) that lie in
+    completely labelled areas: at least ``complete_min_blocks`` connected blocks of
+    ``block_px``, each covered over ``complete_share`` of its area and ``complete_not_road``
+    of it labelled not road, that together hold both road and not road. A not-road box alone
+    says nothing about how roads look, and strokes, a review's lines or a few small boxes
+    beside them never fill such an area.
+
+    A pixel within ``complete_edge_m`` of a road label counts as covered: a road's edges are
+    left unlabelled on purpose (a road line's 6 m, :data:`ingest.roads.sample.ROAD_EDGE_M`;
+    the 2-6 m band a centreline truth cannot call either), and in a town, where a 32 m block
+    holds two streets, those edges alone took SpaceNet Vegas's labelled quadrant under 60 % of
+    its blocks, so the most complete sample there was read as strokes (completeness 0.28;
+    0.93 with the edges). Counting the edges, a person's five road lines beside three 40 m
+    boxes came out 0.63 complete on Vegas, and a review's 145 drawn streets 0.29 on
+    Massachusetts 02: the not-road share of a block (an area, not a 3 m deleted line) and the
+    size of the area keep those out (0.00 on every validation image)."""
+    block = params.block_px
     rows, cols = labels.shape
-    pad = ((0, -rows % block_px), (0, -cols % block_px))
+    pad = ((0, -rows % block), (0, -cols % block))
     said = np.pad(labels != 0, pad)
     road = np.pad(labels == ROAD, pad)
-    shape = (said.shape[0] // block_px, block_px, said.shape[1] // block_px, block_px)
-    said_in = said.reshape(shape).sum(axis=(1, 3))
-    road_in = road.reshape(shape).sum(axis=(1, 3))
-    full = (said_in >= share * block_px * block_px).astype(np.uint8)
+    covered = said
+    if road.any():
+        edge_px = params.complete_edge_m / resolution_m
+        covered = said | (cv2.distanceTransform((~road).astype(np.uint8), cv2.DIST_L2, 3)
+                          <= edge_px)
+    shape = (said.shape[0] // block, block, said.shape[1] // block, block)
+
+    def per_block(mask: np.ndarray) -> np.ndarray:
+        return mask.reshape(shape).sum(axis=(1, 3))
+
+    said_in, road_in = per_block(said), per_block(road)
+    full = ((per_block(covered) >= params.complete_share * block * block)
+            & (said_in - road_in >= params.complete_not_road * block * block)).astype(np.uint8)
     count, area = cv2.connectedComponents(full, connectivity=8)
     complete = 0
     for k in range(1, count):
-        roads, labelled = road_in[area == k].sum(), said_in[area == k].sum()
-        if 0 < roads < labelled:
+        blocks = area == k
+        roads, labelled = road_in[blocks].sum(), said_in[blocks].sum()
+        if blocks.sum() >= params.complete_min_blocks and 0 < roads < labelled:
             complete += int(labelled)
     return complete / max(int(said.sum()), 1)
 
 
 def training_pixels(labels: np.ndarray, prob: np.ndarray, params: AdaptParams,
-                    within: np.ndarray | None = None, seed: int = 0,
-                    complete: float | None = None
+                    complete: float, within: np.ndarray | None = None, seed: int = 0
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(flat pixel indices, targets in 0..1, weights in thousands of pixels): labelled pixels
     (target 0 or 1) and anchors (unlabelled pixels, target the network's own probability),
     each drawn uniformly and weighed by how many pixels it stands for, an anchor
     ``anchor_weight`` of a labelled pixel (``complete_anchor_weight`` in the share
-    ``complete`` of the sample that labels whole areas, :func:`completeness` of ``labels`` if
-    not given); only pixels ``within`` (flat) if given.
+    ``complete`` of the sample that labels whole areas, :func:`completeness`); only pixels
+    ``within`` (flat) if given.
 
     An anchor's target is what the uncorrected model already says, so it pulls nothing
     towards itself and only resists change: the correction pays for every unlabelled pixel it
@@ -289,8 +321,6 @@ def training_pixels(labels: np.ndarray, prob: np.ndarray, params: AdaptParams,
     picked = rng.choice(labelled, min(len(labelled), params.pixels), replace=False)
     free = np.flatnonzero(inside & (flat == 0))
     anchors = rng.choice(free, min(len(free), params.anchors), replace=False)
-    if complete is None:
-        complete = completeness(labels, params.block_px, params.complete_share)
     anchor_weight = (1 - complete) * params.anchor_weight + \
         complete * params.complete_anchor_weight
     index = np.concatenate([picked, anchors])
@@ -393,7 +423,7 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     channels of a 3000 px grid take 430 MB there (1.7 GB at half resolution). A labelled
     pixel learns from the quarter-grid cell it lies in.
     """
-    complete = completeness(labels, params.block_px, params.complete_share)
+    complete = completeness(labels, params, model.resolution_m)
     prob, feats = predict(model, rgb, features=True, progress=progress,
                           context=complete >= params.context_from)
     assert feats is not None  # asked for
@@ -416,9 +446,9 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
         pixels' are ever needed, so no whole-image index array is made."""
         return (index // cols // 4) * q_cols + (index % cols) // 4
 
-    learn = training_pixels(labels, prob, params, within=~odd, seed=1, complete=complete)
-    held, target, weight = training_pixels(labels, prob, params, within=odd, seed=2,
-                                           complete=complete)
+    learn = training_pixels(labels, prob, params, complete, within=~odd, seed=1)
+    held, target, weight = training_pixels(labels, prob, params, complete, within=odd,
+                                           seed=2)
     trial = fit_correction(flat_x[cell(learn[0])], flat_logit[learn[0]], learn[1], learn[2],
                            params)
     said = labels.ravel()[held] != 0  # the cut is judged by the labels, not the anchors
@@ -430,7 +460,7 @@ def adapted_probability(model: RoadModel, rgb: np.ndarray, labels: np.ndarray,
     if held_adapted <= held_network + params.gate_margin:
         return Adapted(np.where(labels == NOT_ROAD, 0.0, prob).astype(np.float32), prob,
                        model.threshold, False, held_network, held_adapted, params.gate_margin)
-    index, target, weight = training_pixels(labels, prob, params, complete=complete)
+    index, target, weight = training_pixels(labels, prob, params, complete)
     correction = fit_correction(flat_x[cell(index)], flat_logit[index], target, weight, params)
     field = correction.of_channels(x.reshape(x.shape[0], -1)).astype(np.float32).reshape(
         q_rows, q_cols)

@@ -10,8 +10,8 @@ blurred at two scales (is there road around here) and the pixel's colour, regula
 zero. With few labels the correction stays near zero and the result is close to the
 zero-shot one; with many it learns where the team disagrees with the network. The earlier
 per-job trees, learnt from scratch on the labelled pixels, scored below zero-shot with a whole
-labelled quadrant; this correction scores above it on 7 of the 8 validation images (the
-model card's "Adaptation").
+labelled quadrant; this correction scores above it on every validation image (the model
+card's "Adaptation").
 
 Labels a person gives are not a random sample of the image: a reviewer deletes the network's
 false roads (all of them confidently "road" to the network) and draws the ones it missed (all

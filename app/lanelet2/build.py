@@ -17,6 +17,8 @@ Conventions (the README's *Lanelet2 export* section says the same for users):
   ``turn_direction`` (straight within 30°), ``segment_id`` (the segment they leave),
   ``to_segment_id``, ``node_id`` and ``virtual`` bounds (nothing is painted in a junction).
 - **Junctions and traffic lights**: :mod:`app.lanelet2.junctions`.
+- **Who gives way** (``right_of_way``, ``all_way_stop``, from painted stop lines):
+  :mod:`app.lanelet2.priority`.
 
 IDs are positive, unique across nodes, ways and relations, and handed out in a fixed order
 (segments by id, nodes by id), so the same network gives the same file byte for byte.
@@ -45,6 +47,7 @@ from app.lanelet2.junctions import (
 )
 from app.lanelet2.layout import Layout, plan_layout
 from app.lanelet2.osm_xml import Member, OsmXmlWriter
+from app.lanelet2.priority import elements_by_arm, priority_relation
 from app.lanelet2.roads import NetworkSelection
 
 Progress = Callable[[str, float], None]
@@ -95,8 +98,9 @@ def _write_end_points(plan: Layout, frame: Frame, out: OsmXmlWriter) -> None:
 
 
 def _write_segments(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter,
-                    rows: range) -> int:
-    """Bounds and lanelets of segments ``rows``; returns the number of lanelets."""
+                    rows: range, entering: dict[int, list[int]]) -> int:
+    """Bounds and lanelets of segments ``rows``; returns the number of lanelets. The
+    lanelets entering a junction at an arm of ``entering`` are added to its list."""
     n = plan.forward + plan.backward
     seg_rows = np.arange(rows.start, rows.stop)
     slots = np.arange(plan.slot_offsets[rows.start], plan.slot_offsets[rows.stop])
@@ -140,6 +144,7 @@ def _write_segments(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter
     lanelet_ids = ids.take(int(n[seg_rows].sum()))
     next_lanelet = 0
     base = plan.slot_offsets[rows.start]
+    priority = elements_by_arm(plan.priorities)
     for s in seg_rows.tolist():
         tags = _segment_tags(plan, s)
         f, b = int(plan.forward[s]), int(plan.backward[s])
@@ -154,9 +159,13 @@ def _write_segments(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter
                 members: list[Member] = [("way", int(way_ids[left]), "left"),
                                          ("way", int(way_ids[right]), "right")]
                 members += [("relation", r, "regulatory_element")
-                            for r in (re_id, plan.stop_ids.get(arm, 0)) if r]
-                relations.append((int(lanelet_ids[next_lanelet]), members,
+                            for r in (re_id, plan.stop_ids.get(arm, 0), *priority.get(arm, ()))
+                            if r]
+                lanelet = int(lanelet_ids[next_lanelet])
+                relations.append((lanelet, members,
                                   {**tags, "direction": direction, "lane": lane}))
+                if arm in entering:
+                    entering[arm].append(lanelet)
                 next_lanelet += 1
     out.relations(relations)
     return len(relations)
@@ -190,14 +199,16 @@ def _painted_inner(plan: Layout, rows: range, slots: np.ndarray, local: np.ndarr
     return xy[order], which[order]
 
 
-def _write_stops(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter) -> int:
+def _write_stops(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter
+                 ) -> dict[int, tuple[int, int]]:
     """Painted stop lines as ``traffic_sign`` regulatory elements (a stop sign beside the
     road where the line ends, as Autoware's maps draw a stop line without a light), each
     referenced by the lanelets that end at it; a stop line before a traffic light is only
     its ``stop_line`` way (the light's element governs those lanes: a stop sign there would
-    make the vehicle stop on green). Returns how many elements."""
+    make the vehicle stop on green). Returns the (stop line, stop sign) way ids by arm."""
     ways: list[tuple[int, list[int], dict[str, object]]] = []
     relations: list[tuple[int, list[Member], dict[str, object]]] = []
+    written: dict[int, tuple[int, int]] = {}
     for stop in plan.pieces.stops:
         if stop.lit:
             line = int(ids.take(1)[0])
@@ -215,13 +226,14 @@ def _write_stops(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter) -
         ways += [(line, points[:2].tolist(), {"type": "stop_line", "ugvmap:source": "paint"}),
                  (sign, points[2:].tolist(), {"type": "traffic_sign", "subtype": "stop_sign",
                                               "virtual": "yes"})]
+        written[stop.arm] = (line, sign)
         relations.append((plan.stop_ids[stop.arm], [("way", sign, "refers"),
                                                     ("way", line, "ref_line")],
                           {"type": "regulatory_element", "subtype": "traffic_sign",
                            "segment_id": int(plan.roads.ids[stop.arm // 2])}))
     out.ways(ways)
     out.relations(relations)
-    return len(relations)
+    return written
 
 
 def _chunks(total: int, size: int) -> Iterator[range]:
@@ -240,10 +252,13 @@ def write_map(sel: NetworkSelection, frame: Frame, out: OsmXmlWriter,
     _write_end_points(plan, frame, out)
     total = len(plan.roads)
     lanelets = 0
+    entering: dict[int, list[int]] = {arm: [] for arm in elements_by_arm(plan.priorities)}
     for rows in _chunks(total, SEGMENT_CHUNK):
-        lanelets += _write_segments(plan, frame, ids, out, rows)
+        lanelets += _write_segments(plan, frame, ids, out, rows, entering)
         say("segment lanelets", 0.1 + 0.5 * rows.stop / max(total, 1))
-    _write_stops(plan, frame, ids, out)
+    stop_ways = _write_stops(plan, frame, ids, out)
+    out.relations([priority_relation(p, entering, stop_ways, int(plan.node_ids[p.node]))
+                   for p in plan.priorities])
     junction_lanelets = light_count = 0
     dropped: list[tuple[int, int, int]] = []
     busy = np.flatnonzero((plan.arms.kind == topo.JUNCTION)

@@ -28,6 +28,7 @@ from app.lanelet2.geometry import (
     vertex_normals,
 )
 from app.lanelet2.paint import Pieces, split_painted
+from app.lanelet2.priority import Priority, plan_priorities
 from app.lanelet2.roads import NetworkSelection, RoadTable
 from app.routing.costs import effective_speed_kph
 
@@ -69,6 +70,7 @@ class Layout:
     pieces: Pieces  # the bounds drawn from the paint, by (row, slot)
     cut: np.ndarray  # (2, S) stations where each line's lanelets start and end
     stop_ids: dict[int, int]  # arm -> the stop line element of the lanes entering there
+    priorities: list[Priority]  # right-of-way elements at junctions, from the stop lines
 
 
 def plan_layout(sel: NetworkSelection, frame: Frame, ids: IdSource) -> Layout:
@@ -122,9 +124,10 @@ def plan_layout(sel: NetworkSelection, frame: Frame, ids: IdSource) -> Layout:
     speed = effective_speed_kph(table.speed_limit_kph, table.road_class)
     away = np.column_stack([geo.first_dir, -geo.last_dir]).reshape(-1, 2)  # where cut
     stops = {stop.arm: int(ids.take(1)[0]) for stop in pieces.stops if not stop.lit}
+    priorities = plan_priorities(arms, traffic_light, painted, sorted(stops), length, ids)
     return Layout(table, nodes.ids, traffic_light, forward, backward, width, speed, arms,
                  geo.xy, geo.offsets, geo.normals, geo.straight, away, slot_offsets, end_ids,
-                 geo.end_xy, re_ids, defects, pieces, geo.cut, stops)
+                 geo.end_xy, re_ids, defects, pieces, geo.cut, stops, priorities)
 
 
 def _away(xy: np.ndarray, offsets: np.ndarray, length: np.ndarray) -> np.ndarray:

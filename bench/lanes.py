@@ -15,9 +15,10 @@ and the Lanelet2 map is drawn from) at every cut. Goals (issue 35): P/R >= 0.95/
 <= 0.05 m, p95 <= 0.15 m, kinds >= 95 %, lanes >= 95 % (the stored lanes' figure decides).
 
 Real: the OpenSatMap satellite patches (~0.14 m/px, lane lines and road edges as polylines:
-every extracted line but ``other`` is scored) and the RoadMarking drone crops (~0.03 m/px,
-only dashed lane lines labelled: the extracted dashes are scored against the label mask's
-centre lines), precision / recall at 0.5 m and seconds per megapixel, per image and mean.
+every extracted line but ``other`` and ``crosswalk`` is scored) and the RoadMarking drone
+crops (~0.03 m/px, only dashed lane lines labelled: the extracted dashes are scored against
+the label mask's centre lines), precision / recall at 0.5 m and seconds per megapixel, per
+image and mean.
 Aim: >= 0.80 / 0.75. Baseline in the same run: the top-hat paint mask alone, thinned (what the
 line tracing and classification add or cost).
 """
@@ -84,7 +85,8 @@ def real_rows(within_m: float = 0.5) -> list[dict]:
             if label.suffix == ".json":
                 gt = rasterize_lines([np.asarray(line, float)
                                       for line in json.loads(label.read_text())], shape)
-                pred = rasterize_lines([m.coords for m in found if m.kind != "other"], shape)
+                pred = rasterize_lines([m.coords for m in found
+                                        if m.kind not in ("other", "crosswalk")], shape)
             else:
                 gt = thin(cv2.imread(str(label), cv2.IMREAD_GRAYSCALE) == DASHLINE)
                 pred = rasterize_lines([p.coords for m in found if m.kind == "dashed"
@@ -143,7 +145,8 @@ def drive_markings(frames: int) -> tuple[list[Paint], shapely.Geometry, float]:
                 return np.column_stack(DRIVE.to_local(np.asarray(lon), np.asarray(lat)))
 
             out += [Paint(shapely.LineString(local(m.coords)), m.kind, m.colour, m.width_m,
-                          m.confidence) for m in found if m.kind != "other"]
+                          m.confidence) for m in found
+                    if m.kind not in ("other", "crosswalk")]
             valid = img.valid if img.valid is not None else np.ones(img.pixels.shape[:2], bool)
             contours, _ = cv2.findContours(valid.astype(np.uint8), cv2.RETR_EXTERNAL,
                                            cv2.CHAIN_APPROX_SIMPLE)

@@ -44,6 +44,9 @@ def lanelet2_report(result: Lanelet2Export, folder: str | None = None) -> list[s
              f"{s.traffic_lights} traffic-light elements",
              f"origin lat {lat} lon {lon} (UTM zone {result.utm_zone}); "
              f"{where}/{PROJECTOR_FILE} written for Autoware (LocalCartesianUTM)"]
+    if s.from_paint:
+        lines.append("from the paint: " + ", ".join(f"{n} {what}"
+                                                    for what, n in s.from_paint.items()))
     if s.movements_dropped:
         lines.append(f"{len(s.movements_dropped)} junction movements not drawn (the roads "
                      "overlap where they meet): " + ", ".join(

@@ -145,12 +145,18 @@ def test_cli_writes_pixel_geojson_and_refuses_coarse_imagery(tmp_path: Path) -> 
 def test_synthetic_drive_writes_its_painted_truth(tmp_path: Path) -> None:
     from ingest.ipm.synthetic import main as synthetic
 
-    synthetic([str(tmp_path), "--frames", "2", "--size", "256x128", "--lanes", "3.5,3.0,3.25,3.75"])
+    synthetic([str(tmp_path), "--frames", "2", "--size", "256x128", "--lanes", "3.5,3.0,3.25,3.75",
+               "--zebra-at", "20"])
     truth = json.loads((tmp_path / "lanes_truth.geojson").read_text())
     kinds = [f["properties"].get("kind") for f in truth["features"]
              if f["properties"]["feature"] == "marking"]
-    assert kinds == ["road_edge", "dashed", "solid", "dashed", "road_edge", "stop_line"]
-    drive = Drive.in_lane(LanePaint(), 1)
+    assert kinds == ["road_edge", "dashed", "solid", "dashed", "road_edge", "stop_line",
+                     "crosswalk"]
+    (zebra,) = [f for f in truth["features"] if f["properties"].get("kind") == "crosswalk"]
+    drive = Drive.in_lane(LanePaint(zebra_at_m=20.0), 1)
+    across = shapely.LineString(np.column_stack(drive.to_local(
+        *np.asarray(zebra["geometry"]["coordinates"]).T)))
+    assert across.length == pytest.approx(sum(LanePaint().widths_m), abs=0.01)
     lines = {p.get("boundary"): line for p, line in truth_lines(drive)
              if p["feature"] == "marking"}
     for i, width in enumerate(LanePaint().widths_m):  # lane widths as painted
@@ -196,30 +202,55 @@ def test_a_lane_that_widens_into_two_is_a_change_along_the_road() -> None:
     assert wide[0] == pytest.approx([2.75, 2.75], abs=0.1)
 
 
-def test_zebra_stripes_are_other_not_stop_lines_or_lane_lines() -> None:
-    """A zebra crossing on a two-lane road: 0.5 m bars along the road, 1 m apart, across it,
-    the lines interrupted there. The bars are ``other``; the centre and edge lines stay lines,
-    joined across the crossing."""
-    res = RES
+def _two_lane_road(res: float, gap: tuple[float, float]) -> np.ndarray:
+    """A 30 m two-lane road (edge, centre, edge lines along x at 2, 5 and 8 m) between verges,
+    its lines stopping over ``gap`` (metres along)."""
     img = np.full((int(10 / res), int(30 / res), 3), 105, np.uint8)
     img[: int(1.5 / res)] = img[-int(1.5 / res):] = (60, 140, 50)  # verges
-    for row_m in (2.0, 5.0, 8.0):  # edge, centre, edge lines along x, stopping at the crossing
-        for x0, x1 in ((0.0, 13.0), (17.0, 30.0)):
+    for row_m in (2.0, 5.0, 8.0):
+        for x0, x1 in ((0.0, gap[0]), (gap[1], 30.0)):
             cv2.line(img, (round(x0 / res), round(row_m / res)),
                      (round(x1 / res), round(row_m / res)), (235, 235, 235), 3)
-    bars = 0
-    for top_m in np.arange(2.25, 7.3, 1.0):
+    return img
+
+
+def test_zebra_stripes_are_one_crossing_not_stop_lines_or_lane_lines() -> None:
+    """A zebra crossing on a two-lane road: 0.5 m bars 3 m long along the road, 1 m apart,
+    across it, the lines interrupted there. The bars are one ``crosswalk`` across the road
+    (from the first bar's outer edge to the last's, as wide as the bars are long); the centre
+    and edge lines stay lines, joined across the crossing."""
+    res = RES
+    img = _two_lane_road(res, (13.0, 17.0))
+    tops = np.arange(2.25, 7.3, 1.0)
+    for top_m in tops:
         cv2.rectangle(img, (round(13.5 / res), round(top_m / res)),
                       (round(16.5 / res), round((top_m + 0.5) / res)), (235, 235, 235), -1)
-        bars += 1
     found = markings(img, res)
     kinds = [m.kind for m in found]
-    assert "stop_line" not in kinds
-    assert kinds.count("other") == bars, kinds
+    assert "stop_line" not in kinds and "other" not in kinds, kinds
+    (zebra,) = [m for m in found if m.kind == "crosswalk"]
+    assert zebra.pieces == len(tops) and zebra.colour == "white"
+    assert zebra.width_m == pytest.approx(3.0, abs=0.3)
+    ends = zebra.coords * res
+    assert np.allclose(ends[:, 0], 15.0, atol=0.2)  # across the road, mid-crossing
+    assert sorted(ends[:, 1]) == pytest.approx([tops[0], tops[-1] + 0.5], abs=0.2)
     assert sorted(kinds.count(k) for k in ("solid", "road_edge")) == [1, 2], kinds
     stripes_zone = shapely.box(13.0 / res, 2.3 / res, 17.0 / res, 7.8 / res)
     lines = [m for m in found if m.kind in ("solid", "dashed", "road_edge")]
     assert all(not shapely.LineString(m.coords).within(stripes_zone) for m in lines)
+
+
+def test_hatching_across_the_lines_is_not_a_crossing() -> None:
+    """The same bars turned 45 degrees to the lines (the hatching of a painted island) stay
+    ``other``: a zebra's bars run with the lines beside it."""
+    res = RES
+    img = _two_lane_road(res, (12.0, 18.0))
+    for start_m in np.arange(12.5, 16.0, 1.0):
+        a = (round(start_m / res), round(3.0 / res))
+        b = (round((start_m + 2.0) / res), round(5.0 / res))
+        cv2.line(img, a, b, (235, 235, 235), round(0.5 / res))
+    kinds = [m.kind for m in markings(img, res)]
+    assert "crosswalk" not in kinds and kinds.count("other") >= 3, kinds
 
 
 def test_paint_outside_the_given_road_is_not_a_marking() -> None:

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import shapely
 from click.testing import CliRunner
-from lanelet2 import geometry
+from lanelet2 import geometry, traffic_rules
 from rasterio.transform import from_origin
 from sqlalchemy import text
 
@@ -424,3 +424,46 @@ def test_a_stop_line_before_a_traffic_light_is_not_a_stop_sign(database_url: str
         lines = [ls for ls in loaded.map.lineStringLayer
                  if ls.attributes["type"] == "stop_line" and "ugvmap:source" in ls.attributes]
         assert len(lines) == 1, name
+
+
+def test_a_painted_crossing_is_kept_whole_and_mapped_as_a_crosswalk_lanelet(
+        database_url: str, tmp_path: Path) -> None:
+    """A zebra crossing 50 m along a 1+1 road (6 m across, 3 m along it): ``ingest lanes``
+    keeps it whole without a position, and the Lanelet2 map has a ``crosswalk`` lanelet
+    (``zebra_marking`` bounds 3 m apart) across both lanes, for pedestrians and not cars."""
+    paint = [Paint(shapely.LineString([(0.0, o), (100.0, o)]), k, "white", 0.15, 0.9)
+             for o, k in ((-3.0, "road_edge"), (0.0, "solid"), (3.0, "road_edge"))]
+    zebra = Paint(shapely.LineString([(50.0, -3.0), (50.0, 3.0)]), "crosswalk", "white", 3.0,
+                  0.8)
+    reference = shapely.LineString([(0.0, 0.0), (100.0, 0.0)])
+    ranges = lane_ranges(reference, [*paint, zebra])
+    assert [(r.forward, r.backward) for r in ranges] == [(1, 1)]
+    (crossing,) = [r for r in boundaries(reference, [*paint, zebra], ranges)
+                   if r.kind == "crosswalk"]
+    assert crossing.position is None and crossing.width_m == 3.0
+    assert (crossing.station_from_m, crossing.station_to_m) == pytest.approx((50, 50), abs=0.3)
+
+    _straight_road(tmp_path, "zebra", 48.8)
+    _store_lanes("zebra", [(0, 100, 1, 1, [-3.0, 0.0, 3.0])],
+                 [(0, 100, -3.0, 0, "road_edge"), (0, 100, 0.0, 1, "solid"),
+                  (0, 100, 3.0, 2, "road_edge")])
+    with session_scope() as session:
+        session.execute(text(
+            "INSERT INTO lane_boundaries (network_id, segment_id, geom, kind, colour, width_m, "
+            "confidence, position, offset_m, station_from_m, station_to_m) SELECT network_id, "
+            "segment_id, ST_MakeLine(ST_Project(p::geography, 3.0, radians(180))::geometry, "
+            "ST_Project(p::geography, 3.0, 0)::geometry), 'crosswalk', 'white', 3.0, 0.8, NULL, "
+            "0.0, 50.0, 50.0 FROM (SELECT network_id, segment_id, "
+            "ST_LineInterpolatePoint(geom, 0.5) AS p FROM lane_boundaries WHERE kind = 'solid' "
+            "AND network_id = (SELECT id FROM networks WHERE name = 'zebra')) AS mid"))
+    result, loaded = export("zebra", tmp_path / "zebra.osm")
+    assert result.summary.from_paint == {"crosswalks": 1}
+    (walk,) = [ll for ll in loaded.lanelets() if ll.attributes["subtype"] == "crosswalk"]
+    assert {_bound(b)[0] for b in (walk.leftBound, walk.rightBound)} == {"zebra_marking"}
+    assert _width(walk) == pytest.approx(3.0, abs=0.05)
+    assert geometry.length2d(walk) == pytest.approx(6.0, abs=0.1)
+    roads = [ll for ll in loaded.lanelets() if ll.attributes["subtype"] == "road"]
+    assert len(roads) == 2 and all(geometry.overlaps2d(walk, ll) for ll in roads)
+    walking = traffic_rules.create(traffic_rules.Locations.Germany,
+                                   traffic_rules.Participants.Pedestrian)
+    assert walking.canPass(walk) and not loaded.rules.canPass(walk)

@@ -1,8 +1,8 @@
 """The painted lane boundaries in the web map: an orthophoto of the synthetic 2+2-lane road
-(:class:`ingest.ipm.synthetic.LanePaint` seen from above at 0.05 m/px), a network along the
-road, ``ugvmap ingest lanes``, then the page in headless Chromium at zoom 19: the lane lines
-are drawn over the imagery as the style says (dashed, solid, road edges), and listed in the
-legend."""
+(:class:`ingest.ipm.synthetic.LanePaint` seen from above at 0.05 m/px, with a zebra crossing),
+a network along the road, ``ugvmap ingest lanes``, then the page in headless Chromium at zoom
+19: the lane lines and the crossing are drawn over the imagery as the style says (dashed,
+solid, road edges, the crossing in fine dashes), and listed in the legend."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from tests.test_web_map import finish, wait_idle
 
 pytestmark = pytest.mark.slow
 
-DRIVE = Drive.in_lane(LanePaint(stop_at_m=None), markers=())
+DRIVE = Drive.in_lane(LanePaint(stop_at_m=None, zebra_at_m=16.0), markers=())
 RES = 0.05
 HALF_M = 14.0
 
@@ -63,7 +63,7 @@ def lane_world(module_database: str, tmp_path_factory: pytest.TempPathFactory
         "geometry": {"type": "LineString", "coordinates": np.column_stack([lon, lat]).tolist()}}]}))
     cli("ingest", "network", str(road), "--network", "weblanes")
     said = cli("ingest", "lanes", "--layer", "web-lanes-ortho", "--network", "weblanes")
-    assert "on 1 of 1 segments" in said, said
+    assert "on 1 of 1 segments" in said and "1 crossings" in said, said
     centre = Transformer.from_crs(aeqd, "EPSG:4326", always_xy=True).transform(east0, north0)
     env = {"DATABASE_URL": module_database,
            "UGVMAP_RASTER_STORE": os.environ["UGVMAP_RASTER_STORE"]}
@@ -91,7 +91,7 @@ def test_lane_lines_are_drawn_over_the_imagery(browser, lane_world, request,
     layers = page.evaluate("() => window.ugvmap.map.getStyle().layers.map((l) => l.id)"
                            ".filter((id) => id.startsWith('net-weblanes-lanes'))")
     assert layers == ["net-weblanes-lanes-solid", "net-weblanes-lanes-dashed",
-                      "net-weblanes-lanes-stop"]
+                      "net-weblanes-lanes-stop", "net-weblanes-lanes-crosswalk"]
     drawn = page.evaluate("(ids) => window.ugvmap.map.queryRenderedFeatures({layers: ids})"
                           ".map((f) => [f.layer.id, f.properties.kind, f.properties.colour])",
                           layers)
@@ -99,6 +99,7 @@ def test_lane_lines_are_drawn_over_the_imagery(browser, lane_world, request,
     assert ("net-weblanes-lanes-dashed", "dashed", "white") in kinds, kinds
     assert ("net-weblanes-lanes-solid", "solid", "yellow") in kinds, kinds
     assert ("net-weblanes-lanes-solid", "road_edge", "white") in kinds, kinds
+    assert ("net-weblanes-lanes-crosswalk", "crosswalk", "white") in kinds, kinds
     assert page.evaluate("(id) => window.ugvmap.map.getPaintProperty(id, 'line-dasharray')",
                          "net-weblanes-lanes-dashed") == [3, 3]
     assert "lane lines from the paint" in page.locator("#legend").inner_text()

@@ -35,7 +35,8 @@ ONEWAY_VALUES = ("none", "forward", "backward")
 JOB_STATUSES = ("queued", "running", "succeeded", "failed")  # of jobs and of their parts
 TOKEN_ROLES = ("viewer", "editor", "admin")
 LABEL_KINDS = ("road", "not_road")  # of a layer's labels
-LANE_KINDS = ("solid", "dashed", "solid_solid", "road_edge", "stop_line", "other")
+LANE_KINDS = ("solid", "dashed", "solid_solid", "road_edge", "stop_line", "crosswalk",
+              "other")
 LANE_COLOURS = ("white", "yellow", "unknown")
 LANE_SOURCES = ("paint", "offset")  # of lane boundaries (migration 0014)
 

@@ -69,6 +69,9 @@ class MapSummary:
     movements_dropped: list[tuple[int, int, int]]
     defects: list[topo.Defect] = field(default_factory=list)
     elements: dict[str, int] = field(default_factory=dict)
+    from_paint: dict[str, int] = field(default_factory=dict)
+    """What the paint added besides the lanes' bounds (stop lines, right-of-way elements,
+    crosswalks), where any."""
 
 
 def _boundary_tags(k: int, n: int, backward: int) -> dict[str, str]:
@@ -236,6 +239,33 @@ def _write_stops(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter
     return written
 
 
+def _write_crossings(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter) -> int:
+    """Painted pedestrian crossings as ``crosswalk`` lanelets (pedestrians only, both ways):
+    bounds of type ``zebra_marking`` either side of the line across the road, half the
+    crossing's reach along the road each way, so lanelet2 sees where it overlaps the road's
+    lanelets. Returns how many."""
+    ways: list[tuple[int, list[int], dict[str, object]]] = []
+    relations: list[tuple[int, list[Member], dict[str, object]]] = []
+    for crossing in plan.pieces.crossings:
+        start, end = crossing.xy
+        across = (end - start) / max(float(np.hypot(*(end - start))), 1e-9)
+        left = np.array([-across[1], across[0]]) * crossing.width_m / 2
+        local = np.array([start + left, end + left, start - left, end - left])
+        points = ids.take(4)
+        out.nodes(points, frame.lonlat(local), local)
+        left_way, right_way, lanelet = ids.take(3).tolist()
+        ways += [(left_way, points[:2].tolist(), {"type": "zebra_marking"}),
+                 (right_way, points[2:].tolist(), {"type": "zebra_marking"})]
+        relations.append((lanelet, [("way", left_way, "left"), ("way", right_way, "right")],
+                          {"type": "lanelet", "subtype": "crosswalk", "one_way": "no",
+                           "participant:pedestrian": "yes",
+                           "segment_id": int(plan.roads.ids[crossing.row]),
+                           "ugvmap:source": "paint"}))
+    out.ways(ways)
+    out.relations(relations)
+    return len(relations)
+
+
 def _chunks(total: int, size: int) -> Iterator[range]:
     for start in range(0, total, size):
         yield range(start, min(start + size, total))
@@ -259,6 +289,7 @@ def write_map(sel: NetworkSelection, frame: Frame, out: OsmXmlWriter,
     stop_ways = _write_stops(plan, frame, ids, out)
     out.relations([priority_relation(p, entering, stop_ways, int(plan.node_ids[p.node]))
                    for p in plan.priorities])
+    crosswalks = _write_crossings(plan, frame, ids, out)
     junction_lanelets = light_count = 0
     dropped: list[tuple[int, int, int]] = []
     busy = np.flatnonzero((plan.arms.kind == topo.JUNCTION)
@@ -272,8 +303,11 @@ def write_map(sel: NetworkSelection, frame: Frame, out: OsmXmlWriter,
         dropped += flush(pending, frame, ids, out)
         say("junctions", 0.6 + 0.4 * part.stop / max(len(busy), 1))
     junction_lanelets -= len(dropped)
+    painted = {"stop lines": len(plan.pieces.stops), "right-of-way elements":
+               len(plan.priorities), "crosswalks": crosswalks}
     return MapSummary(total, lanelets + junction_lanelets, junction_lanelets, light_count,
-                      sorted(set(dropped)), plan.defects, dict(out.counts))
+                      sorted(set(dropped)), plan.defects, dict(out.counts),
+                      {k: v for k, v in painted.items() if v})
 
 
 def summary_lines(summary: MapSummary, limit: int = 20) -> list[str]:

@@ -91,6 +91,16 @@ class StopLine:
 
 
 @dataclass
+class Crossing:
+    """A painted pedestrian crossing: the line across the road through its bars (map frame),
+    how far it reaches along the road, and the row of the piece it crosses."""
+
+    xy: np.ndarray
+    width_m: float
+    row: int
+
+
+@dataclass
 class Pieces:
     """What the layout needs of the painted pieces, by row of the (split) road table."""
 
@@ -100,6 +110,7 @@ class Pieces:
     laterals: dict[int, np.ndarray] = field(default_factory=dict)
     """row -> each slot's offset left of the line (from the left edge) as its stored range
     says, for the slots no paint bounds: lanes as wide as stored, not evenly split."""
+    crossings: list[Crossing] = field(default_factory=list)
 
     def painted_rows(self, n_rows: int) -> np.ndarray:
         """Which rows have any painted bound."""
@@ -114,7 +125,8 @@ class Pieces:
         stops = [StopLine(s.xy, 2 * where[s.arm // 2] + s.arm % 2, s.lit) for s in self.stops
                  if s.arm // 2 in where]
         return Pieces(slots, stops, {where[r]: lat for r, lat in self.laterals.items()
-                                     if r in where})
+                                     if r in where},
+                      [replace(c, row=where[c.row]) for c in self.crossings if c.row in where])
 
 
 @dataclass
@@ -145,21 +157,25 @@ Piece = tuple[float, float, int, int, float, list[float]]
 
 def segment_pieces(centre: shapely.LineString, lanes: StoredLanes, frame: Frame
                    ) -> tuple[list[Piece], list[dict[int, PaintedSlot]],
+                              list[tuple[np.ndarray, int, float]],
                               list[tuple[np.ndarray, int, float]]]:
     """Cut one painted segment (its metric centreline ``centre``): (pieces, per piece its
-    painted slots by position from the right, stop lines as (end points, piece, offset))."""
+    painted slots by position from the right, stop lines as (end points, piece, offset),
+    crossings as (end points, piece, reach along the road))."""
     length = centre.length
     scale = length / max(lanes.ranges[-1][1], 1e-9)
     ranges = [(lo * scale, hi * scale, f, b) for lo, hi, f, b in lanes.ranges]
     width = dict(zip(ranges, lanes.widths, strict=True))
     offsets = dict(zip(ranges, lanes.offsets, strict=True))
-    bounds, stops = [], []
+    bounds, stops, crossings = [], [], []
     for row in lanes.bounds:
         xy = frame.local(row.lonlat)
         if row.position is None:
+            station, offset = station_offset(centre, xy)
             if row.kind == "stop_line":
-                station, offset = station_offset(centre, xy)
                 stops.append((xy[[0, -1]], float(np.median(station)), float(np.median(offset))))
+            elif row.kind == "crosswalk" and row.width_m:
+                crossings.append((xy[[0, -1]], float(np.median(station)), row.width_m))
             continue
         line = shapely.simplify(shapely.LineString(xy), SIMPLIFY_M)
         xy = shapely.get_coordinates(line)
@@ -185,7 +201,9 @@ def segment_pieces(centre: shapely.LineString, lanes: StoredLanes, frame: Frame
     ends = [(p[0], p[1]) for p in pieces]
     stop_lines = [(xy, int(np.argmin([abs(e[1 if offset < 0 else 0] - s) for e in ends])),
                    offset) for xy, s, offset in stops]
-    return pieces, slots, stop_lines
+    crossed = [(xy, next(i for i, e in enumerate(ends) if s <= e[1] or i == len(ends) - 1),
+                width) for xy, s, width in crossings]
+    return pieces, slots, stop_lines, crossed
 
 
 Cell = tuple[int, tuple["_Bound | None", ...]]
@@ -281,13 +299,14 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
     slots: list[dict[int, PaintedSlot]] = []
     laterals: list[np.ndarray] = []
     stops: list[tuple[np.ndarray, int, float, bool]] = []
+    crossings: list[tuple[np.ndarray, int, float]] = []
     lit = dict(zip(nodes.ids.tolist(), nodes.traffic_light.tolist(), strict=True))
     for row in np.flatnonzero(has_paint).tolist():
         part, _ = roads.take(np.array([row]))
         xy = frame.local(part.lonlat)
         centre = shapely.LineString(xy)
-        pieces, piece_slots, piece_stops = segment_pieces(centre, sel.paint[int(part.ids[0])],
-                                                          frame)
+        pieces, piece_slots, piece_stops, piece_crossings = segment_pieces(
+            centre, sel.paint[int(part.ids[0])], frame)
         ends = [int(part.source[0])]
         for lo, *_ in pieces[1:]:
             new_nodes.append((-(len(new_nodes) + 1),
@@ -298,6 +317,7 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
         stops += [(xy_stop, base + p, offset,
                    lit.get(int(part.target[0] if offset < 0 else part.source[0]), False))
                   for xy_stop, p, offset in piece_stops]
+        crossings += [(xy_cross, base + p, width) for xy_cross, p, width in piece_crossings]
         for i, (lo, hi, f, b, width, offsets) in enumerate(pieces):
             piece_xy = shapely.get_coordinates(shapely.ops.substring(centre, lo, hi))
             tables.append(RoadTable(
@@ -319,7 +339,8 @@ def split_painted(sel: NetworkSelection, frame: Frame) -> tuple[NetworkSelection
                       for k, slot in by_k.items()},
                      [StopLine(xy, 2 * int(where[first + p]) + (1 if offset < 0 else 0), light)
                       for xy, p, offset, light in stops],
-                     {int(where[first + i]): lat for i, lat in enumerate(laterals)})
+                     {int(where[first + i]): lat for i, lat in enumerate(laterals)},
+                     [Crossing(xy, width, int(where[first + p])) for xy, p, width in crossings])
     ids = np.concatenate([nodes.ids, [i for i, _ in new_nodes]])
     lonlat = np.concatenate([nodes.lonlat, np.array([ll for _, ll in new_nodes]).reshape(-1, 2)])
     light = np.concatenate([nodes.traffic_light, np.zeros(len(new_nodes), bool)])

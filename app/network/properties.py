@@ -139,7 +139,9 @@ PROPERTIES: dict[Kind, tuple[Property, ...]] = {
         Property("segment_id", "integer", "The segment whose road the line bounds lanes of",
                  queryable=True),
         _editable("kind", "string", "What is painted: solid, dashed, solid_solid, road_edge, "
-                  "stop_line (across the lanes) or other", enum=LANE_KINDS, queryable=True),
+                  "stop_line (across the lanes), crosswalk (a zebra crossing: the line across "
+                  "the road through its bars, width_m its reach along the road) or other",
+                  enum=LANE_KINDS, queryable=True),
         _editable("colour", "string", "Colour of the paint", enum=LANE_COLOURS,
                   queryable=True),
         _editable("width_m", "number", "Width of the painted line, metres", nullable=True),

@@ -61,8 +61,8 @@ TILE_LAYERS = (
               ("segment_id", "kind", "colour", "position", "source", "width_m", "confidence",
                "version"),
               LANES_MINZOOM, "Lane boundaries from the paint (feature id = boundary id): "
-                             "kind solid/dashed/solid_solid/road_edge/stop_line/other, source "
-                             "paint or offset (no paint there)"),
+                             "kind solid/dashed/solid_solid/road_edge/stop_line/crosswalk/other, "
+                             "source paint or offset (no paint there)"),
 )
 # Lane boundaries by kind: (style layer id, filter, dash pattern or None). One layer per
 # kind with fixed paint values, for QGIS's style converter (see NODE_STYLES); the colour of
@@ -72,6 +72,7 @@ LANE_STYLES: tuple[tuple[str, list[Any], list[float] | None], ...] = (
                      False], None),
     ("lanes-dashed", ["==", ["get", "kind"], "dashed"], [3, 3]),
     ("lanes-stop", ["==", ["get", "kind"], "stop_line"], None),
+    ("lanes-crosswalk", ["==", ["get", "kind"], "crosswalk"], [0.5, 0.5]),
 )
 LANE_WIDTH = ["interpolate", ["linear"], ["zoom"], 16, 1.0, 20, 3.0]
 

@@ -87,6 +87,15 @@ class LanePaint:
     stop_width_m: float = 0.4
     shoulder_m: float = 0.4
     """Asphalt beyond each edge line."""
+    zebra_at_m: float | None = None
+    """Distance along the vehicle's path of the middle of a zebra crossing (None: none): bars
+    along the road across its whole width, the lines stopping short of it."""
+    zebra_bar_m: tuple[float, float] = (0.5, 0.5)
+    """Width of a zebra bar and the gap to the next."""
+    zebra_length_m: float = 3.0
+    """How far the zebra reaches along the road (each bar's length)."""
+    zebra_clear_m: float = 0.5
+    """How far short of the zebra the lines stop."""
 
     def boundaries_m(self) -> np.ndarray:
         """Offsets of the lane boundaries (edge, lane lines, edge) from the road's right edge
@@ -245,10 +254,19 @@ class Drive:
         assert lanes is not None
         r = np.hypot(east, north)
         azimuth = np.arctan2(east, north)
+        clear = np.ones(r.shape, bool)
+        if lanes.zebra_at_m is not None:
+            turn = np.mod(azimuth - self._azimuth(lanes.zebra_at_m) + np.pi, 2 * np.pi) - np.pi
+            along = np.abs(turn) * r  # metres from the zebra's middle, along the road
+            clear = along > lanes.zebra_length_m / 2 + lanes.zebra_clear_m
+            width, _ = lanes.zebra_bar_m
+            for middle in self.zebra_bars():
+                bar = np.abs(r - self._line_radius(middle)) <= width / 2
+                rgb[bar & (along <= lanes.zebra_length_m / 2)] = PAINT_RGB["white"]
         for i, offset in enumerate(lanes.boundaries_m()):
             kind, colour = lanes.line_kind(i)
             radius = self._line_radius(float(offset))
-            on = np.abs(r - radius) < lanes.line_width_m / 2
+            on = (np.abs(r - radius) < lanes.line_width_m / 2) & clear
             if kind == "dashed":
                 on &= np.mod(azimuth * radius, sum(lanes.dash_m)) < lanes.dash_m[0]
             rgb[on] = PAINT_RGB[colour]
@@ -257,11 +275,35 @@ class Drive:
             rgb[shapely.dwithin(stop, shapely.points(east, north), lanes.stop_width_m / 2)] = \
                 PAINT_RGB["white"]
 
+    def _azimuth(self, along_m: float) -> float:
+        """Azimuth (radians, from the bend's centre) of the point ``along_m`` along the path."""
+        return math.radians(self.start_deg) + along_m / self.radius_m
+
+    def zebra_bars(self) -> np.ndarray:
+        """Offsets of the zebra bars' middles from the right edge line: one every bar and gap
+        from the right edge to the left one."""
+        lanes = self.lanes
+        assert lanes is not None
+        width, gap = lanes.zebra_bar_m
+        return np.arange(width / 2, float(lanes.boundaries_m()[-1]) - width / 2 + 1e-9,
+                         width + gap)
+
+    def zebra_line(self) -> shapely.LineString:
+        """The zebra crossing's line across the road (local metres), through its bars' middles
+        from the outer edge of the first to that of the last."""
+        lanes = self.lanes
+        assert lanes is not None and lanes.zebra_at_m is not None
+        az = self._azimuth(lanes.zebra_at_m)
+        bars, half = self.zebra_bars(), lanes.zebra_bar_m[0] / 2
+        r0, r1 = self._line_radius(bars[0] - half), self._line_radius(bars[-1] + half)
+        return shapely.LineString([(r0 * math.sin(az), r0 * math.cos(az)),
+                                   (r1 * math.sin(az), r1 * math.cos(az))])
+
     def stop_line(self) -> shapely.LineString:
         """The stop line's centre line (local metres), across the forward lanes."""
         lanes = self.lanes
         assert lanes is not None and lanes.stop_at_m is not None
-        az = math.radians(self.start_deg) + lanes.stop_at_m / self.radius_m
+        az = self._azimuth(lanes.stop_at_m)
         b = lanes.boundaries_m()
         r0, r1 = self._line_radius(float(b[0])), self._line_radius(float(b[lanes.forward]))
         return shapely.LineString([(r0 * math.sin(az), r0 * math.cos(az)),
@@ -270,7 +312,8 @@ class Drive:
     def truth(self, step_deg: float = 0.2) -> dict:
         """The painted truth as a GeoJSON FeatureCollection in lon/lat: every marking line
         (``kind``, ``colour``, ``width_m``; a dashed line whole, across its gaps, as an
-        extraction should join it) around the full circle, the stop line, and each lane
+        extraction should join it) around the full circle, the stop line, the zebra crossing
+        (``crosswalk``, its line across the road, ``width_m`` its reach along it), and each lane
         (``lane`` index from the right edge, ``direction`` forward/backward, ``width_m``)."""
         lanes = self.lanes
         if lanes is None:
@@ -290,12 +333,15 @@ class Drive:
                 "width_m": lanes.line_width_m, "boundary": i},
                 "geometry": {"type": "LineString", "coordinates": ring(
                     self._line_radius(float(offset)))}})
-        if lanes.stop_at_m is not None:
-            xy = np.asarray(self.stop_line().coords)
+        across = [(self.stop_line(), "stop_line", lanes.stop_width_m)
+                  if lanes.stop_at_m is not None else None,
+                  (self.zebra_line(), "crosswalk", lanes.zebra_length_m)
+                  if lanes.zebra_at_m is not None else None]
+        for line, kind, width in filter(None, across):
+            xy = np.asarray(line.coords)
             lon, lat = self.to_lonlat(xy[:, 0], xy[:, 1])
             features.append({"type": "Feature", "properties": {
-                "feature": "marking", "kind": "stop_line", "colour": "white",
-                "width_m": lanes.stop_width_m},
+                "feature": "marking", "kind": kind, "colour": "white", "width_m": width},
                 "geometry": {"type": "LineString",
                              "coordinates": np.column_stack([lon, lat]).tolist()}})
         for i, width in enumerate(lanes.widths_m):
@@ -458,6 +504,9 @@ def main(argv: list[str] | None = None) -> None:
                              "leftmost forward lane)")
     parser.add_argument("--centre-colour", choices=sorted(PAINT_RGB), default="yellow",
                         help="colour of the solid line between the directions")
+    parser.add_argument("--zebra-at", type=float, metavar="M",
+                        help="a zebra crossing M metres along the vehicle's path (with --lanes; "
+                             "in lanes_truth.geojson as a crosswalk)")
     parser.add_argument("--size", type=_size, default=Camera().image_size,
                         metavar="WxH", help="panorama size (default 1024x512)")
     args = parser.parse_args(argv)
@@ -469,9 +518,10 @@ def main(argv: list[str] | None = None) -> None:
         lane = args.lane if args.lane is not None else forward - 1
         if not 1 <= forward <= len(args.lanes) or not 0 <= lane < len(args.lanes):
             parser.error("--forward and --lane must name lanes of --lanes")
-        drive = Drive.in_lane(LanePaint(args.lanes, forward, args.centre_colour), lane)
-    elif args.forward is not None or args.lane is not None:
-        parser.error("--forward and --lane need --lanes")
+        drive = Drive.in_lane(LanePaint(args.lanes, forward, args.centre_colour,
+                                        zebra_at_m=args.zebra_at), lane)
+    elif args.forward is not None or args.lane is not None or args.zebra_at is not None:
+        parser.error("--forward, --lane and --zebra-at need --lanes")
     written = write_drive(args.out, drive, Camera(image_size=args.size),
                           frame_times(args.frames))
     for what, path in written.items():

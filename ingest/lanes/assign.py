@@ -7,7 +7,8 @@ and joins its neighbour). Within a range each boundary (its ``position`` from th
 along the segment's direction) lies at the median offset of the cuts that met them all; each
 marking line near the segment is then cut into the stretches that follow one boundary of one
 range, and stretches of a boundary no paint covers become ``offset`` boundaries (the range's
-offset there, a guess that says it is one). Stop lines are kept whole, without a position.
+offset there, a guess that says it is one). Stop lines and crossings are kept whole, without
+a position.
 Pure functions of shapely lines, tested without a database.
 """
 
@@ -38,6 +39,8 @@ ALONG = 0.7
 line crossing the segment at more than ~45° is not one of its boundaries)."""
 REACH_M = 15.0
 """Marking lines further than this from the segment are not its road's."""
+ACROSS = ("stop_line", "crosswalk")
+"""Markings across the road, kept whole and without a position."""
 
 
 @dataclass(frozen=True)
@@ -209,7 +212,7 @@ def boundaries(reference: shapely.LineString, paint: list[Paint], ranges: list[L
         if elsewhere is not None and not elsewhere.is_empty:
             mine &= shapely.distance(shapely.points(xy), reference) <= \
                 shapely.distance(shapely.points(xy), elsewhere)
-        if p.kind == "stop_line":
+        if p.kind in ACROSS:
             if mine.sum() >= 2:
                 out.append(Boundary(shapely.LineString(xy[mine]), p.kind, p.colour, p.width_m,
                                     p.confidence, None, round(float(np.median(offset[mine])), 3),

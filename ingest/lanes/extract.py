@@ -11,7 +11,9 @@ import cv2
 import numpy as np
 
 from ingest.lanes import check_resolution
+from ingest.lanes.across import BOUNDING
 from ingest.lanes.classify import ClassifyParams, Marking, classify
+from ingest.lanes.crossing import crossings
 from ingest.lanes.paint import PaintParams, brightness, near_road, paint_mask, road_surface, top_hat
 from ingest.lanes.trace import pieces
 from ingest.roads.georef import Image, crs_member
@@ -29,7 +31,8 @@ def rgb_of(pixels: np.ndarray) -> np.ndarray:
 def extract_markings(image: Image, paint: PaintParams | None = None,
                      params: ClassifyParams | None = None,
                      road: np.ndarray | None = None) -> list[Marking]:
-    """Every marking line in ``image`` (pixel coordinates); refuses imagery too coarse.
+    """Every marking line in ``image`` (pixel coordinates), zebra bars joined into crossings
+    (:mod:`ingest.lanes.crossing`); refuses imagery too coarse.
     ``road`` (bool, the image's grid), where given, is where paint may be
     (:func:`ingest.lanes.road.model_road`), beside the colour test."""
     check_resolution(image.resolution_m)
@@ -42,7 +45,11 @@ def extract_markings(image: Image, paint: PaintParams | None = None,
     mask = paint_mask(hat, paint) & near_road(surface, res)
     if road is not None:
         mask &= road
-    return classify(pieces(mask, res, params.min_length_m), hsv, hat, surface, res, params)
+    found = classify(pieces(mask, res, params.min_length_m), hsv, hat, surface, res, params)
+    lines = [m for m in found if m.kind in BOUNDING]
+    zebras, bars = crossings([m for m in found if m.kind == "other"], lines, res)
+    left = {id(m) for m in bars}
+    return [m for m in found if m.kind != "other" or id(m) in left] + zebras
 
 
 def markings_geojson(markings: list[Marking], image: Image) -> dict:

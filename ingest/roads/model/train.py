@@ -46,6 +46,17 @@ from ingest.roads.model.net import WIDTHS, Arch, LiteUNet, build
 THRESHOLDS = tuple(np.round(np.arange(0.2, 0.81, 0.05), 2))
 
 
+def native_bf16(cpuinfo: Path = Path("/proc/cpuinfo")) -> bool:
+    """Whether this CPU computes bfloat16 natively (AVX-512 BF16 or AMX): on one without
+    (an AMD EPYC with AVX2 only), bf16 autocast is emulated and the first batch of the
+    roads-v2 recipe took 225 s instead of a few."""
+    try:
+        flags = set(cpuinfo.read_text(encoding="utf-8", errors="replace").split())
+    except OSError:
+        return False
+    return bool(flags & {"avx512_bf16", "amx_bf16"})
+
+
 @dataclass
 class TrainConfig:
     """Every choice a training run makes; stored beside the weights."""
@@ -64,10 +75,12 @@ class TrainConfig:
     weight_decay: float = 1e-4
     seed: int = 0
     threads: int = 2
-    bf16: bool = True
+    bf16: bool = field(default_factory=native_bf16)
     """Train under bfloat16 autocast: twice as fast on CPUs with AVX-512 BF16 (BatchNorm and
     the loss stay float32; hold-out scoring and the exported model are float32), and far
-    slower where it is emulated (:func:`native_bf16`)."""
+    slower where it is emulated, so by default only where the CPU does it natively
+    (:func:`native_bf16`; a default of always made every CI-sized run of the test suite take
+    ~47 s on an AVX2-only machine)."""
     augment: Augment = field(default_factory=Augment)
     widths: tuple[int, ...] = WIDTHS
     """``unet`` only: channels per level."""
@@ -83,17 +96,6 @@ class TrainConfig:
     a new recipe need not pay again for the epochs an earlier one already trained)."""
     init_sha16: str | None = None
     """sha16 of ``init``: the card names exactly which weights the run started from."""
-
-
-def native_bf16(cpuinfo: Path = Path("/proc/cpuinfo")) -> bool:
-    """Whether this CPU computes bfloat16 natively (AVX-512 BF16 or AMX): on one without
-    (an AMD EPYC with AVX2 only), bf16 autocast is emulated and the first batch of the
-    roads-v2 recipe took 225 s instead of a few."""
-    try:
-        flags = set(cpuinfo.read_text(encoding="utf-8", errors="replace").split())
-    except OSError:
-        return False
-    return bool(flags & {"avx512_bf16", "amx_bf16"})
 
 
 def masked_loss(logit: torch.Tensor, road: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:

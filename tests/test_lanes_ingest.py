@@ -361,9 +361,19 @@ def test_a_lane_line_solid_on_part_of_the_road_forbids_the_change_there(
     assert kinds == [(40, "solid"), (40, "solid"), (60, "dashed"), (60, "dashed")], kinds
 
 
+def _width_at(ll, fraction: float) -> float:
+    """A lanelet's width across its centreline ``fraction`` of the way along it."""
+    p = geometry.interpolatedPointAtDistance(geometry.to2D(ll.centerline),
+                                             fraction * geometry.length2d(ll))
+    return float(geometry.distance(geometry.to2D(ll.leftBound), p)
+                 + geometry.distance(geometry.to2D(ll.rightBound), p))
+
+
 def test_a_lane_that_opens_in_the_lanelet2_map(database_url: str, tmp_path: Path) -> None:
     """1+1 lanes for 50 m, then a second forward lane on the right (a turning lane): the
-    map has one forward lanelet, then two, and both are reached from the first."""
+    forward lanelet is followed by the lane that carries on, with no junction between (the
+    bounds carry on), and the new lane opens beside it from a point, 3 m wide 5 m on, reached
+    by a lane change across the dashed line; the lane back carries on too."""
     _straight_road(tmp_path, "opening", 48.3)
     _store_lanes("opening", [(0, 50, 1, 1, [-3.0, 0.0, 3.0]),
                              (50, 100, 2, 1, [-6.0, -3.0, 0.0, 3.0])],
@@ -372,14 +382,50 @@ def test_a_lane_that_opens_in_the_lanelet2_map(database_url: str, tmp_path: Path
                   (50, 100, -3.0, 1, "dashed"), (50, 100, 0.0, 2, "solid"),
                   (50, 100, 3.0, 3, "road_edge")])
     _, loaded = export("opening", tmp_path / "opening.osm")
-    forward = [ll for ll in loaded.lanelets() if "direction" in ll.attributes
-               and ll.attributes["direction"] == "forward"]
+    assert all("direction" in ll.attributes for ll in loaded.lanelets())  # no junction
+    forward = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"]
     first = min(forward, key=lambda ll: ll.centerline[0].x)
-    after = [ll for ll in forward if ll.centerline[0].x > first.centerline[0].x + 20]
-    assert len(after) == 2 and {ll.attributes["lane"] for ll in after} == {"1", "2"}
-    for ll in after:
-        assert abs(_width(ll) - 3.0) <= 0.05
-        assert loaded.graph.getRoute(first, ll) is not None
+    after = {ll.attributes["lane"]: ll for ll in forward
+             if ll.centerline[0].x > first.centerline[0].x + 20}
+    assert sorted(after) == ["1", "2"]
+    carries_on, opens = after["2"], after["1"]
+    assert [ll.id for ll in loaded.graph.following(first)] == [carries_on.id]
+    assert loaded.graph.right(carries_on).id == opens.id  # a lane change to the new lane
+    assert loaded.graph.getRoute(first, opens) is not None
+    assert _width(carries_on) == pytest.approx(3.0, abs=0.05)
+    assert _width_at(opens, 0.0) == pytest.approx(0.0, abs=0.05)
+    for fraction in (0.2, 0.5, 0.95):  # 3 m wide from 5 m on, as painted
+        assert _width_at(opens, fraction) == pytest.approx(3.0, abs=0.05), fraction
+    backward = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "backward"]
+    arriving = min(backward, key=lambda ll: abs(ll.centerline[-1].x - opens.centerline[0].x))
+    assert len(backward) == 2 and [ll.id for ll in loaded.graph.following(arriving)] == [
+        ll.id for ll in backward if ll.id != arriving.id]
+
+
+def test_a_lane_that_ends_in_the_lanelet2_map(database_url: str, tmp_path: Path) -> None:
+    """2+1 lanes for 50 m, then 1+1: the right forward lane narrows to a point where it ends
+    (no lanelet follows it: a vehicle in it changes lanes across the dashed line), the other
+    carries on into the one forward lane."""
+    _straight_road(tmp_path, "ending", 48.35)
+    _store_lanes("ending", [(0, 50, 2, 1, [-6.0, -3.0, 0.0, 3.0]),
+                            (50, 100, 1, 1, [-3.0, 0.0, 3.0])],
+                 [(0, 50, -6.0, 0, "road_edge"), (0, 50, -3.0, 1, "dashed"),
+                  (0, 50, 0.0, 2, "solid"), (0, 50, 3.0, 3, "road_edge"),
+                  (50, 100, -3.0, 0, "road_edge"), (50, 100, 0.0, 1, "solid"),
+                  (50, 100, 3.0, 2, "road_edge")])
+    _, loaded = export("ending", tmp_path / "ending.osm")
+    assert all("direction" in ll.attributes for ll in loaded.lanelets())  # no junction
+    forward = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"]
+    last = max(forward, key=lambda ll: ll.centerline[-1].x)
+    before = {ll.attributes["lane"]: ll for ll in forward if ll.id != last.id}
+    assert sorted(before) == ["1", "2"]
+    ends, carries_on = before["1"], before["2"]
+    assert list(loaded.graph.following(ends)) == []
+    assert [ll.id for ll in loaded.graph.following(carries_on)] == [last.id]
+    assert loaded.graph.left(ends).id == carries_on.id
+    assert loaded.graph.getRoute(ends, last) is not None
+    assert _width_at(ends, 1.0) == pytest.approx(0.0, abs=0.05)
+    assert _width_at(ends, 0.5) == pytest.approx(3.0, abs=0.05)
 
 
 def test_paint_that_breaks_the_one_way_rule_is_not_mapped(database_url: str,

@@ -45,7 +45,7 @@ from app.lanelet2.junctions import (
     speed_tag,
     vehicle_tags,
 )
-from app.lanelet2.layout import Layout, plan_layout
+from app.lanelet2.layout import TAPER_M, Layout, plan_layout
 from app.lanelet2.osm_xml import Member, OsmXmlWriter
 from app.lanelet2.priority import elements_by_arm, priority_relation
 from app.lanelet2.roads import NetworkSelection
@@ -130,6 +130,7 @@ def _write_segments(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter
                        along(centres[slot_line], plan.end_xy[0][slots]),
                        along(centres[slot_line], plan.end_xy[1][slots]))
     local, point_slot = _painted_inner(plan, rows, slots, local[keep], point_slot[keep])
+    local, point_slot = taper_points(plan, slots, local, point_slot)
     inner_offsets = np.concatenate([[0], np.cumsum(np.bincount(point_slot,
                                                                minlength=len(slots)))])
     point_ids = ids.take(len(local))
@@ -199,6 +200,42 @@ def _painted_inner(plan: Layout, rows: range, slots: np.ndarray, local: np.ndarr
     xy = np.concatenate([local[keep], *inner.values()])
     which = np.concatenate([point_slot[keep], *[np.full(len(v), i) for i, v in inner.items()]])
     order = np.argsort(which, kind="stable")
+    return xy[order], which[order]
+
+
+def taper_points(plan: Layout, slots: np.ndarray, local: np.ndarray, point_slot: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The inner points of the chunk's bounds (``point_slot``: index into ``slots``) with
+    each bound an opening pulled to a point (``Layout.tapers``) given a point back at its own
+    offset :data:`~app.lanelet2.layout.TAPER_M` from that end (at most half its line), its
+    inner points nearer that end dropped: the lane widens from nothing over that length, then
+    runs as stored (without it, a straight piece's bound went straight to its far end and
+    the new lane was half as wide halfway along)."""
+    where = {int(slot): i for i, slot in enumerate(slots.tolist())}
+    mine = [(where[slot], end, offset) for slot, end, offset in plan.tapers if slot in where]
+    if not mine:
+        return local, point_slot
+    keep = np.ones(len(local), bool)
+    extra, extra_slot, extra_key = [], [], []
+    for i, end, offset in mine:
+        s = int(np.searchsorted(plan.slot_offsets, slots[i], side="right") - 1)
+        centre = shapely.LineString(plan.xy[plan.offsets[s]:plan.offsets[s + 1]])
+        reach = min(TAPER_M, centre.length / 2)
+        station = reach if end == 0 else centre.length - reach
+        ahead, behind = (shapely.get_coordinates(centre.interpolate(station + d))[0]
+                         for d in (0.5, -0.5))
+        tangent = (ahead - behind) / max(float(np.hypot(*(ahead - behind))), 1e-9)
+        at = shapely.get_coordinates(centre.interpolate(station))[0]
+        extra.append(at + offset * np.array([-tangent[1], tangent[0]]))
+        extra_slot.append(i)
+        extra_key.append(-1 if end == 0 else len(local))
+        own = np.flatnonzero(point_slot == i)
+        along = shapely.line_locate_point(centre, shapely.points(local[own]))
+        keep[own[along < reach if end == 0 else along > centre.length - reach]] = False
+    xy = np.concatenate([local[keep], np.array(extra)])
+    which = np.concatenate([point_slot[keep], extra_slot])
+    key = np.concatenate([np.flatnonzero(keep), extra_key])
+    order = np.lexsort((key, which))
     return xy[order], which[order]
 
 

@@ -71,6 +71,7 @@ class Layout:
     cut: np.ndarray  # (2, S) stations where each line's lanelets start and end
     stop_ids: dict[int, int]  # arm -> the stop line element of the lanes entering there
     priorities: list[Priority]  # right-of-way elements at junctions, from the stop lines
+    tapers: list[tuple[int, int, float]]  # (slot, end, offset): a lane opening or ending
 
 
 def plan_layout(sel: NetworkSelection, frame: Frame, ids: IdSource) -> Layout:
@@ -105,12 +106,15 @@ def plan_layout(sel: NetworkSelection, frame: Frame, ids: IdSource) -> Layout:
     # A joint whose shared points would fold a bound becomes a junction (cut back, joined by
     # a connecting lanelet); that changes the cuts of its roads, hence a few passes.
     demoted = np.zeros(n_nodes, bool)
+    opening = nodes.ids < 0  # where split_painted cut a segment: its lane count may change
     for _ in range(JOINT_PASSES):
-        arms = topo.arms(src, dst, forward, backward, width, length, away, n_nodes, demoted)
+        arms = topo.arms(src, dst, forward, backward, width, length, away, n_nodes, demoted,
+                         opening)
         geo = _place(arms, xy, table.offsets, n, width, slot_offsets, pieces, painted)
         bad = _folded(geo.xy, geo.offsets, geo.normals, geo.end_xy, slot_offsets, n, width,
                       geo.straight) & ~painted
-        bad_joints = arms.node[(arms.partner >= 0) & np.repeat(bad, 2)]
+        bad_joints = np.concatenate([arms.node[(arms.partner >= 0) & np.repeat(bad, 2)],
+                                     geo.unmatched])
         if not len(bad_joints):
             break
         demoted[bad_joints] = True
@@ -127,7 +131,7 @@ def plan_layout(sel: NetworkSelection, frame: Frame, ids: IdSource) -> Layout:
     priorities = plan_priorities(arms, traffic_light, painted, sorted(stops), length, ids)
     return Layout(table, nodes.ids, traffic_light, forward, backward, width, speed, arms,
                  geo.xy, geo.offsets, geo.normals, geo.straight, away, slot_offsets, end_ids,
-                 geo.end_xy, re_ids, defects, pieces, geo.cut, stops, priorities)
+                 geo.end_xy, re_ids, defects, pieces, geo.cut, stops, priorities, geo.tapers)
 
 
 def _away(xy: np.ndarray, offsets: np.ndarray, length: np.ndarray) -> np.ndarray:
@@ -155,6 +159,8 @@ class _Placed:
     joined_a: tuple[np.ndarray, np.ndarray]  # (end, slot) of joint points, first arm
     joined_b: tuple[np.ndarray, np.ndarray]  # the same points at the second arm
     cut: np.ndarray  # (2, S) stations along the uncut lines where the cut ones start and end
+    unmatched: np.ndarray  # openings whose lanes could not be matched (to be junctions)
+    tapers: list[tuple[int, int, float]]  # (slot, end, offset) of bounds an opening pulls in
 
 
 def _laterals(n: np.ndarray, width: np.ndarray, slot_offsets: np.ndarray, pieces: Pieces,
@@ -209,8 +215,14 @@ def _place(arms: topo.Arms, xy: np.ndarray, offsets: np.ndarray, n: np.ndarray,
     end_xy = ends()
     joined_a, joined_b = _join(arms, n, lateral, cxy, coff, first_dir, last_dir, slot_offsets,
                                end_xy)
+    opened_a, opened_b, unmatched, tapers = _open(arms, n, lateral, cxy, coff, first_dir,
+                                                  last_dir, slot_offsets, end_xy)
+    joined_a = (np.concatenate([joined_a[0], opened_a[0]]),
+                np.concatenate([joined_a[1], opened_a[1]]))
+    joined_b = (np.concatenate([joined_b[0], opened_b[0]]),
+                np.concatenate([joined_b[1], opened_b[1]]))
     return _Placed(cxy, coff, normals, first_dir, last_dir, end_xy, straight, joined_a,
-                   joined_b, cut)
+                   joined_b, cut, unmatched, tapers)
 
 
 def _folded(cxy: np.ndarray, coff: np.ndarray, normals: np.ndarray, end_xy: np.ndarray,
@@ -243,13 +255,10 @@ def _join(arms: topo.Arms, n: np.ndarray, lateral: np.ndarray, cxy: np.ndarray,
     """At each joint, give both arms the same bound end points: the mitre of the two
     segments' end edges (in place); returns where they are at the first arm and at the
     second, so both get the first arm's ids."""
-    a = np.flatnonzero((arms.partner >= 0) & (np.arange(len(arms.partner)) < arms.partner))
+    a = _pairs(arms, topo.JOINT)
     b = arms.partner[a]
     sa, ea, sb, eb = a // 2, a % 2, b // 2, b % 2
-    # Left normals of the path "along a into the node, then out along b".
-    na = np.where((ea == 1)[:, None], left_normal(last_dir[sa]), -left_normal(first_dir[sa]))
-    nb = np.where((eb == 0)[:, None], left_normal(first_dir[sb]), -left_normal(last_dir[sb]))
-    m = mitre(na, nb)
+    m = _through(ea, eb, sa, sb, first_dir, last_dir)
     at = np.where(ea == 1, coff[1:][sa] - 1, coff[:-1][sa])
     count = n[sa] + 1
     j = np.repeat(np.arange(len(a)), count)
@@ -262,3 +271,74 @@ def _join(arms: topo.Arms, n: np.ndarray, lateral: np.ndarray, cxy: np.ndarray,
     end_xy[ea[j], slot_a] = points
     end_xy[eb[j], slot_b] = points
     return (ea[j], slot_a), (eb[j], slot_b)
+
+
+def _pairs(arms: topo.Arms, kind: int) -> np.ndarray:
+    """The first arm of each pair of partner arms at nodes of ``kind``."""
+    return np.flatnonzero((arms.partner >= 0) & (np.arange(len(arms.partner)) < arms.partner)
+                          & (arms.kind[arms.node] == kind))
+
+
+def _through(ea: np.ndarray, eb: np.ndarray, sa: np.ndarray, sb: np.ndarray,
+             first_dir: np.ndarray, last_dir: np.ndarray) -> np.ndarray:
+    """The mitred left normal of the path "along arm a into the node, then out along b"."""
+    na = np.where((ea == 1)[:, None], left_normal(last_dir[sa]), -left_normal(first_dir[sa]))
+    nb = np.where((eb == 0)[:, None], left_normal(first_dir[sb]), -left_normal(last_dir[sb]))
+    return mitre(na, nb)
+
+
+TAPER_M = 5.0
+"""Over how much of its length a lane that opens widens (or one that ends narrows): the
+stored ranges say where the lane count changes, not the taper's shape."""
+OPEN_MATCH_M = 1.0
+"""How far apart a bound on either side of an opening may end and still be one bound."""
+
+
+def _open(arms: topo.Arms, n: np.ndarray, lateral: np.ndarray, cxy: np.ndarray,
+          coff: np.ndarray, first_dir: np.ndarray, last_dir: np.ndarray,
+          slot_offsets: np.ndarray, end_xy: np.ndarray
+          ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], np.ndarray,
+                     list[tuple[int, int, float]]]:
+    """At each opening, the bounds of the side with fewer lanes and the bounds of the other
+    side lying within :data:`OPEN_MATCH_M` of them share their end points (mitred, at the
+    fewer lanes' offsets); each other bound of the side with more lanes starts (or ends) at
+    the shared point nearest it, so the lane it bounds opens (or closes) from a point. Sets
+    ``end_xy`` in place; returns where the shared points are on the first side and on the
+    second, as :func:`_join`, the openings whose bounds do not match that way, and the bounds
+    pulled to a shared point as (slot, end, the offset left of their line they had there):
+    each reaches that offset again :data:`TAPER_M` from the node
+    (:func:`app.lanelet2.build.taper_points`), the lane widening over that length."""
+    a = _pairs(arms, topo.OPENING)
+    b = arms.partner[a]
+    sa, ea, sb, eb = a // 2, a % 2, b // 2, b % 2
+    m = _through(ea, eb, sa, sb, first_dir, last_dir)
+    firsts: list[tuple[int, int]] = []
+    seconds: list[tuple[int, int]] = []
+    unmatched: list[int] = []
+    tapers: list[tuple[int, int, float]] = []
+    for i in range(len(a)):
+        sides = []  # (end, slots, offsets left of the path) of each arm
+        for s, e, into in ((sa[i], ea[i], ea[i] == 1), (sb[i], eb[i], eb[i] == 0)):
+            slots = np.arange(slot_offsets[s], slot_offsets[s + 1])
+            sides.append((int(e), slots, np.where(into, 1.0, -1.0) * lateral[e, slots]))
+        few, many = sorted(sides, key=lambda side: len(side[1]))
+        nearest = np.abs(many[2][:, None] - few[2][None, :]).argmin(axis=1)
+        gap = np.abs(many[2] - few[2][nearest])
+        shared = gap <= OPEN_MATCH_M
+        if len(set(nearest[shared].tolist())) != len(few[1]) or shared.sum() != len(few[1]):
+            unmatched.append(int(arms.node[a[i]]))
+            continue
+        at = coff[1:][sa[i]] - 1 if ea[i] == 1 else coff[:-1][sa[i]]
+        points = cxy[at] + few[2][:, None] * m[i]
+        end_xy[few[0], few[1]] = points
+        end_xy[many[0], many[1]] = points[nearest]
+        tapers += [(int(slot), many[0], float(lateral[many[0], slot]))
+                   for slot in many[1][~shared]]
+        firsts += [(few[0], int(few[1][j])) for j in nearest]
+        seconds += [(many[0], int(slot)) for slot in many[1]]
+
+    def split(pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+        out = np.array(pairs, np.int64).reshape(-1, 2)
+        return out[:, 0], out[:, 1]
+
+    return split(firsts), split(seconds), np.array(unmatched, np.int64), tapers

@@ -8,6 +8,12 @@ end), with the lanes that enter the node along it and the lanes that leave. A no
 - a **joint** (two arms whose cross-sections continue: as many lanes in as the other has out,
   and the other way round, same lane width): the lanelets of both segments share their end
   points (mitred), so lanelet2 sees them as successors with no connecting lanelet;
+- an **opening** (two arms of one painted segment cut where its lane count changes: a lane
+  that opens or ends, :mod:`app.lanelet2.paint`): the lanes that carry on share their end
+  points as at a joint, and the lane that opens starts from a point (both its bounds begin
+  where the narrower road's bound beside it ends) and widens, or narrows to one where it ends:
+  lanelet2 sees one lanelet follow the other and the new lane beside it, reached by a lane
+  change where the line between them allows one, as it is driven;
 - a **junction** (three or more arms, or two that do not continue): every arm is cut back from
   the node by the junction radius (half the widest road meeting there + 1 m, or more where
   roads meet at an acute angle, until they no longer overlap; at most 40 % of the segment),
@@ -59,7 +65,7 @@ LANE_WIDTH_M: dict[str, float] = {
 }
 """Lane width by road class where a segment has no ``width_m`` (metres, per lane)."""
 
-DEAD_END, JOINT, JUNCTION = 1, 2, 3
+DEAD_END, JOINT, JUNCTION, OPENING = 1, 2, 3, 4
 
 
 @dataclass(frozen=True)
@@ -180,10 +186,12 @@ class Arms:
 
 def arms(source: np.ndarray, target: np.ndarray, forward: np.ndarray, backward: np.ndarray,
          width: np.ndarray, length: np.ndarray, away: np.ndarray, n_nodes: int,
-         no_joint: np.ndarray | None = None) -> Arms:
+         no_joint: np.ndarray | None = None, opening: np.ndarray | None = None) -> Arms:
     """Classify the nodes and place the junction cuts (rules in the module docstring);
     nodes flagged in ``no_joint`` become junctions even where the lanes continue (the
-    export's geometry check asks for it where a joint's shared points would fold a bound)."""
+    export's geometry check asks for it where a joint's shared points would fold a bound);
+    two-arm nodes flagged in ``opening`` (where a painted segment's lane count changes) are
+    openings where their lanes do not continue."""
     node = np.column_stack([source, target]).ravel()
     lanes_in = np.column_stack([backward, forward]).ravel()
     lanes_out = np.column_stack([forward, backward]).ravel()
@@ -197,10 +205,14 @@ def arms(source: np.ndarray, target: np.ndarray, forward: np.ndarray, backward: 
     a, b = order[starts[two]], order[starts[two] + 1]
     continues = ((lanes_in[a] == lanes_out[b]) & (lanes_out[a] == lanes_in[b])
                  & (np.abs(arm_width[a] - arm_width[b]) < 0.01))
+    opens = np.zeros(len(two), bool) if opening is None else opening[two] & ~continues
     if no_joint is not None:
         continues &= ~no_joint[two]
+        opens &= ~no_joint[two]
     kind[two[continues]] = JOINT
-    partner[a[continues]], partner[b[continues]] = b[continues], a[continues]
+    kind[two[opens]] = OPENING
+    paired = continues | opens
+    partner[a[paired]], partner[b[paired]] = b[paired], a[paired]
     half = (lanes_in + lanes_out) * arm_width / 2.0
     radius = np.zeros(n_nodes)
     np.maximum.at(radius, node, half)

@@ -18,7 +18,7 @@ from app.network.lane_ranges import check_ranges, offsets_of
 from ingest.lanes.layer import MACHINE, _edited_lanes
 from testkit.network_helpers import bearer
 from tests.lanelet2_support import export
-from tests.test_lanes_ingest import _store_lanes, _straight_road, _width
+from tests.test_lanes_ingest import _store_lanes, _straight_road, _width, _width_at
 
 
 def _range(lo: float, hi: float, f: int, b: int, widths: list[float]) -> dict:
@@ -105,8 +105,8 @@ def test_lane_ranges_edited_over_the_api(database_url: str, tmp_path: Path, clie
     forward = [ll for ll in loaded.lanelets() if "direction" in ll.attributes
                and ll.attributes["direction"] == "forward"]
     first = min(forward, key=lambda ll: ll.centerline[0].x)
-    later = {ll.attributes["lane"]: _width(ll) for ll in forward
-             if ll.centerline[0].x > first.centerline[0].x + 20}
+    later = {ll.attributes["lane"]: _width_at(ll, 0.5) for ll in forward  # the new lane
+             if ll.centerline[0].x > first.centerline[0].x + 20}          # widens from 0
     assert set(later) == {"1", "2"}, later
     assert abs(later["1"] - 3.0) <= 0.05 and abs(later["2"] - 3.5) <= 0.05, later
     assert abs(_width(first) - 3.0) <= 0.05

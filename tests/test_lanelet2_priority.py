@@ -19,6 +19,7 @@ from sqlalchemy import text
 
 from app.db.session import session_scope
 from cli.main import main
+from testkit.stored_lanes import store_lanes
 from tests.lanelet2_support import LoadedMap, export
 
 LENGTH_M = 100.0
@@ -72,22 +73,7 @@ def _paint(name: str, lat0: float, road: str, segment: int, stop_before_node: bo
         across = np.array([-3.0, 0.0]) if ends_at_node else np.array([0.0, 3.0])
         rows.append((line(np.full(2, station), across), "stop_line", None,
                      float(across.mean()), station - 0.1, station + 0.1))
-    with session_scope() as session:
-        net = session.execute(text("SELECT id FROM networks WHERE name = :n"),
-                              {"n": name}).scalar_one()
-        session.execute(text(
-            "INSERT INTO segment_lanes (network_id, segment_id, station_from_m, station_to_m, "
-            "lanes_forward, lanes_backward, widths_m, offsets_m) VALUES (:net, :seg, 0, :len, "
-            "1, 1, '{3.0, 3.0}', '{-3.0, 0.0, 3.0}')"),
-            {"net": net, "seg": segment, "len": LENGTH_M})
-        for wkt, kind, position, offset, lo, hi in rows:
-            session.execute(text(
-                "INSERT INTO lane_boundaries (network_id, segment_id, geom, kind, colour, "
-                "width_m, confidence, position, offset_m, station_from_m, station_to_m) "
-                "VALUES (:net, :seg, ST_GeomFromText(:wkt, 4326), :kind, 'white', 0.15, 0.9, "
-                ":pos, :off, :lo, :hi)"),
-                {"net": net, "seg": segment, "wkt": wkt, "kind": kind, "pos": position,
-                 "off": offset, "lo": lo, "hi": hi})
+    store_lanes(name, segment, [(0.0, LENGTH_M, 1, 1, [-3.0, 0.0, 3.0])], rows)
 
 
 def _junction_map(tmp_path: Path, name: str, lat0: float, stops: set[str],

@@ -30,6 +30,7 @@ from ingest.lanes.assign import Paint, boundaries, lane_ranges
 from ingest.queue import tasks
 from testkit.network_helpers import bearer
 from testkit.raster_synth import UTM33, utm_origin, write_tif
+from testkit.stored_lanes import store_lanes
 from tests.lanelet2_support import LoadedMap, export
 from tests.test_ipm_drive import GRID_ARGS
 
@@ -291,34 +292,22 @@ def test_edited_like_segments_and_the_lanelet2_map_follows(client, drive: dict[s
 
 
 def _store_lanes(network: str, ranges: list[tuple[float, float, int, int, list[float]]],
-                 lines: list[tuple[float, float, float, int, str]]) -> None:
+                 lines: list[tuple[float, float, float, int | None, str]]) -> None:
     """Stored lanes of the network's one east-going segment at 48 N: ``ranges`` (from, to,
     forward, backward, offsets right to left) and boundary ``lines`` (from, to, offset
     metres north of the centreline, position, kind) as ``ingest lanes`` would write them."""
     with session_scope() as session:
-        seg, net, lon0, lat0 = session.execute(text(
-            "SELECT s.id, s.network_id, ST_X(ST_StartPoint(s.geom)), ST_Y(ST_StartPoint(s.geom))"
+        seg, lon0, lat0 = session.execute(text(
+            "SELECT s.id, ST_X(ST_StartPoint(s.geom)), ST_Y(ST_StartPoint(s.geom))"
             " FROM road_segments s JOIN networks n ON n.id = s.network_id WHERE n.name = :n"),
             {"n": network}).one()
-        east = 1 / (111_320 * np.cos(np.radians(lat0)))
-        for lo, hi, f, b, offsets in ranges:
-            session.execute(text(
-                "INSERT INTO segment_lanes (network_id, segment_id, station_from_m, "
-                "station_to_m, lanes_forward, lanes_backward, widths_m, offsets_m) VALUES "
-                "(:net, :seg, :lo, :hi, :f, :b, :w, :o)"),
-                {"net": net, "seg": seg, "lo": lo, "hi": hi, "f": f, "b": b,
-                 "w": np.diff(offsets).tolist(), "o": offsets})
-        for lo, hi, offset, position, kind in lines:
-            xs = np.linspace(lo, hi, 12)
-            wkt = "LINESTRING(" + ", ".join(f"{lon0 + x * east} {lat0 + offset / 111_320}"
-                                              for x in xs) + ")"
-            session.execute(text(
-                "INSERT INTO lane_boundaries (network_id, segment_id, geom, kind, colour, "
-                "width_m, confidence, position, offset_m, station_from_m, station_to_m) VALUES "
-                "(:net, :seg, ST_GeomFromText(:wkt, 4326), :kind, 'white', 0.15, 0.9, :pos, "
-                ":off, :lo, :hi)"),
-                {"net": net, "seg": seg, "wkt": wkt, "kind": kind, "pos": position,
-                 "off": offset, "lo": lo, "hi": hi})
+    east = 1 / (111_320 * np.cos(np.radians(lat0)))
+    rows = []
+    for lo, hi, offset, position, kind in lines:
+        wkt = "LINESTRING(" + ", ".join(f"{lon0 + x * east} {lat0 + offset / 111_320}"
+                                          for x in np.linspace(lo, hi, 12)) + ")"
+        rows.append((wkt, kind, position, offset, lo, hi))
+    store_lanes(network, seg, ranges, rows)
 
 
 def _straight_road(tmp_path: Path, name: str, lat: float) -> None:

@@ -292,6 +292,9 @@ TAPER_M = 5.0
 stored ranges say where the lane count changes, not the taper's shape."""
 OPEN_MATCH_M = 1.0
 """How far apart a bound on either side of an opening may end and still be one bound."""
+MOVED_M = 0.05
+"""A bound of the side with more lanes moved further than this to its shared point gets back
+to its own offset over :data:`TAPER_M` (lanes of 3.0 and 3.5 m after 3 m ones)."""
 
 
 def _open(arms: topo.Arms, n: np.ndarray, lateral: np.ndarray, cxy: np.ndarray,
@@ -305,7 +308,8 @@ def _open(arms: topo.Arms, n: np.ndarray, lateral: np.ndarray, cxy: np.ndarray,
     the shared point nearest it, so the lane it bounds opens (or closes) from a point. Sets
     ``end_xy`` in place; returns where the shared points are on the first side and on the
     second, as :func:`_join`, the openings whose bounds do not match that way, and the bounds
-    pulled to a shared point as (slot, end, the offset left of their line they had there):
+    moved to a shared point (more than :data:`MOVED_M`) as (slot, end, the offset left of
+    their line they had there):
     each reaches that offset again :data:`TAPER_M` from the node
     (:func:`app.lanelet2.build.taper_points`), the lane widening over that length."""
     a = _pairs(arms, topo.OPENING)
@@ -333,7 +337,7 @@ def _open(arms: topo.Arms, n: np.ndarray, lateral: np.ndarray, cxy: np.ndarray,
         end_xy[few[0], few[1]] = points
         end_xy[many[0], many[1]] = points[nearest]
         tapers += [(int(slot), many[0], float(lateral[many[0], slot]))
-                   for slot in many[1][~shared]]
+                   for slot in many[1][gap > MOVED_M]]
         firsts += [(few[0], int(few[1][j])) for j in nearest]
         seconds += [(many[0], int(slot)) for slot in many[1]]
 

@@ -340,8 +340,9 @@ def write_map(sel: NetworkSelection, frame: Frame, out: OsmXmlWriter,
         dropped += flush(pending, frame, ids, out)
         say("junctions", 0.6 + 0.4 * part.stop / max(len(busy), 1))
     junction_lanelets -= len(dropped)
-    painted = {"stop lines": len(plan.pieces.stops), "right-of-way elements":
-               len(plan.priorities), "crosswalks": crosswalks}
+    painted = {"stop lines": len(plan.pieces.stops),
+               "right-of-way / all-way-stop elements": len(plan.priorities),
+               "crosswalks": crosswalks}
     return MapSummary(total, lanelets + junction_lanelets, junction_lanelets, light_count,
                       sorted(set(dropped)), plan.defects, dict(out.counts),
                       {k: v for k, v in painted.items() if v})

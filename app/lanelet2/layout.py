@@ -215,8 +215,8 @@ def _place(arms: topo.Arms, xy: np.ndarray, offsets: np.ndarray, n: np.ndarray,
     end_xy = ends()
     joined_a, joined_b = _join(arms, n, lateral, cxy, coff, first_dir, last_dir, slot_offsets,
                                end_xy)
-    opened_a, opened_b, unmatched, tapers = _open(arms, n, lateral, cxy, coff, first_dir,
-                                                  last_dir, slot_offsets, end_xy)
+    opened_a, opened_b, unmatched, tapers = _open(arms, lateral, cxy, coff, first_dir, last_dir,
+                                                  slot_offsets, end_xy)
     joined_a = (np.concatenate([joined_a[0], opened_a[0]]),
                 np.concatenate([joined_a[1], opened_a[1]]))
     joined_b = (np.concatenate([joined_b[0], opened_b[0]]),
@@ -297,9 +297,9 @@ MOVED_M = 0.05
 to its own offset over :data:`TAPER_M` (lanes of 3.0 and 3.5 m after 3 m ones)."""
 
 
-def _open(arms: topo.Arms, n: np.ndarray, lateral: np.ndarray, cxy: np.ndarray,
-          coff: np.ndarray, first_dir: np.ndarray, last_dir: np.ndarray,
-          slot_offsets: np.ndarray, end_xy: np.ndarray
+def _open(arms: topo.Arms, lateral: np.ndarray, cxy: np.ndarray, coff: np.ndarray,
+          first_dir: np.ndarray, last_dir: np.ndarray, slot_offsets: np.ndarray,
+          end_xy: np.ndarray
           ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], np.ndarray,
                      list[tuple[int, int, float]]]:
     """At each opening, the bounds of the side with fewer lanes and the bounds of the other
@@ -309,9 +309,8 @@ def _open(arms: topo.Arms, n: np.ndarray, lateral: np.ndarray, cxy: np.ndarray,
     ``end_xy`` in place; returns where the shared points are on the first side and on the
     second, as :func:`_join`, the openings whose bounds do not match that way, and the bounds
     moved to a shared point (more than :data:`MOVED_M`) as (slot, end, the offset left of
-    their line they had there):
-    each reaches that offset again :data:`TAPER_M` from the node
-    (:func:`app.lanelet2.build.taper_points`), the lane widening over that length."""
+    their line they had there): each reaches that offset again :data:`TAPER_M` from the
+    node (:func:`app.lanelet2.build.taper_points`), the lane widening over that length."""
     a = _pairs(arms, topo.OPENING)
     b = arms.partner[a]
     sa, ea, sb, eb = a // 2, a % 2, b // 2, b % 2

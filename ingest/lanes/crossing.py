@@ -23,6 +23,7 @@ import numpy as np
 import shapely
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from ingest.lanes.classify import Marking
 
@@ -69,17 +70,18 @@ def crossings(bars: list[Marking], lines: list[Marking], res: float,
         0.5, normalized=True))[0] for i in candidates])
     way = np.array([_direction(bars[i].coords) for i in candidates])
     rows, cols = [], []
-    for a in range(len(candidates)):
-        for b in range(a + 1, len(candidates)):
-            if _angle(way[a], way[b]) > params.max_angle_deg:
-                continue
-            gap = (mid[b] - mid[a]) * res
-            along = abs(float(gap @ way[a]))
-            across = abs(float(gap[0] * way[a][1] - gap[1] * way[a][0]))
-            half = min(bars[candidates[a]].length_m, bars[candidates[b]].length_m) / 2
-            if params.step_m[0] <= across <= params.step_m[1] and along <= half:
-                rows.append(a)
-                cols.append(b)
+    # Only bars whose middles are near enough to be neighbours (a mosaic holds thousands).
+    reach_px = math.hypot(params.step_m[1], params.bar_length_m[1] / 2) / res
+    for a, b in sorted(cKDTree(mid).query_pairs(reach_px)):
+        if _angle(way[a], way[b]) > params.max_angle_deg:
+            continue
+        gap = (mid[b] - mid[a]) * res
+        along = abs(float(gap @ way[a]))
+        across = abs(float(gap[0] * way[a][1] - gap[1] * way[a][0]))
+        half = min(bars[candidates[a]].length_m, bars[candidates[b]].length_m) / 2
+        if params.step_m[0] <= across <= params.step_m[1] and along <= half:
+            rows.append(a)
+            cols.append(b)
     n = len(candidates)
     _, group = connected_components(coo_matrix((np.ones(len(rows)), (rows, cols)),
                                                shape=(n, n)), directed=False)

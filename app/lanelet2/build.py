@@ -101,9 +101,11 @@ def _write_end_points(plan: Layout, frame: Frame, out: OsmXmlWriter) -> None:
 
 
 def _write_segments(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter,
-                    rows: range, entering: dict[int, list[int]]) -> int:
-    """Bounds and lanelets of segments ``rows``; returns the number of lanelets. The
-    lanelets entering a junction at an arm of ``entering`` are added to its list."""
+                    rows: range, priority: dict[int, list[int]],
+                    entering: dict[int, list[int]]) -> int:
+    """Bounds and lanelets of segments ``rows``; returns the number of lanelets. Lanelets
+    entering a junction at an arm of ``priority`` reference its right-of-way elements and
+    are added to that arm's list in ``entering``."""
     n = plan.forward + plan.backward
     seg_rows = np.arange(rows.start, rows.stop)
     slots = np.arange(plan.slot_offsets[rows.start], plan.slot_offsets[rows.stop])
@@ -148,7 +150,6 @@ def _write_segments(plan: Layout, frame: Frame, ids: IdSource, out: OsmXmlWriter
     lanelet_ids = ids.take(int(n[seg_rows].sum()))
     next_lanelet = 0
     base = plan.slot_offsets[rows.start]
-    priority = elements_by_arm(plan.priorities)
     for s in seg_rows.tolist():
         tags = _segment_tags(plan, s)
         f, b = int(plan.forward[s]), int(plan.backward[s])
@@ -319,9 +320,10 @@ def write_map(sel: NetworkSelection, frame: Frame, out: OsmXmlWriter,
     _write_end_points(plan, frame, out)
     total = len(plan.roads)
     lanelets = 0
-    entering: dict[int, list[int]] = {arm: [] for arm in elements_by_arm(plan.priorities)}
+    priority = elements_by_arm(plan.priorities)
+    entering: dict[int, list[int]] = {arm: [] for arm in priority}
     for rows in _chunks(total, SEGMENT_CHUNK):
-        lanelets += _write_segments(plan, frame, ids, out, rows, entering)
+        lanelets += _write_segments(plan, frame, ids, out, rows, priority, entering)
         say("segment lanelets", 0.1 + 0.5 * rows.stop / max(total, 1))
     stop_ways = _write_stops(plan, frame, ids, out)
     out.relations([priority_relation(p, entering, stop_ways, int(plan.node_ids[p.node]))

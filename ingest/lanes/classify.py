@@ -284,20 +284,32 @@ def _mean_width(group: list[Piece]) -> float:
 def _crosses(bar: np.ndarray, lines: list[Marking], res: float, params: ClassifyParams) -> bool:
     """A bar crosses the road when the lines within 10 m of it run at least
     ``stop_angle_deg`` from its direction (none near: taken as a stop line)."""
-    shape = shapely.LineString(bar)
-    d = bar[-1] - bar[0]
-    d = d / max(float(np.hypot(*d)), 1e-9)
+    turn = turn_from_lines(direction_of(bar), shapely.LineString(bar), lines, res)
+    return turn is None or turn >= params.stop_angle_deg
+
+
+def direction_of(coords: np.ndarray) -> np.ndarray:
+    """Unit direction from a line's first point to its last."""
+    d = coords[-1] - coords[0]
+    return d / max(float(np.hypot(*d)), 1e-9)
+
+
+def axis_angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two unit directions taken as undirected lines, degrees (0..90)."""
+    return math.degrees(math.acos(min(abs(float(a @ b)), 1.0)))
+
+
+def turn_from_lines(direction: np.ndarray, shape: shapely.LineString, lines: list[Marking],
+                    res: float, near_m: float = 10.0) -> float | None:
+    """Median angle (0..90 degrees) between ``direction`` and the lines within ``near_m`` of
+    ``shape``, each where it passes nearest ``shape``'s middle; None when none is near: what
+    tells a stop line (across the lines) and a zebra (along them) from other bars."""
     angles = []
     for m in lines:
         line = shapely.LineString(m.coords)
-        if line.distance(shape) * res > 10.0:
+        if line.distance(shape) * res > near_m:
             continue
         at = line.project(shape.centroid)
         a, b = line.interpolate(max(at - 1.0 / res, 0)), line.interpolate(at + 1.0 / res)
-        v = np.array([b.x - a.x, b.y - a.y])
-        v = v / max(float(np.hypot(*v)), 1e-9)
-        angles.append(abs(_angle(d, v)) % 180)
-    if not angles:
-        return True
-    turn = float(np.median([min(a, 180 - a) for a in angles]))
-    return turn >= params.stop_angle_deg
+        angles.append(axis_angle(direction, direction_of(np.array([[a.x, a.y], [b.x, b.y]]))))
+    return float(np.median(angles)) if angles else None

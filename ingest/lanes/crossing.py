@@ -25,7 +25,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ingest.lanes.classify import Marking
+from ingest.lanes.classify import Marking, axis_angle, direction_of, turn_from_lines
 
 
 @dataclass(frozen=True)
@@ -45,17 +45,6 @@ class ZebraParams:
     near_m: float = 10.0
 
 
-def _direction(coords: np.ndarray) -> np.ndarray:
-    d = coords[-1] - coords[0]
-    return d / max(float(np.hypot(*d)), 1e-9)
-
-
-def _angle(a: np.ndarray, b: np.ndarray) -> float:
-    """Unsigned angle between two undirected directions, degrees (0..90)."""
-    cos = abs(float(a @ b))
-    return math.degrees(math.acos(min(cos, 1.0)))
-
-
 def crossings(bars: list[Marking], lines: list[Marking], res: float,
               params: ZebraParams = ZebraParams()) -> tuple[list[Marking], list[Marking]]:
     """(the ``crosswalk`` markings the zebra bars among ``bars`` make, the bars left over);
@@ -68,12 +57,12 @@ def crossings(bars: list[Marking], lines: list[Marking], res: float,
         return [], bars
     mid = np.array([shapely.get_coordinates(shapely.LineString(bars[i].coords).interpolate(
         0.5, normalized=True))[0] for i in candidates])
-    way = np.array([_direction(bars[i].coords) for i in candidates])
+    way = np.array([direction_of(bars[i].coords) for i in candidates])
     rows, cols = [], []
     # Only bars whose middles are near enough to be neighbours (a mosaic holds thousands).
     reach_px = math.hypot(params.step_m[1], params.bar_length_m[1] / 2) / res
     for a, b in sorted(cKDTree(mid).query_pairs(reach_px)):
-        if _angle(way[a], way[b]) > params.max_angle_deg:
+        if axis_angle(way[a], way[b]) > params.max_angle_deg:
             continue
         gap = (mid[b] - mid[a]) * res
         along = abs(float(gap @ way[a]))
@@ -125,15 +114,6 @@ def _crossing(stripes: list[Marking], mid: np.ndarray, way: np.ndarray,
 def _hatching(crossing: Marking, way: np.ndarray, lines: list[Marking], res: float,
               params: ZebraParams) -> bool:
     """Whether the lines near the bars run across them (hatching), not with them."""
-    shape = shapely.LineString(crossing.coords)
-    bars = way[0]
-    turns = []
-    for m in lines:
-        line = shapely.LineString(m.coords)
-        if line.distance(shape) * res > params.near_m:
-            continue
-        at = line.project(shape.centroid)
-        a, b = line.interpolate(max(at - 1.0 / res, 0)), line.interpolate(at + 1.0 / res)
-        v = np.array([b.x - a.x, b.y - a.y])
-        turns.append(_angle(bars, v / max(float(np.hypot(*v)), 1e-9)))
-    return bool(turns) and float(np.median(turns)) > params.max_turn_deg
+    turn = turn_from_lines(way[0], shapely.LineString(crossing.coords), lines, res,
+                           params.near_m)
+    return turn is not None and turn > params.max_turn_deg

@@ -19,7 +19,7 @@ from sqlalchemy import text
 
 from app.db.session import session_scope
 from cli.main import main
-from testkit.stored_lanes import store_lanes
+from testkit.stored_lanes import Range, store_lanes
 from tests.lanelet2_support import LoadedMap, export
 
 LENGTH_M = 100.0
@@ -51,9 +51,12 @@ def _t_junction(tmp_path: Path, name: str, lat0: float) -> dict[str, int]:
             "WHERE n.name = :n"), {"n": name}).all())
 
 
-def _paint(name: str, lat0: float, road: str, segment: int, stop_before_node: bool) -> None:
+def _paint(name: str, lat0: float, road: str, segment: int, stop_before_node: bool,
+           opening_at: float | None = None) -> None:
     """Store 1+1 lanes of 3 m with edge lines and a solid centre along ``road``, and a stop
-    line across the lanes entering the junction 10 m before it when asked."""
+    line across the lanes entering the junction 10 m before it when asked; from
+    ``opening_at`` metres along the road (west to east on the minor road) a second lane
+    entering the junction opens on the right."""
     (ax, ay), (bx, by) = (np.array(p) * LENGTH_M for p in ROADS[road])
     along = np.array([bx - ax, by - ay]) / LENGTH_M
     left = np.array([-along[1], along[0]])
@@ -63,9 +66,16 @@ def _paint(name: str, lat0: float, road: str, segment: int, stop_before_node: bo
         coords = _lonlat(lat0, xy[:, 0], xy[:, 1])
         return "LINESTRING(" + ", ".join(f"{x} {y}" for x, y in coords) + ")"
 
-    rows = [(line(np.linspace(0, LENGTH_M, 12), np.full(12, o)), kind, k, o, 0.0, LENGTH_M)
-            for k, (o, kind) in enumerate(((-3.0, "road_edge"), (0.0, "solid"),
-                                           (3.0, "road_edge")))]
+    two_lane = ((-3.0, "road_edge"), (0.0, "solid"), (3.0, "road_edge"))
+    ranges: list[Range] = [(0.0, LENGTH_M, 1, 1, [-3.0, 0.0, 3.0])]
+    pieces = [(0.0, LENGTH_M, two_lane)]
+    if opening_at is not None:
+        ranges = [(0.0, opening_at, 1, 1, [-3.0, 0.0, 3.0]),
+                  (opening_at, LENGTH_M, 2, 1, [-6.0, -3.0, 0.0, 3.0])]
+        pieces = [(0.0, opening_at, two_lane), (opening_at, LENGTH_M, (
+            (-6.0, "road_edge"), (-3.0, "dashed"), (0.0, "solid"), (3.0, "road_edge")))]
+    rows = [(line(np.linspace(lo, hi, 12), np.full(12, o)), kind, k, o, lo, hi)
+            for lo, hi, lines in pieces for k, (o, kind) in enumerate(lines)]
     if stop_before_node:
         # The lanes entering the node: forward ones (right) where the road ends there.
         ends_at_node = road != "north"
@@ -73,14 +83,16 @@ def _paint(name: str, lat0: float, road: str, segment: int, stop_before_node: bo
         across = np.array([-3.0, 0.0]) if ends_at_node else np.array([0.0, 3.0])
         rows.append((line(np.full(2, station), across), "stop_line", None,
                      float(across.mean()), station - 0.1, station + 0.1))
-    store_lanes(name, segment, [(0.0, LENGTH_M, 1, 1, [-3.0, 0.0, 3.0])], rows)
+    store_lanes(name, segment, ranges, rows)
 
 
 def _junction_map(tmp_path: Path, name: str, lat0: float, stops: set[str],
-                  painted: set[str]) -> tuple[LoadedMap, dict[str, int]]:
+                  painted: set[str], minor_opening_at: float | None = None
+                  ) -> tuple[LoadedMap, dict[str, int]]:
     ids = _t_junction(tmp_path, name, lat0)
     for road in sorted(painted):
-        _paint(name, lat0, road, ids[road], road in stops)
+        _paint(name, lat0, road, ids[road], road in stops,
+               minor_opening_at if road == "minor" else None)
     _, loaded = export(name, tmp_path / f"{name}.osm")
     return loaded, ids
 
@@ -110,6 +122,22 @@ def test_a_stop_line_on_the_minor_road_gives_the_major_road_the_right_of_way(
         assert any(loaded.graph.following(ll)) and all(
             "turn_direction" in nxt.attributes for nxt in loaded.graph.following(ll))
     assert len(_elements(loaded, "traffic_sign")) == 1  # the stop sign stays
+
+
+@pytest.mark.usefixtures("database_url")
+def test_a_stop_line_before_a_lane_that_opens_still_gives_way(tmp_path: Path) -> None:
+    """The minor road's stop line 10 m before the junction, and a turning lane opening 3 m
+    after it: the stop is followed through the opening to the junction, and both lanes that
+    enter it yield."""
+    loaded, ids = _junction_map(tmp_path, "give-way-opening", 48.74, {"minor"},
+                                {"minor", "south", "north"}, minor_opening_at=93.0)
+    (element,) = _elements(loaded, "right_of_way")
+    yielding = element.yieldLanelets()
+    assert len(yielding) == 2
+    assert all(ll.attributes["segment_id"] == str(ids["minor"])
+               and element.getManeuver(ll) == ManeuverType.Yield for ll in yielding)
+    assert len(element.rightOfWayLanelets()) == 2
+    assert element.stopLine.attributes["type"] == "stop_line"
 
 
 @pytest.mark.usefixtures("database_url")

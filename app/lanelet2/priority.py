@@ -18,7 +18,8 @@ is an all-way stop.
 The lanelets named are the last ones of each approach before the junction, as lanelet2's
 tagging guide asks, and each references the element. A stop line a few metres before the
 junction cuts its road into pieces (:mod:`app.lanelet2.paint`): the stop is followed through
-those joints, up to :data:`STOP_REACH_M`, to the junction it belongs to. Junctions with a
+those joints, and through the openings where a lane opens or ends between the line and the
+junction, up to :data:`STOP_REACH_M`, to the junction it belongs to. Junctions with a
 traffic light get neither (the light's element governs), nor do nodes of fewer than three
 roads (nothing crosses there).
 """
@@ -55,10 +56,11 @@ class Priority:
 
 def junction_arm(arm: int, arms: topo.Arms, length_m: np.ndarray) -> int | None:
     """The arm at which lanes entering at ``arm`` (a stop line's) reach a junction: ``arm``
-    itself, or the entering arm past the joints that follow it, within
-    :data:`STOP_REACH_M`; None when they end elsewhere first."""
+    itself, or the entering arm past the joints and openings (a turning lane that opens
+    after the line) that follow it, within :data:`STOP_REACH_M`; None when they end
+    elsewhere first."""
     walked = 0.0
-    while arms.kind[arms.node[arm]] == topo.JOINT:
+    while arms.kind[arms.node[arm]] in (topo.JOINT, topo.OPENING):
         following = int(arms.partner[arm]) ^ 1  # the next piece's other end
         walked += float(length_m[following // 2])
         if walked > STOP_REACH_M:

@@ -372,10 +372,9 @@ def bench_ingest(args: argparse.Namespace, url: str, store: Path) -> None:
     ugv = ("from pathlib import Path; from ingest.raster.job import ingest_raster; "
            f"ingest_raster([Path({str(image)!r})], 'mosaic', kind='ipm-mosaic', "
            f"database_url={url!r}, store=Path({str(store)!r}))")
-    gdal = ("import rasterio, rasterio.shutil; from ingest.raster.cog import cog_options, "
-            "GDAL_CACHEMAX_MB\n"
-            "with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHEMAX_MB):\n"
-            f"    rasterio.shutil.copy({str(image)!r}, {str(gdal_out)!r}, driver='COG', "
+    gdal = ("import rasterio, rasterio.shutil; from ingest.raster.cog import "
+            "bound_block_cache, cog_options; bound_block_cache(); "  # the same block cache
+            f"rasterio.shutil.copy({str(image)!r}, {str(gdal_out)!r}, driver='COG', "
             "**cog_options('uint8', 3))")
     env = {"DATABASE_URL": url}
     ugv_s, ugv_mb = timed_child(ugv, env)

@@ -7,10 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rasterio.shutil
 from click.testing import CliRunner
 from pyproj import Transformer
+from rasterio.env import get_gdal_config
 
 from cli.main import main
+from ingest.raster.cog import INGEST_BLOCK_CACHE_MB
 from ingest.raster.gcps import read_gcps, residual_report
 from ingest.raster.job import ingest_raster
 from ingest.raster.sources import SourceError
@@ -64,6 +67,31 @@ def test_affine_gcps_fit_exactly_and_tiles_match_geotiff(client, tmp_path: Path)
     both = (a[..., 3] == 255) & (b[..., 3] == 255)
     assert both.mean() > 0.2
     assert mae(a[both][:, :3], b[both][:, :3]) < 2.0
+
+
+def test_a_warped_ingest_writes_with_a_block_cache_and_leaves_one(
+        database_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """GDAL has one block cache per process. The COGs were written with a cache of 256
+    bytes (``rasterio.Env(GDAL_CACHEMAX=256)`` is bytes), and a GCP warp, which entered that
+    ``Env`` with its source open, left the process's cache at 256 bytes: every later read in
+    the process (a road extraction's mosaic) decoded each JPEG tile again per row."""
+    tif, transform = synthetic_utm(tmp_path / "truth.tif", width=W, height=H)
+    plain = plain_copy(tif, tmp_path / "photo.tif")
+    csv_path = gcp_csv(tmp_path / "photo.csv", transform, GRID)
+    seen: list[int] = []
+    copy = rasterio.shutil.copy
+
+    def copy_and_note_the_cache(*args, **kwargs):
+        seen.append(get_gdal_config("GDAL_CACHEMAX"))
+        return copy(*args, **kwargs)
+
+    monkeypatch.setattr(rasterio.shutil, "copy", copy_and_note_the_cache)
+    result = CliRunner().invoke(main, ["ingest", "raster", str(plain), "--layer",
+                                       f"g-{uuid.uuid4().hex[:8]}", "--gcps", str(csv_path)])
+    assert result.exit_code == 0, result.output
+    cache = range(64 << 20, (INGEST_BLOCK_CACHE_MB << 20) + 1)  # megabytes, not bytes
+    assert seen and all(size in cache for size in seen)
+    assert get_gdal_config("GDAL_CACHEMAX") in cache
 
 
 def test_tps_reports_leave_one_out_and_finds_the_bad_gcp(tmp_path: Path) -> None:

@@ -27,8 +27,6 @@ LEARNED_FLOORS = {
     "massachusetts_01": (0.57, 0.68),
     "spacenet_vegas": (0.24, 0.33),
 }
-SPECTRAL_PRECISION_CEILING = 0.3
-"""The survey's spectral line is known to be poor here; the learned one must beat it clearly."""
 # Zero-shot road model (models/roads-v2) floors at 2 m; measured 2026-11-27:
 # massachusetts_01 0.780 / 0.811; deepglobe_104 (faint desert tracks) 0.755 / 0.575 and
 # deepglobe_113 (rural) 0.481 / 0.712, where roads-v1 found nothing at all.
@@ -62,11 +60,13 @@ def sample_evaluation(root: Path, name: str, classifier: Classifier) -> Evaluati
 
 
 EXTRACTIONS: list[tuple[str, str]] = [
-    # The longest first (measured 37, 24, 21, 16, 8, 6, 6 s), so the two processes end together.
-    ("massachusetts_01", "spectral"), ("massachusetts_01", "grey"),
-    ("massachusetts_01", "learned"), ("massachusetts_01", "model"),
-    ("deepglobe_113", "model"), ("spacenet_vegas", "learned"), ("deepglobe_104", "model")]
-"""Every (sample, classifier) the tests below score; "grey" is :func:`grey_evaluation`."""
+    # The longest first (measured 24, 21, 16, 8, 6, 6 s), so the two processes end together.
+    ("massachusetts_01", "grey"), ("massachusetts_01", "learned"),
+    ("massachusetts_01", "model"), ("deepglobe_113", "model"), ("spacenet_vegas", "learned"),
+    ("deepglobe_104", "model")]
+"""Every (sample, classifier) the tests below score; "grey" is :func:`grey_evaluation`. The
+survey's spectral line is not among them: ``bench/roads_accuracy.py`` scores it beside the
+others on every image, and its 37 s here only showed it was still poor."""
 
 
 @pytest.fixture(scope="module")
@@ -91,14 +91,6 @@ def test_learned_classifier_meets_measured_floor(evaluation, name: str) -> None:
     assert at_2m.precision >= floor_p, at_2m
     assert at_2m.recall >= floor_r, at_2m
     assert at_1m.precision <= at_2m.precision and at_1m.recall <= at_2m.recall
-
-
-def test_learned_beats_the_spectral_line(evaluation) -> None:
-    spectral = evaluation("massachusetts_01", "spectral").scores[1]
-    learned = evaluation("massachusetts_01", "learned").scores[1]
-    assert spectral.precision < SPECTRAL_PRECISION_CEILING
-    assert learned.precision > 3 * spectral.precision
-    assert learned.quality > 2 * spectral.quality
 
 
 @pytest.mark.parametrize("name", sorted(MODEL_FLOORS))

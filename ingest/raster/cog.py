@@ -116,6 +116,7 @@ def write_staged_cog(dst: Path, block: TileBlock, bands: int, dtype: str,
     if nodata is not None:
         profile.update(count=bands, nodata=nodata)
         del profile["alpha"]
+    bound_block_cache()  # the staging file's dirty blocks wait in the cache too
     staged = dst.with_name(f".{dst.name}.staged.tmp")
     dst.parent.mkdir(parents=True, exist_ok=True)
     try:

@@ -20,6 +20,7 @@ import pytest
 import shapely
 from click.testing import CliRunner
 from lanelet2 import geometry, traffic_rules
+from pyproj import Transformer
 from rasterio.transform import from_origin
 from sqlalchemy import text
 
@@ -231,6 +232,45 @@ def test_a_lane_that_opens_is_a_range_of_its_own() -> None:
     assert guessed == []  # every boundary of both ranges is painted
 
 
+def _edge(*points: tuple[float, float], kind: str = "road_edge") -> Paint:
+    return Paint(shapely.LineString(points), kind, "white", 0.15, 0.9)
+
+
+@pytest.mark.parametrize("lane_line_from", [60.0, 40.0])
+def test_a_lane_that_opens_along_a_taper_starts_where_the_taper_does(lane_line_from: float
+                                                                     ) -> None:
+    """1+1 lanes; 40 m along, the right edge runs out by 3 m over 20 m into a turning lane
+    whose line is painted from the end of the taper (or from its start): the new range
+    starts at the taper's start, not where the line does (or 2 m on), and the taper is
+    the new lane's painted edge (it was an ``offset`` guess at the full offset)."""
+    reference = shapely.LineString([(0.0, 0.0), (80.0, 0.0)])
+    paint = [_edge((0, -3.2), (40, -3.2), (60, -6.2), (80, -6.2)),
+             _edge((0, 0), (80, 0), kind="solid"), _edge((0, 3.2), (80, 3.2)),
+             _edge((lane_line_from, -3.2), (80, -3.2), kind="dashed")]
+    first, second = lane_ranges(reference, paint)
+    assert (first.forward, second.forward) == (1, 2)
+    assert first.station_to_m == pytest.approx(40.0, abs=0.3)
+    edge = [r for r in boundaries(reference, paint, [first, second])
+            if r.position == 0 and r.station_from_m > 35]
+    assert len(edge) == 1 and edge[0].source == "paint"
+    assert edge[0].station_from_m == pytest.approx(40.0, abs=0.3)
+
+
+def test_a_lane_that_ends_along_a_taper_ends_where_the_taper_does() -> None:
+    """The mirror: 2+1 lanes narrowing over 20 m from 20 m along: the lane ends at the
+    taper's end (40 m), its edge painted along the taper."""
+    reference = shapely.LineString([(0.0, 0.0), (80.0, 0.0)])
+    paint = [_edge((0, -6.2), (20, -6.2), (40, -3.2), (80, -3.2)),
+             _edge((0, 0), (80, 0), kind="solid"), _edge((0, 3.2), (80, 3.2)),
+             _edge((0, -3.2), (20, -3.2), kind="dashed")]
+    first, second = lane_ranges(reference, paint)
+    assert (first.forward, second.forward) == (2, 1)
+    assert first.station_to_m == pytest.approx(40.0, abs=0.3)
+    edge = [r for r in boundaries(reference, paint, [first, second])
+            if r.position == 0 and r.station_to_m < 45]
+    assert len(edge) == 1 and edge[0].source == "paint" and edge[0].station_to_m > 39
+
+
 def test_served_as_a_collection_and_in_the_vector_tiles(client, drive: dict[str, str]) -> None:
     ids = {c["id"] for c in client.get("/collections").json()["collections"]}
     assert "lane-road-lanes" in ids
@@ -292,10 +332,12 @@ def test_edited_like_segments_and_the_lanelet2_map_follows(client, drive: dict[s
 
 
 def _store_lanes(network: str, ranges: list[tuple[float, float, int, int, list[float]]],
-                 lines: list[tuple[float, float, float, int | None, str]]) -> None:
+                 lines: list[tuple[float, float, float | list[tuple[float, float]],
+                                   int | None, str]]) -> None:
     """Stored lanes of the network's one east-going segment at 48 N: ``ranges`` (from, to,
     forward, backward, offsets right to left) and boundary ``lines`` (from, to, offset
-    metres north of the centreline, position, kind) as ``ingest lanes`` would write them."""
+    metres north of the centreline or (station, offset) points it runs through, position,
+    kind) as ``ingest lanes`` would write them."""
     with session_scope() as session:
         seg, lon0, lat0 = session.execute(text(
             "SELECT s.id, ST_X(ST_StartPoint(s.geom)), ST_Y(ST_StartPoint(s.geom))"
@@ -304,9 +346,12 @@ def _store_lanes(network: str, ranges: list[tuple[float, float, int, int, list[f
     east = 1 / (111_320 * np.cos(np.radians(lat0)))
     rows = []
     for lo, hi, offset, position, kind in lines:
-        wkt = "LINESTRING(" + ", ".join(f"{lon0 + x * east} {lat0 + offset / 111_320}"
-                                          for x in np.linspace(lo, hi, 12)) + ")"
-        rows.append((wkt, kind, position, offset, lo, hi))
+        along = np.linspace(lo, hi, 61)
+        across = np.interp(along, *np.array(offset).T) if isinstance(offset, list) else \
+            np.full(len(along), offset)
+        wkt = "LINESTRING(" + ", ".join(f"{lon0 + x * east} {lat0 + o / 111_320}"
+                                          for x, o in zip(along, across, strict=True)) + ")"
+        rows.append((wkt, kind, position, float(np.median(across)), lo, hi))
     store_lanes(network, seg, ranges, rows)
 
 
@@ -389,6 +434,93 @@ def test_a_lane_that_opens_in_the_lanelet2_map(database_url: str, tmp_path: Path
     arriving = min(backward, key=lambda ll: abs(ll.centerline[-1].x - opens.centerline[0].x))
     assert len(backward) == 2 and [ll.id for ll in loaded.graph.following(arriving)] == [
         ll.id for ll in backward if ll.id != arriving.id]
+
+
+def test_a_lane_that_opens_along_a_painted_taper_widens_as_painted(database_url: str,
+                                                                   tmp_path: Path) -> None:
+    """1+1 lanes for 40 m, then a turning lane on the right whose road edge runs out from
+    3 m to 6 m over 20 m: the new lanelet starts at the taper's start and is as wide as the
+    paint all along it (1.5 m halfway, 3 m at its end), not 3 m wide 5 m on."""
+    _straight_road(tmp_path, "tapered", 48.32)
+    _store_lanes("tapered", [(0, 40, 1, 1, [-3.0, 0.0, 3.0]),
+                             (40, 100, 2, 1, [-6.0, -3.0, 0.0, 3.0])],
+                 [(0, 40, -3.0, 0, "road_edge"), (0, 40, 0.0, 1, "solid"),
+                  (0, 40, 3.0, 2, "road_edge"),
+                  (40, 100, [(40.0, -3.0), (60.0, -6.0), (100.0, -6.0)], 0, "road_edge"),
+                  (40, 100, -3.0, 1, "dashed"), (40, 100, 0.0, 2, "solid"),
+                  (40, 100, 3.0, 3, "road_edge")])
+    _, loaded = export("tapered", tmp_path / "tapered.osm")
+    assert all("direction" in ll.attributes for ll in loaded.lanelets())  # no junction
+    forward = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"]
+    first = min(forward, key=lambda ll: ll.centerline[0].x)
+    after = {ll.attributes["lane"]: ll for ll in forward if ll.id != first.id}
+    carries_on, opens = after["2"], after["1"]
+    assert [ll.id for ll in loaded.graph.following(first)] == [carries_on.id]
+    assert loaded.graph.right(carries_on).id == opens.id
+    assert geometry.length2d(first) == pytest.approx(40.0, abs=0.5)
+    assert geometry.length2d(opens) == pytest.approx(60.0, abs=0.5)
+    for metres, width in ((0.0, 0.0), (5.0, 0.75), (10.0, 1.5), (20.0, 3.0), (40.0, 3.0)):
+        assert _width_at(opens, metres / 60.0) == pytest.approx(width, abs=0.1), metres
+
+
+def _tapered_orthophoto(path: Path) -> tuple[float, float]:
+    """A 0.05 m/px orthophoto (UTM 33N) of a straight east-going 1+1 road, 3 m lanes, whose
+    right edge runs out to 6 m over 20 m from 40 m along, a dashed line parting the turning
+    lane from 60 m on: white edges, a yellow centre line, grey asphalt on darker ground.
+    Returns the (easting, northing) of the road's centre at its start."""
+    res, east0, north0 = 0.05, *utm_origin(15.3, 48.25)
+    east0, north0 = round(east0), round(north0)
+    x = np.arange(0.0, 110.0, res)[None, :] - 5.0  # metres along the road
+    y = 12.0 - np.arange(0.0, 24.0, res)[:, None]  # metres left of it
+    right = -3.0 - 3.0 * np.clip((x - 40.0) / 20.0, 0.0, 1.0)
+    rng = np.random.default_rng(7)
+    grey = np.where((y > right - 0.4) & (y < 3.4), 105.0, 62.0)
+    grey = grey + rng.normal(0, 6, grey.shape)
+    rgb = np.repeat(grey[None], 3, axis=0)
+
+    def paint(on: np.ndarray, colour: tuple[int, int, int]) -> None:
+        for band, value in enumerate(colour):
+            rgb[band][on] = value
+
+    half = 0.075
+    inside = (x >= 0) & (x <= 100)
+    paint(inside & (np.abs(y - right) < half), (235, 235, 235))
+    paint(inside & (np.abs(y - 3.0) < half), (235, 235, 235))
+    paint(inside & (np.abs(y) < half), (225, 190, 40))
+    paint((x >= 60) & (x <= 100) & ((x - 60) % 9.0 < 3.0) & (np.abs(y + 3.0) < half),
+          (235, 235, 235))
+    write_tif(path, rgb.clip(0, 255).astype(np.uint8), UTM33,
+              from_origin(east0 - 5.0, north0 + 12.0, res, res))
+    return float(east0), float(north0)
+
+
+def test_a_painted_taper_from_the_imagery_to_the_lanelet2_map(database_url: str,
+                                                             tmp_path: Path) -> None:
+    """The taper of a turning lane read from an orthophoto: ``ingest lanes`` starts the
+    lane where the edge starts to run out, and the map's new lanelet widens with the paint
+    (half its width halfway along the taper), not to its full width 5 m after the line."""
+    east, north = _tapered_orthophoto(tmp_path / "taper.tif")
+    run("ingest", "raster", str(tmp_path / "taper.tif"), "--layer", "taper-ortho")
+    lonlat = Transformer.from_crs(UTM33, "EPSG:4326", always_xy=True)
+    road = tmp_path / "taper-road.geojson"
+    road.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {"lanes_forward": 1, "lanes_backward": 1},
+        "geometry": {"type": "LineString", "coordinates": [
+            list(lonlat.transform(east + m, north)) for m in (2.0, 98.0)]}}]}))
+    run("ingest", "network", str(road), "--network", "taper-road")
+    said = run("ingest", "lanes", "--layer", "taper-ortho", "--network", "taper-road")
+    assert "2 lane ranges" in said, said
+    ranges, _ = stored("taper-road")
+    assert [(r.lanes_forward, r.lanes_backward) for r in ranges] == [(1, 1), (2, 1)]
+    assert ranges[0].station_to_m == pytest.approx(38.0, abs=1.0)  # 40 m from x = 2 m
+    _, loaded = export("taper-road", tmp_path / "taper.osm")
+    assert all("direction" in ll.attributes for ll in loaded.lanelets())  # no junction
+    forward = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"]
+    opens = next(ll for ll in forward if ll.attributes["lane"] == "1"
+                 and geometry.length2d(ll) > 50)
+    length = geometry.length2d(opens)
+    for metres, width in ((10.0, 1.5), (30.0, 3.0)):
+        assert _width_at(opens, metres / length) == pytest.approx(width, abs=0.2), metres
 
 
 def test_a_lane_that_ends_in_the_lanelet2_map(database_url: str, tmp_path: Path) -> None:

@@ -215,8 +215,12 @@ def _place(arms: topo.Arms, xy: np.ndarray, offsets: np.ndarray, n: np.ndarray,
     end_xy = ends()
     joined_a, joined_b = _join(arms, n, lateral, cxy, coff, first_dir, last_dir, slot_offsets,
                                end_xy)
+    # A painted bound that lies off its range's offset at its end runs over to it from
+    # there: the paint's own taper of a lane that opens (or ends).
+    stored = _laterals(n, width, slot_offsets, Pieces(laterals=pieces.laterals), cut)
     opened_a, opened_b, unmatched, tapers = _open(arms, lateral, cxy, coff, first_dir, last_dir,
-                                                  slot_offsets, end_xy)
+                                                  slot_offsets, end_xy,
+                                                  np.abs(lateral - stored) > OPEN_MATCH_M)
     joined_a = (np.concatenate([joined_a[0], opened_a[0]]),
                 np.concatenate([joined_a[1], opened_a[1]]))
     joined_b = (np.concatenate([joined_b[0], opened_b[0]]),
@@ -299,7 +303,7 @@ to its own offset over :data:`TAPER_M` (lanes of 3.0 and 3.5 m after 3 m ones)."
 
 def _open(arms: topo.Arms, lateral: np.ndarray, cxy: np.ndarray, coff: np.ndarray,
           first_dir: np.ndarray, last_dir: np.ndarray, slot_offsets: np.ndarray,
-          end_xy: np.ndarray
+          end_xy: np.ndarray, tapered: np.ndarray
           ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], np.ndarray,
                      list[tuple[int, int, float]]]:
     """At each opening, the bounds of the side with fewer lanes and the bounds of the other
@@ -310,7 +314,10 @@ def _open(arms: topo.Arms, lateral: np.ndarray, cxy: np.ndarray, coff: np.ndarra
     second, as :func:`_join`, the openings whose bounds do not match that way, and the bounds
     moved to a shared point (more than :data:`MOVED_M`) as (slot, end, the offset left of
     their line they had there): each reaches that offset again :data:`TAPER_M` from the
-    node (:func:`app.lanelet2.build.taper_points`), the lane widening over that length."""
+    node (:func:`app.lanelet2.build.taper_points`), the lane widening over that length.
+    A bound whose paint runs over from another's offset (``tapered``, (2, slots): the
+    painted taper of :func:`ingest.lanes.assign._tapered`) starts at that bound's point and
+    follows its paint: it is the lane that opens, whatever lies near it at the node."""
     a = _pairs(arms, topo.OPENING)
     b = arms.partner[a]
     sa, ea, sb, eb = a // 2, a % 2, b // 2, b % 2
@@ -323,11 +330,12 @@ def _open(arms: topo.Arms, lateral: np.ndarray, cxy: np.ndarray, coff: np.ndarra
         sides = []  # (end, slots, offsets left of the path) of each arm
         for s, e, into in ((sa[i], ea[i], ea[i] == 1), (sb[i], eb[i], eb[i] == 0)):
             slots = np.arange(slot_offsets[s], slot_offsets[s + 1])
-            sides.append((int(e), slots, np.where(into, 1.0, -1.0) * lateral[e, slots]))
+            sides.append((int(e), slots, np.where(into, 1.0, -1.0) * lateral[e, slots],
+                          tapered[e, slots]))
         few, many = sorted(sides, key=lambda side: len(side[1]))
         nearest = np.abs(many[2][:, None] - few[2][None, :]).argmin(axis=1)
         gap = np.abs(many[2] - few[2][nearest])
-        shared = gap <= OPEN_MATCH_M
+        shared = (gap <= OPEN_MATCH_M) & ~many[3]
         if len(set(nearest[shared].tolist())) != len(few[1]) or shared.sum() != len(few[1]):
             unmatched.append(int(arms.node[a[i]]))
             continue

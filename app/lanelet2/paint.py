@@ -217,8 +217,11 @@ def _fits(b: _Bound, r: tuple[float, float, int, int], offsets: list[float]) -> 
     if b.row.position is None or b.row.position >= len(offsets) or not (
             b.hi > r[0] and b.lo < r[1]):
         return False
-    along = (b.station >= r[0]) & (b.station <= r[1])
-    offset = float(np.median(b.offset[along] if along.any() else b.offset))
+    # Where it lies along its length, not at its vertices: a simplified line has many on a
+    # taper or a wobble and few on a straight run.
+    lo, hi = max(r[0], float(b.station[0])), min(r[1], float(b.station[-1]))
+    at = np.linspace(lo, hi, 50) if hi > lo else b.station
+    offset = float(np.median(np.interp(at, b.station, b.offset)))
     return abs(offset - offsets[b.row.position]) <= FIT_M
 
 

@@ -7,14 +7,16 @@ and joins its neighbour). Within a range each boundary (its ``position`` from th
 along the segment's direction) lies at the median offset of the cuts that met them all; each
 marking line near the segment is then cut into the stretches that follow one boundary of one
 range, and stretches of a boundary no paint covers become ``offset`` boundaries (the range's
-offset there, a guess that says it is one). Stop lines and crossings are kept whole, without
-a position.
+offset there, a guess that says it is one). Where a lane opens or ends along a painted taper
+(the road edge, or the line beside the lane, running over from the old boundary to the new
+one), the lane starts where the taper does and its boundary follows it (:func:`_tapered`).
+Stop lines and crossings are kept whole, without a position.
 Pure functions of shapely lines, tested without a database.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import shapely
@@ -41,6 +43,14 @@ REACH_M = 15.0
 """Marking lines further than this from the segment are not its road's."""
 ACROSS = ("stop_line", "crosswalk")
 """Markings across the road, kept whole and without a position."""
+TAPER_TOL_M = 0.25
+"""A taper starts where its line is this close to the old boundary's offset and ends where
+it is this close to the new one's."""
+TAPER_MIN_M = 2.0
+MAX_TAPER_M = 60.0
+"""A line that runs over from one boundary to the next in less than :data:`TAPER_MIN_M` is
+a lane that opens at once (the Lanelet2 map gives it its own short taper); one longer than
+this, or steeper than 45 degrees, is not a taper."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +76,11 @@ class LaneRange:
     backward: int
     offsets: tuple[float, ...]
     confidence: float
+    taper: tuple[int, tuple[tuple[float, float], ...]] | None = field(default=None,
+                                                                      compare=False)
+    """Where this range has a lane more than its neighbour and the paint widens into it:
+    the new boundary's position and its painted (station, offset) pairs over the taper
+    (found by :func:`_tapered`; boundary stretches follow it, it is not stored)."""
 
     @property
     def widths(self) -> list[float]:
@@ -118,7 +133,90 @@ def lane_ranges(reference: shapely.LineString, paint: list[Paint],
                                 cuts[stop - 1].station_m + step_m / 2, f, b,
                                 tuple(round(float(o), 3) for o in offsets),
                                 round(len(full) / (stop - start), 3)))
-    return _cover(_unseen_lines_merged(ranges), reference.length)
+    return _tapered(reference, paint, _cover(_unseen_lines_merged(ranges), reference.length))
+
+
+def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[LaneRange]
+             ) -> list[LaneRange]:
+    """The ranges with each lane that opens (or ends) along a painted taper starting (or
+    ending) where the taper does, and the taper kept on the range with more lanes.
+
+    The cuts count a lane only once a line parts it from its neighbour: where the road edge
+    widens over 20 m before the new lane's line is painted, the range with fewer lanes ran
+    to the end of the taper and the new lane opened at once there; where the lane line starts
+    with the taper, the widening edge was no boundary (too far from the new lane's offset)
+    and the new lane was as wide as painted from its first metre. A taper is a stretch of one
+    line whose offset runs steadily from a boundary of the range with fewer lanes (within
+    :data:`TAPER_TOL_M`) to the new boundary of the other, over :data:`TAPER_MIN_M` to
+    :data:`MAX_TAPER_M`, starting no further than 1 m into the range with more lanes."""
+    if len(ranges) < 2:
+        return ranges
+    lines = [station_offset(reference, _samples(p.line)) for p in paint
+             if p.kind in BOUNDING]
+    out = list(ranges)
+    for i in range(len(out) - 1):
+        a, b = out[i], out[i + 1]
+        if abs(len(a.offsets) - len(b.offsets)) != 1:
+            continue
+        opening = len(b.offsets) > len(a.offsets)
+        few, many = (a, b) if opening else (b, a)
+        new = [k for k, o in enumerate(many.offsets)
+               if min(abs(o - p) for p in few.offsets) > MATCH_M]
+        if len(new) != 1:
+            continue
+        o_new = many.offsets[new[0]]
+        o_old = min(few.offsets, key=lambda p: abs(p - o_new))
+        split = a.station_to_m
+        room = (few.station_to_m - few.station_from_m - MIN_RANGE_M,
+                many.station_to_m - many.station_from_m - MIN_RANGE_M)
+        for station, offset in lines:
+            into_few = split - station if opening else station - split
+            taper = _taper(into_few, offset, o_old, o_new, room)
+            if taper is None:
+                continue
+            t = float(station[taper[-1]])
+            pairs = sorted(zip(station[taper].round(3).tolist(),
+                               offset[taper].round(3).tolist(), strict=True))
+            many = replace(many, taper=(new[0], tuple(pairs)))
+            few, many = (replace(few, station_to_m=round(t, 3)),
+                         replace(many, station_from_m=round(t, 3))) if opening else \
+                (replace(few, station_from_m=round(t, 3)),
+                 replace(many, station_to_m=round(t, 3)))
+            out[i], out[i + 1] = (few, many) if opening else (many, few)
+            break
+    return out
+
+
+def _taper(into_few: np.ndarray, offset: np.ndarray, o_old: float, o_new: float,
+           room: tuple[float, float]) -> np.ndarray | None:
+    """The samples of a line's taper from ``o_new`` to ``o_old`` in order of ``into_few``
+    (metres from the split into the range with fewer lanes: the last is where the taper
+    leaves the old boundary), or None. ``room``: how far the split may move into either
+    range and leave it a range."""
+    order = np.argsort(into_few, kind="stable")
+    u, d = into_few[order], offset[order]
+    at_new = np.abs(d - o_new) <= TAPER_TOL_M
+    at_old = np.abs(d - o_old) <= TAPER_TOL_M
+    towards = np.sign(o_old - o_new)
+    for hi in np.flatnonzero(at_old & (u > -1.0) & (u <= room[0])).tolist():
+        before = np.flatnonzero(at_new[:hi])
+        if not len(before) or u[before[-1]] < -room[1]:
+            continue
+        lo = int(before[-1])
+        # Each end where the line meets its boundary, not where it comes within the
+        # tolerance of it: on while it still draws nearer.
+        while hi + 1 < len(u) and abs(d[hi + 1] - o_old) < abs(d[hi] - o_old) - 0.002:
+            hi += 1
+        while lo > 0 and abs(d[lo - 1] - o_new) < abs(d[lo] - o_new) - 0.002:
+            lo -= 1
+        length = u[hi] - u[lo]
+        if (not TAPER_MIN_M <= length <= MAX_TAPER_M or abs(o_new - o_old) > length
+                or u[hi] > room[0]):
+            continue
+        if np.all(np.diff(d[lo:hi + 1]) * towards >= -0.05):
+            return order[lo:hi + 1]
+        return None  # the first time the line reaches the old offset decides
+    return None
 
 
 def _unseen_lines_merged(ranges: list[LaneRange]) -> list[LaneRange]:
@@ -224,7 +322,7 @@ def boundaries(reference: shapely.LineString, paint: list[Paint], ranges: list[L
         label = np.full(len(xy), -1)
         which = np.clip(np.searchsorted(starts, station, side="right") - 1, 0, len(ranges) - 1)
         for i in np.flatnonzero(mine):
-            offs = np.array(ranges[which[i]].offsets)
+            offs = _offsets_at(ranges[which[i]], float(station[i]))
             k = int(np.argmin(np.abs(offs - offset[i])))
             if abs(offs[k] - offset[i]) <= MATCH_M:
                 label[i] = which[i] * 64 + k
@@ -240,6 +338,18 @@ def boundaries(reference: shapely.LineString, paint: list[Paint], ranges: list[L
                                 round(float(np.median(offset[run])), 3),
                                 round(float(s.min()), 3), round(float(s.max()), 3), "paint"))
     return (kept := _main_kinds(out, starts)) + _guessed(reference, ranges, kept)
+
+
+def _offsets_at(r: LaneRange, station: float) -> np.ndarray:
+    """The range's boundary offsets at ``station``: its taper's painted offset where the
+    station lies along the taper."""
+    offs = np.array(r.offsets)
+    if r.taper is not None:
+        k, pairs = r.taper
+        along, across = np.array(pairs).T
+        if along[0] <= station <= along[-1]:
+            offs[k] = np.interp(station, along, across)
+    return offs
 
 
 def _main_kinds(found: list[Boundary], starts: np.ndarray) -> list[Boundary]:

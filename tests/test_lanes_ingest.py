@@ -463,6 +463,29 @@ def test_a_lane_that_opens_along_a_painted_taper_widens_as_painted(database_url:
         assert _width_at(opens, metres / 60.0) == pytest.approx(width, abs=0.1), metres
 
 
+def test_a_lane_that_ends_along_a_painted_taper_narrows_as_painted(database_url: str,
+                                                                   tmp_path: Path) -> None:
+    """2+1 lanes whose right edge runs in from 6 m to 3 m between 40 and 60 m, then 1+1: the
+    lane that ends narrows with the paint (1.5 m at 50 m) to a point at 60 m, and the lane
+    beside it carries on."""
+    _straight_road(tmp_path, "tapered-end", 48.33)
+    _store_lanes("tapered-end", [(0, 60, 2, 1, [-6.0, -3.0, 0.0, 3.0]),
+                                 (60, 100, 1, 1, [-3.0, 0.0, 3.0])],
+                 [(0, 60, [(0.0, -6.0), (40.0, -6.0), (60.0, -3.0)], 0, "road_edge"),
+                  (0, 60, -3.0, 1, "dashed"), (0, 60, 0.0, 2, "solid"),
+                  (0, 60, 3.0, 3, "road_edge"), (60, 100, -3.0, 0, "road_edge"),
+                  (60, 100, 0.0, 1, "solid"), (60, 100, 3.0, 2, "road_edge")])
+    _, loaded = export("tapered-end", tmp_path / "tapered-end.osm")
+    assert all("direction" in ll.attributes for ll in loaded.lanelets())  # no junction
+    forward = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"]
+    last = max(forward, key=lambda ll: ll.centerline[-1].x)
+    ends = next(ll for ll in forward if ll.attributes["lane"] == "1" and ll.id != last.id)
+    assert list(loaded.graph.following(ends)) == []
+    assert geometry.length2d(ends) == pytest.approx(60.0, abs=0.5)
+    for metres, width in ((30.0, 3.0), (40.0, 3.0), (50.0, 1.5), (55.0, 0.75), (60.0, 0.0)):
+        assert _width_at(ends, metres / 60.0) == pytest.approx(width, abs=0.1), metres
+
+
 def _tapered_orthophoto(path: Path) -> tuple[float, float]:
     """A 0.05 m/px orthophoto (UTM 33N) of a straight east-going 1+1 road, 3 m lanes, whose
     right edge runs out to 6 m over 20 m from 40 m along, a dashed line parting the turning

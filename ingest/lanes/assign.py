@@ -32,9 +32,9 @@ with a line unseen (blurred or off the imagery), not a lane that ends."""
 MATCH_M = 0.75
 """How far from a range's boundary a marking may lie and still be that boundary."""
 MIN_STRETCH_M = 2.5
+"""Shortest stretch of paint (or of missing paint) that makes a boundary row."""
 MIN_KIND_M = 5.0
 """Shortest stretch whose kind differs from the rest of its boundary's (:func:`_main_kinds`)."""
-"""Shortest stretch of paint (or of missing paint) that makes a boundary row."""
 SAMPLE_M = 0.25
 ALONG = 0.7
 """A stretch must run along the segment: its stations span this share of its length (a

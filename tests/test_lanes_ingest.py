@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import mapbox_vector_tile
 import morecantile
@@ -403,26 +404,34 @@ def _width_at(ll, fraction: float) -> float:
                  + geometry.distance(geometry.to2D(ll.rightBound), p))
 
 
+def _opening_map(tmp_path: Path, name: str, lat: float, at: float,
+                 edge: float | list[tuple[float, float]]) -> tuple[LoadedMap, Any, Any, Any]:
+    """A 1+1 road of 3 m lanes with a turning lane opening on the right ``at`` metres along
+    (its edge ``edge``: an offset, or the points it runs through), exported: (the map, the
+    first forward lanelet, the lane that carries on, the lane that opens), with no junction
+    lanelet (each has a direction)."""
+    _straight_road(tmp_path, name, lat)
+    _store_lanes(name, [(0, at, 1, 1, [-3.0, 0.0, 3.0]),
+                        (at, 100, 2, 1, [-6.0, -3.0, 0.0, 3.0])],
+                 [(0, at, -3.0, 0, "road_edge"), (0, at, 0.0, 1, "solid"),
+                  (0, at, 3.0, 2, "road_edge"), (at, 100, edge, 0, "road_edge"),
+                  (at, 100, -3.0, 1, "dashed"), (at, 100, 0.0, 2, "solid"),
+                  (at, 100, 3.0, 3, "road_edge")])
+    _, loaded = export(name, tmp_path / f"{name}.osm")
+    assert all("direction" in ll.attributes for ll in loaded.lanelets())  # no junction
+    forward = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"]
+    first = min(forward, key=lambda ll: ll.centerline[0].x)
+    after = {ll.attributes["lane"]: ll for ll in forward if ll.id != first.id}
+    assert sorted(after) == ["1", "2"]
+    return loaded, first, after["2"], after["1"]
+
+
 def test_a_lane_that_opens_in_the_lanelet2_map(database_url: str, tmp_path: Path) -> None:
     """1+1 lanes for 50 m, then a second forward lane on the right (a turning lane): the
     forward lanelet is followed by the lane that carries on, with no junction between (the
     bounds carry on), and the new lane opens beside it from a point, 3 m wide 5 m on, reached
     by a lane change across the dashed line; the lane back carries on too."""
-    _straight_road(tmp_path, "opening", 48.3)
-    _store_lanes("opening", [(0, 50, 1, 1, [-3.0, 0.0, 3.0]),
-                             (50, 100, 2, 1, [-6.0, -3.0, 0.0, 3.0])],
-                 [(0, 50, -3.0, 0, "road_edge"), (0, 50, 0.0, 1, "solid"),
-                  (0, 50, 3.0, 2, "road_edge"), (50, 100, -6.0, 0, "road_edge"),
-                  (50, 100, -3.0, 1, "dashed"), (50, 100, 0.0, 2, "solid"),
-                  (50, 100, 3.0, 3, "road_edge")])
-    _, loaded = export("opening", tmp_path / "opening.osm")
-    assert all("direction" in ll.attributes for ll in loaded.lanelets())  # no junction
-    forward = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"]
-    first = min(forward, key=lambda ll: ll.centerline[0].x)
-    after = {ll.attributes["lane"]: ll for ll in forward
-             if ll.centerline[0].x > first.centerline[0].x + 20}
-    assert sorted(after) == ["1", "2"]
-    carries_on, opens = after["2"], after["1"]
+    loaded, first, carries_on, opens = _opening_map(tmp_path, "opening", 48.3, 50.0, -6.0)
     assert [ll.id for ll in loaded.graph.following(first)] == [carries_on.id]
     assert loaded.graph.right(carries_on).id == opens.id  # a lane change to the new lane
     assert loaded.graph.getRoute(first, opens) is not None
@@ -441,20 +450,8 @@ def test_a_lane_that_opens_along_a_painted_taper_widens_as_painted(database_url:
     """1+1 lanes for 40 m, then a turning lane on the right whose road edge runs out from
     3 m to 6 m over 20 m: the new lanelet starts at the taper's start and is as wide as the
     paint all along it (1.5 m halfway, 3 m at its end), not 3 m wide 5 m on."""
-    _straight_road(tmp_path, "tapered", 48.32)
-    _store_lanes("tapered", [(0, 40, 1, 1, [-3.0, 0.0, 3.0]),
-                             (40, 100, 2, 1, [-6.0, -3.0, 0.0, 3.0])],
-                 [(0, 40, -3.0, 0, "road_edge"), (0, 40, 0.0, 1, "solid"),
-                  (0, 40, 3.0, 2, "road_edge"),
-                  (40, 100, [(40.0, -3.0), (60.0, -6.0), (100.0, -6.0)], 0, "road_edge"),
-                  (40, 100, -3.0, 1, "dashed"), (40, 100, 0.0, 2, "solid"),
-                  (40, 100, 3.0, 3, "road_edge")])
-    _, loaded = export("tapered", tmp_path / "tapered.osm")
-    assert all("direction" in ll.attributes for ll in loaded.lanelets())  # no junction
-    forward = [ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"]
-    first = min(forward, key=lambda ll: ll.centerline[0].x)
-    after = {ll.attributes["lane"]: ll for ll in forward if ll.id != first.id}
-    carries_on, opens = after["2"], after["1"]
+    loaded, first, carries_on, opens = _opening_map(
+        tmp_path, "tapered", 48.32, 40.0, [(40.0, -3.0), (60.0, -6.0), (100.0, -6.0)])
     assert [ll.id for ll in loaded.graph.following(first)] == [carries_on.id]
     assert loaded.graph.right(carries_on).id == opens.id
     assert geometry.length2d(first) == pytest.approx(40.0, abs=0.5)

@@ -529,7 +529,8 @@ def test_a_painted_taper_from_the_imagery_to_the_lanelet2_map(database_url: str,
             list(lonlat.transform(east + m, north)) for m in (2.0, 98.0)]}}]}))
     run("ingest", "network", str(road), "--network", "taper-road")
     said = run("ingest", "lanes", "--layer", "taper-ortho", "--network", "taper-road")
-    assert "2 lane ranges" in said, said
+    assert "2 lane ranges (1+1, 2+1 lanes forward+backward, 1 opening or ending along a " \
+        "painted taper)" in said, said
     ranges, _ = stored("taper-road")
     assert [(r.lanes_forward, r.lanes_backward) for r in ranges] == [(1, 1), (2, 1)]
     assert ranges[0].station_to_m == pytest.approx(38.0, abs=1.0)  # 40 m from x = 2 m

@@ -76,12 +76,14 @@ class LanesIngest:
         stops = sum(b.kind == "stop_line" for b in self.rows)
         crossings = sum(b.kind == "crosswalk" for b in self.rows)
         counts = sorted({f"{r.forward}+{r.backward}" for r in self.ranges})
+        tapers = sum(r.taper is not None for r in self.ranges)
         return [f"network {self.network}: lanes from the paint of layer {self.layer} on "
                 f"{len(self.laned)} of {self.segments} segments ({self.markings} markings "
                 f"found)",
                 f"{len(self.ranges)} lane ranges ({', '.join(counts) or 'none'} lanes "
-                f"forward+backward), {paint} painted boundary stretches, {guessed} offset "
-                f"where no paint, {stops} stop lines, {crossings} crossings",
+                f"forward+backward, {tapers} opening or ending along a painted taper), "
+                f"{paint} painted boundary stretches, {guessed} offset where no paint, "
+                f"{stops} stop lines, {crossings} crossings",
                 f"lane counts of {len(self.recounted)} segments set from the paint (segments a "
                 f"person edited keep theirs)"] + (
             [f"{len(self.kept)} segments keep the lanes a person edited: "

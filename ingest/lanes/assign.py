@@ -46,6 +46,10 @@ ACROSS = ("stop_line", "crosswalk")
 TAPER_TOL_M = 0.25
 """A taper starts where its line is this close to the old boundary's offset and ends where
 it is this close to the new one's."""
+TAPER_SMOOTH_M = 2.0
+"""A taper is looked for in its line's offsets averaged over this length..."""
+TAPER_LEVEL = 0.02
+"""...and ends where they change by less than this per metre."""
 TAPER_MIN_M = 2.0
 MAX_TAPER_M = 60.0
 """A line that runs over from one boundary to the next in less than :data:`TAPER_MIN_M` is
@@ -174,9 +178,10 @@ def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[Lan
             taper = _taper(into_few, offset, o_old, o_new, room)
             if taper is None:
                 continue
-            t = float(station[taper[-1]])
-            pairs = sorted(zip(station[taper].round(3).tolist(),
-                               offset[taper].round(3).tolist(), strict=True))
+            samples, leaves = taper
+            t = split - leaves if opening else split + leaves
+            pairs = sorted(zip(station[samples].round(3).tolist(),
+                               offset[samples].round(3).tolist(), strict=True))
             many = replace(many, taper=(new[0], tuple(pairs)))
             few, many = (replace(few, station_to_m=round(t, 3)),
                          replace(many, station_from_m=round(t, 3))) if opening else \
@@ -188,34 +193,54 @@ def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[Lan
 
 
 def _taper(into_few: np.ndarray, offset: np.ndarray, o_old: float, o_new: float,
-           room: tuple[float, float]) -> np.ndarray | None:
-    """The samples of a line's taper from ``o_new`` to ``o_old`` in order of ``into_few``
-    (metres from the split into the range with fewer lanes: the last is where the taper
-    leaves the old boundary), or None. ``room``: how far the split may move into either
-    range and leave it a range."""
+           room: tuple[float, float]) -> tuple[np.ndarray, float] | None:
+    """A line's taper from ``o_new`` to about ``o_old``, ``into_few`` being each sample's
+    metres from the split into the range with fewer lanes: (its samples, in that order, and
+    where it leaves the old boundary), or None. ``room``: how far the split may move into
+    either range and leave it a range.
+
+    Extracted paint wobbles by a few centimetres, as much as a long taper moves between two
+    samples, so the offsets are smoothed over :data:`TAPER_SMOOTH_M` first. The old
+    boundary's level is the line's own where it stops running over (the range's median
+    offset is pulled towards the taper when the taper is much of the range), and the taper's
+    ends are where a line fitted to its middle (a fifth to four fifths of the way across)
+    meets the two levels, not where the paint first comes near them."""
     order = np.argsort(into_few, kind="stable")
     u, d = into_few[order], offset[order]
-    at_new = np.abs(d - o_new) <= TAPER_TOL_M
-    at_old = np.abs(d - o_old) <= TAPER_TOL_M
+    half = max(int(TAPER_SMOOTH_M / SAMPLE_M / 2), 1)
+    kernel = np.ones(2 * half + 1) / (2 * half + 1)
+    smooth = np.convolve(np.pad(d, half, mode="edge"), kernel, mode="valid")
+    step = 2 * half  # the slope over the smoothing length, not between two samples
+    slope_ahead = np.zeros(len(u))
+    slope_ahead[:-step] = (smooth[step:] - smooth[:-step]) / np.maximum(u[step:] - u[:-step],
+                                                                         1e-9)
     towards = np.sign(o_old - o_new)
-    for hi in np.flatnonzero(at_old & (u > -1.0) & (u <= room[0])).tolist():
-        before = np.flatnonzero(at_new[:hi])
-        if not len(before) or u[before[-1]] < -room[1]:
+    at_new = np.flatnonzero(np.abs(smooth - o_new) <= TAPER_TOL_M)
+    # The last sample at the new boundary before the line runs over, then the first one
+    # past halfway from which the line runs level again.
+    leaving = at_new[(np.append(np.diff(at_new), 2) > 1) & (at_new < len(u) - step)]
+    for lo in leaving.tolist():
+        level = np.flatnonzero((np.abs(slope_ahead) < TAPER_LEVEL) & (np.arange(len(u)) > lo)
+                               & ((smooth - o_new) * towards > abs(o_old - o_new) / 2))
+        if not len(level) or level[0] >= len(u) - step:
             continue
-        lo = int(before[-1])
-        # Each end where the line meets its boundary, not where it comes within the
-        # tolerance of it: on while it still draws nearer.
-        while hi + 1 < len(u) and abs(d[hi + 1] - o_old) < abs(d[hi] - o_old) - 0.002:
-            hi += 1
-        while lo > 0 and abs(d[lo - 1] - o_new) < abs(d[lo] - o_new) - 0.002:
-            lo -= 1
-        length = u[hi] - u[lo]
-        if (not TAPER_MIN_M <= length <= MAX_TAPER_M or abs(o_new - o_old) > length
-                or u[hi] > room[0]):
+        hi = int(level[0])
+        o_level = float(np.median(smooth[hi:hi + step + 1]))
+        if abs(o_level - o_old) > MATCH_M or not np.all(
+                np.diff(smooth[lo:hi + 1]) * towards >= -0.02):
             continue
-        if np.all(np.diff(d[lo:hi + 1]) * towards >= -0.05):
-            return order[lo:hi + 1]
-        return None  # the first time the line reaches the old offset decides
+        across = (d[lo:hi + 1] - o_new) / (o_level - o_new)
+        middle = (across > 0.2) & (across < 0.8)
+        if middle.sum() < 3:
+            continue
+        slope, at = np.polyfit(u[lo:hi + 1][middle], d[lo:hi + 1][middle], 1)
+        if slope * towards <= 0:
+            continue
+        leaves, reaches = (o_level - at) / slope, (o_new - at) / slope
+        length = leaves - reaches
+        if (TAPER_MIN_M <= length <= MAX_TAPER_M and abs(o_new - o_level) <= length
+                and -1.0 < leaves <= room[0] and reaches >= -room[1]):
+            return order[(u >= reaches) & (u <= leaves)], float(leaves)
     return None
 
 

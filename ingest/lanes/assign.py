@@ -44,8 +44,7 @@ REACH_M = 15.0
 ACROSS = ("stop_line", "crosswalk")
 """Markings across the road, kept whole and without a position."""
 TAPER_TOL_M = 0.25
-"""A taper starts where its line is this close to the old boundary's offset and ends where
-it is this close to the new one's."""
+"""A taper's line runs over from where it lies this close to the new boundary's offset."""
 TAPER_SMOOTH_M = 2.0
 """A taper is looked for in its line's offsets averaged over this length..."""
 TAPER_LEVEL = 0.02
@@ -150,9 +149,10 @@ def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[Lan
     to the end of the taper and the new lane opened at once there; where the lane line starts
     with the taper, the widening edge was no boundary (too far from the new lane's offset)
     and the new lane was as wide as painted from its first metre. A taper is a stretch of one
-    line whose offset runs steadily from a boundary of the range with fewer lanes (within
-    :data:`TAPER_TOL_M`) to the new boundary of the other, over :data:`TAPER_MIN_M` to
-    :data:`MAX_TAPER_M`, starting no further than 1 m into the range with more lanes."""
+    line whose offset runs steadily from the new boundary of the range with more lanes to
+    the level of a boundary of the other (within :data:`MATCH_M` of it), over
+    :data:`TAPER_MIN_M` to :data:`MAX_TAPER_M` (:func:`_taper`), leaving that level no
+    further than 1 m into the range with more lanes."""
     if len(ranges) < 2:
         return ranges
     lines = [station_offset(reference, _samples(p.line)) for p in paint

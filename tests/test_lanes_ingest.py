@@ -11,6 +11,7 @@ that still shows every line and the stop line.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -568,6 +569,37 @@ def test_a_painted_taper_from_the_imagery_to_the_lanelet2_map(database_url: str,
     length = geometry.length2d(opens)
     for metres, width in ((10.0, 1.5), (30.0, 3.0)):
         assert _width_at(opens, metres / length) == pytest.approx(width, abs=0.2), metres
+
+
+def test_the_synthetic_drive_s_turning_lane_opens_along_its_taper(database_url: str,
+                                                                 tmp_path: Path) -> None:
+    """The synthetic drive (16 frames) with a turning lane opening 10 m along the vehicle's
+    path (the right edge running out by 3 m over 8 m, a dashed line beyond it), through
+    ``ingest ipm``, ``ingest lanes`` on the road's true centre and the Lanelet2 export: 2+2
+    lanes, then 3+2 from where the taper starts (16 m along the segment, within 1 m), and the
+    new lanelet widens with the paint (within 0.25 m at 1, 2, 4, 6 and 12 m into it)."""
+    drive = Drive.in_lane(replace(PAINT, stop_at_m=None, turn_at_m=10.0, turn_taper_m=8.0), 1)
+    paths = write_drive(tmp_path, drive, Camera(), frame_times(16))
+    run("ingest", "ipm", str(paths["frames"]), "--poses", str(paths["poses"]), "--calib",
+        str(paths["calib"]), "--layer", "turn-drive", *GRID_ARGS)
+    road = tmp_path / "road.geojson"
+    road.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {"lanes_forward": 2, "lanes_backward": 2},
+        "geometry": {"type": "LineString", "coordinates": centreline(-6.0, 30.0)}}]}))
+    run("ingest", "network", str(road), "--network", "turn-road")
+    said = run("ingest", "lanes", "--layer", "turn-drive", "--network", "turn-road")
+    assert "1 opening or ending along a painted taper" in said, said
+    ranges, _ = stored("turn-road")
+    assert [(r.lanes_forward, r.lanes_backward) for r in ranges] == [(2, 2), (3, 2)]
+    assert ranges[0].station_to_m == pytest.approx(16.0, abs=1.0)
+    _, loaded = export("turn-road", tmp_path / "turn.osm")
+    opens = next(ll for ll in loaded.lanelets() if ll.attributes["direction"] == "forward"
+                 and ll.attributes["lane"] == "1" and _width_at(ll, 1.0) > 2.0)
+    assert _width_at(opens, 0.0) < 0.3
+    assert drive.lanes is not None
+    for metres in (1.0, 2.0, 4.0, 6.0, 12.0):  # the lanelet and the path are concentric arcs
+        painted = float(drive.lanes.turn_out_m(10.0 + metres))
+        assert _width_at(opens, metres / 20.0) == pytest.approx(painted, abs=0.25), metres
 
 
 def test_a_lane_that_ends_in_the_lanelet2_map(database_url: str, tmp_path: Path) -> None:

@@ -317,7 +317,8 @@ def _open(arms: topo.Arms, lateral: np.ndarray, cxy: np.ndarray, coff: np.ndarra
     node (:func:`app.lanelet2.build.taper_points`), the lane widening over that length.
     A bound whose paint runs over from another's offset (``tapered``, (2, slots): the
     painted taper of :func:`ingest.lanes.assign._tapered`) starts at that bound's point and
-    follows its paint: it is the lane that opens, whatever lies near it at the node."""
+    follows its paint, with no taper of :data:`TAPER_M` of its own: it is the lane that
+    opens, whatever lies near it at the node."""
     a = _pairs(arms, topo.OPENING)
     b = arms.partner[a]
     sa, ea, sb, eb = a // 2, a % 2, b // 2, b % 2
@@ -344,7 +345,7 @@ def _open(arms: topo.Arms, lateral: np.ndarray, cxy: np.ndarray, coff: np.ndarra
         end_xy[few[0], few[1]] = points
         end_xy[many[0], many[1]] = points[nearest]
         tapers += [(int(slot), many[0], float(lateral[many[0], slot]))
-                   for slot in many[1][gap > MOVED_M]]
+                   for slot in many[1][(gap > MOVED_M) & ~many[3]]]
         firsts += [(few[0], int(few[1][j])) for j in nearest]
         seconds += [(many[0], int(slot)) for slot in many[1]]
 

@@ -96,6 +96,21 @@ class LanePaint:
     """How far the zebra reaches along the road (each bar's length)."""
     zebra_clear_m: float = 0.5
     """How far short of the zebra the lines stop."""
+    turn_at_m: float | None = None
+    """Distance along the vehicle's path where a turning lane opens on the right of the
+    forward lanes (None: none): the right edge line runs out by :attr:`turn_width_m` over
+    :attr:`turn_taper_m` and stays out (to the far side of the bend), a dashed line parting
+    the new lane from the next one from the end of the taper on."""
+    turn_width_m: float = 3.0
+    turn_taper_m: float = 15.0
+
+    def turn_out_m(self, along_m: float | np.ndarray) -> np.ndarray:
+        """How far right of the right edge line the road's right edge lies, ``along_m``
+        metres along the vehicle's path (0 without a turning lane)."""
+        along = np.asarray(along_m, float)
+        if self.turn_at_m is None:
+            return np.zeros(along.shape)
+        return self.turn_width_m * np.clip((along - self.turn_at_m) / self.turn_taper_m, 0, 1)
 
     def boundaries_m(self) -> np.ndarray:
         """Offsets of the lane boundaries (edge, lane lines, edge) from the road's right edge
@@ -227,7 +242,10 @@ class Drive:
         centre = self.radius_m + self.road_offset_m
         half = 3.5 if self.lanes is None else \
             float(self.lanes.boundaries_m()[-1]) / 2 + self.lanes.shoulder_m
-        road = np.abs(r - centre) <= half
+        # The bend's centre is on the right: a turning lane widens the road inwards.
+        out = 0.0 if self.lanes is None else \
+            self.lanes.turn_out_m(self.along_m(np.arctan2(east, north)))
+        road = (r - centre <= half) & (centre - r <= half + out)
         asphalt = (108 + 14 * np.sin(east[road] / 0.8) * np.sin(north[road] / 1.0)
                    + 8 * np.cos((east[road] - north[road]) / 0.6))
         rgb[road] = np.stack([asphalt, asphalt, asphalt + 5], axis=-1)
@@ -263,13 +281,21 @@ class Drive:
             for middle in self.zebra_bars():
                 bar = np.abs(r - self._line_radius(middle)) <= width / 2
                 rgb[bar & (along <= lanes.zebra_length_m / 2)] = PAINT_RGB["white"]
+        along = self.along_m(azimuth)
+        out = lanes.turn_out_m(along)
         for i, offset in enumerate(lanes.boundaries_m()):
             kind, colour = lanes.line_kind(i)
-            radius = self._line_radius(float(offset))
+            radius = self._line_radius(float(offset)) - (out if i == 0 else 0.0)
             on = (np.abs(r - radius) < lanes.line_width_m / 2) & clear
             if kind == "dashed":
                 on &= np.mod(azimuth * radius, sum(lanes.dash_m)) < lanes.dash_m[0]
             rgb[on] = PAINT_RGB[colour]
+        if lanes.turn_at_m is not None:  # the line parting the turning lane, once it is wide
+            radius = self._line_radius(0.0)
+            rgb[(np.abs(r - radius) < lanes.line_width_m / 2) & clear
+                & (along >= lanes.turn_at_m + lanes.turn_taper_m)
+                & (np.mod(azimuth * radius, sum(lanes.dash_m)) < lanes.dash_m[0])] = \
+                PAINT_RGB["white"]
         if lanes.stop_at_m is not None:
             stop = self.stop_line()
             rgb[shapely.dwithin(stop, shapely.points(east, north), lanes.stop_width_m / 2)] = \
@@ -278,6 +304,12 @@ class Drive:
     def _azimuth(self, along_m: float) -> float:
         """Azimuth (radians, from the bend's centre) of the point ``along_m`` along the path."""
         return math.radians(self.start_deg) + along_m / self.radius_m
+
+    def along_m(self, azimuth: np.ndarray) -> np.ndarray:
+        """Metres along the vehicle's path (negative behind its start, half the bend either
+        way) of the points at ``azimuth`` (radians, from the bend's centre)."""
+        turn = np.mod(np.asarray(azimuth) - math.radians(self.start_deg) + np.pi, 2 * np.pi)
+        return (turn - np.pi) * self.radius_m
 
     def zebra_bars(self) -> np.ndarray:
         """Offsets of the zebra bars' middles from the right edge line: one every bar and gap
@@ -305,7 +337,8 @@ class Drive:
         assert lanes is not None and lanes.stop_at_m is not None
         az = self._azimuth(lanes.stop_at_m)
         b = lanes.boundaries_m()
-        r0, r1 = self._line_radius(float(b[0])), self._line_radius(float(b[lanes.forward]))
+        r0 = self._line_radius(float(b[0])) - float(lanes.turn_out_m(lanes.stop_at_m))
+        r1 = self._line_radius(float(b[lanes.forward]))
         return shapely.LineString([(r0 * math.sin(az), r0 * math.cos(az)),
                                    (r1 * math.sin(az), r1 * math.cos(az))])
 
@@ -314,14 +347,24 @@ class Drive:
         (``kind``, ``colour``, ``width_m``; a dashed line whole, across its gaps, as an
         extraction should join it) around the full circle, the stop line, the zebra crossing
         (``crosswalk``, its line across the road, ``width_m`` its reach along it), and each lane
-        (``lane`` index from the right edge, ``direction`` forward/backward, ``width_m``)."""
+        (``lane`` index from the right edge, ``direction`` forward/backward, ``width_m``). With
+        a turning lane the right edge line runs out along its taper and the turning lane's own
+        line (``boundary`` -1) runs from the taper's end to the far side of the bend; the
+        turning lane is not among the lanes."""
         lanes = self.lanes
         if lanes is None:
             raise ValueError("the drive has no lane paint")
-        azimuth = np.radians(np.arange(0.0, 360.0 + step_deg / 2, step_deg))
+        # Around the bend from its far side, where a turning lane (if any) ends.
+        azimuth = math.radians(self.start_deg) + np.pi + np.radians(
+            np.arange(0.0, 360.0 + step_deg / 2, step_deg))
+        out = lanes.turn_out_m(self.along_m(azimuth))
 
-        def ring(radius: float) -> list[list[float]]:
-            lon, lat = self.to_lonlat(radius * np.sin(azimuth), radius * np.cos(azimuth))
+        def ring(radius: float | np.ndarray, where: np.ndarray | None = None
+                 ) -> list[list[float]]:
+            az, rad = azimuth, np.broadcast_to(radius, azimuth.shape)
+            if where is not None:
+                az, rad = az[where], rad[where]
+            lon, lat = self.to_lonlat(rad * np.sin(az), rad * np.cos(az))
             return np.column_stack([lon, lat]).tolist()
 
         features = []
@@ -332,7 +375,14 @@ class Drive:
                 "feature": "marking", "kind": kind, "colour": colour,
                 "width_m": lanes.line_width_m, "boundary": i},
                 "geometry": {"type": "LineString", "coordinates": ring(
-                    self._line_radius(float(offset)))}})
+                    self._line_radius(float(offset)) - (out if i == 0 else 0.0))}})
+        if lanes.turn_at_m is not None:
+            features.append({"type": "Feature", "properties": {
+                "feature": "marking", "kind": "dashed", "colour": "white",
+                "width_m": lanes.line_width_m, "boundary": -1},
+                "geometry": {"type": "LineString", "coordinates": ring(
+                    self._line_radius(0.0),
+                    self.along_m(azimuth) >= lanes.turn_at_m + lanes.turn_taper_m)}})
         across = [(self.stop_line(), "stop_line", lanes.stop_width_m)
                   if lanes.stop_at_m is not None else None,
                   (self.zebra_line(), "crosswalk", lanes.zebra_length_m)
@@ -507,6 +557,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--zebra-at", type=float, metavar="M",
                         help="a zebra crossing M metres along the vehicle's path (with --lanes; "
                              "in lanes_truth.geojson as a crosswalk)")
+    parser.add_argument("--turn-lane-at", type=float, metavar="M",
+                        help="a turning lane opening on the right M metres along the vehicle's "
+                             "path (with --lanes): the right edge runs out by 3 m over 15 m, "
+                             "a dashed line parts the new lane from there on")
     parser.add_argument("--size", type=_size, default=Camera().image_size,
                         metavar="WxH", help="panorama size (default 1024x512)")
     args = parser.parse_args(argv)
@@ -519,9 +573,11 @@ def main(argv: list[str] | None = None) -> None:
         if not 1 <= forward <= len(args.lanes) or not 0 <= lane < len(args.lanes):
             parser.error("--forward and --lane must name lanes of --lanes")
         drive = Drive.in_lane(LanePaint(args.lanes, forward, args.centre_colour,
-                                        zebra_at_m=args.zebra_at), lane)
-    elif args.forward is not None or args.lane is not None or args.zebra_at is not None:
-        parser.error("--forward, --lane and --zebra-at need --lanes")
+                                        zebra_at_m=args.zebra_at, turn_at_m=args.turn_lane_at),
+                              lane)
+    elif any(v is not None for v in (args.forward, args.lane, args.zebra_at,
+                                     args.turn_lane_at)):
+        parser.error("--forward, --lane, --zebra-at and --turn-lane-at need --lanes")
     written = write_drive(args.out, drive, Camera(image_size=args.size),
                           frame_times(args.frames))
     for what, path in written.items():

@@ -22,7 +22,7 @@ import numpy as np
 import shapely
 
 from app.lanelet2.geometry import along_line, station_offset
-from ingest.lanes.across import BOUNDING, sections
+from ingest.lanes.across import BOUNDING, Section, sections
 
 MIN_RANGE_M = 6.0
 """Shortest run of cuts with one lane count kept as a range of its own."""
@@ -125,22 +125,28 @@ def lane_ranges(reference: shapely.LineString, paint: list[Paint],
     for cut in cuts:
         forward, backward = cut.lanes()
         counts.append((len(forward), len(backward)) if len(cut.offsets) >= 2 else (0, 0))
-    runs = _runs(counts, step_m)
-    ranges = []
-    for start, stop, (f, b) in runs:
-        if f + b == 0:
-            continue
-        full = [c for c in cuts[start:stop] if len(c.offsets) == f + b + 1]
-        offsets = np.median(np.array([c.offsets for c in full]), axis=0)
-        ranges.append(LaneRange(cuts[start].station_m - step_m / 2,
-                                cuts[stop - 1].station_m + step_m / 2, f, b,
-                                tuple(round(float(o), 3) for o in offsets),
-                                round(len(full) / (stop - start), 3)))
-    return _tapered(reference, paint, _cover(_unseen_lines_merged(ranges), reference.length))
+    ranges = [_range_of(cuts, cuts[start].station_m - step_m / 2,
+                        cuts[stop - 1].station_m + step_m / 2, f, b)
+              for start, stop, (f, b) in _runs(counts, step_m) if f + b]
+    # Before the merge, so that a range whose lane a taper widens is not read as a line
+    # unseen; after it too, where a short misread range between them hid the taper's range.
+    ranges = _unseen_lines_merged(_tapered(reference, paint, ranges, cuts))
+    return _tapered(reference, paint, _cover(ranges, reference.length), cuts)
 
 
-def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[LaneRange]
-             ) -> list[LaneRange]:
+def _range_of(cuts: list[Section], lo: float, hi: float, forward: int, backward: int
+              ) -> LaneRange:
+    """The range of ``forward`` + ``backward`` lanes from station ``lo`` to ``hi``: its
+    boundaries at the median offsets of the cuts there that met them all."""
+    inside = [c for c in cuts if lo <= c.station_m <= hi]
+    full = [c for c in inside if len(c.offsets) == forward + backward + 1]
+    offsets = np.median(np.array([c.offsets for c in full]), axis=0)
+    return LaneRange(lo, hi, forward, backward, tuple(round(float(o), 3) for o in offsets),
+                     round(len(full) / max(len(inside), 1), 3))
+
+
+def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[LaneRange],
+             cuts: list[Section]) -> list[LaneRange]:
     """The ranges with each lane that opens (or ends) along a painted taper starting (or
     ending) where the taper does, and the taper kept on the range with more lanes.
 
@@ -152,7 +158,9 @@ def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[Lan
     line whose offset runs steadily from the new boundary of the range with more lanes to
     the level of a boundary of the other (within :data:`MATCH_M` of it), over
     :data:`TAPER_MIN_M` to :data:`MAX_TAPER_M` (:func:`_taper`), leaving that level no
-    further than 1 m into the range with more lanes."""
+    further than 1 m into the range with more lanes. The range with fewer lanes is then
+    measured again without the taper (its lane there up to twice as wide: with the taper
+    much of it, the range read as a line unseen, :func:`_unseen_lines_merged`)."""
     if len(ranges) < 2:
         return ranges
     lines = [station_offset(reference, _samples(p.line)) for p in paint
@@ -164,13 +172,14 @@ def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[Lan
             continue
         opening = len(b.offsets) > len(a.offsets)
         few, many = (a, b) if opening else (b, a)
-        new = [k for k, o in enumerate(many.offsets)
-               if min(abs(o - p) for p in few.offsets) > MATCH_M]
-        if len(new) != 1:
-            continue
-        o_new = many.offsets[new[0]]
+        # The new boundary: the one without which the rest line up best with the other
+        # range's (whose boundary beside a taper is pulled towards it).
+        new = min(range(len(many.offsets)), key=lambda k: sum(
+            abs(o - p) for o, p in zip(many.offsets[:k] + many.offsets[k + 1:], few.offsets,
+                                       strict=True)))
+        o_new = many.offsets[new]
         o_old = min(few.offsets, key=lambda p: abs(p - o_new))
-        split = a.station_to_m
+        split = (a.station_to_m + b.station_from_m) / 2
         room = (few.station_to_m - few.station_from_m - MIN_RANGE_M,
                 many.station_to_m - many.station_from_m - MIN_RANGE_M)
         for station, offset in lines:
@@ -182,11 +191,13 @@ def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[Lan
             t = split - leaves if opening else split + leaves
             pairs = sorted(zip(station[samples].round(3).tolist(),
                                offset[samples].round(3).tolist(), strict=True))
-            many = replace(many, taper=(new[0], tuple(pairs)))
-            few, many = (replace(few, station_to_m=round(t, 3)),
-                         replace(many, station_from_m=round(t, 3))) if opening else \
-                (replace(few, station_from_m=round(t, 3)),
-                 replace(many, station_to_m=round(t, 3)))
+            many = replace(many, taper=(new, tuple(pairs)))
+            if opening:
+                few = _range_of(cuts, few.station_from_m, t, few.forward, few.backward)
+                many = replace(many, station_from_m=t)
+            else:
+                few = _range_of(cuts, t, few.station_to_m, few.forward, few.backward)
+                many = replace(many, station_to_m=t)
             out[i], out[i + 1] = (few, many) if opening else (many, few)
             break
     return out
@@ -226,7 +237,7 @@ def _taper(into_few: np.ndarray, offset: np.ndarray, o_old: float, o_new: float,
             continue
         hi = int(level[0])
         o_level = float(np.median(smooth[hi:hi + step + 1]))
-        if abs(o_level - o_old) > MATCH_M or not np.all(
+        if abs(o_level - o_old) > abs(o_new - o_old) / 2 or not np.all(
                 np.diff(smooth[lo:hi + 1]) * towards >= -0.02):
             continue
         across = (d[lo:hi + 1] - o_new) / (o_level - o_new)
@@ -310,8 +321,7 @@ def _cover(ranges: list[LaneRange], length: float) -> list[LaneRange]:
     for i, r in enumerate(ranges):
         lo = 0.0 if i == 0 else (ranges[i - 1].station_to_m + r.station_from_m) / 2
         hi = length if i == len(ranges) - 1 else (r.station_to_m + ranges[i + 1].station_from_m) / 2
-        out.append(LaneRange(round(lo, 3), round(hi, 3), r.forward, r.backward, r.offsets,
-                             r.confidence))
+        out.append(replace(r, station_from_m=round(lo, 3), station_to_m=round(hi, 3)))
     return out
 
 

@@ -65,19 +65,27 @@ def centreline(from_m: float, to_m: float) -> list[list[float]]:
     return np.column_stack([lon, lat]).tolist()
 
 
+def ingest_drive(folder: Path, drive: Drive, frames: int, name: str, until_m: float,
+                 lanes: int) -> str:
+    """The drive rendered into ``folder`` and ingested as layer ``{name}-drive``, a network
+    ``{name}-road`` along the road's true centre from 6 m behind the drive's start to
+    ``until_m`` (``lanes`` each way), and what ``ingest lanes`` said."""
+    paths = write_drive(folder, drive, Camera(), frame_times(frames))
+    run("ingest", "ipm", str(paths["frames"]), "--poses", str(paths["poses"]), "--calib",
+        str(paths["calib"]), "--layer", f"{name}-drive", *GRID_ARGS)
+    road = folder / "road.geojson"
+    road.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {"lanes_forward": lanes, "lanes_backward": lanes},
+        "geometry": {"type": "LineString", "coordinates": centreline(-6.0, until_m)}}]}))
+    run("ingest", "network", str(road), "--network", f"{name}-road")
+    return run("ingest", "lanes", "--layer", f"{name}-drive", "--network", f"{name}-road")
+
+
 @pytest.fixture(scope="module")
 def drive(database_url: str, tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     """The drive's layer, a network along its road, and what ``ingest lanes`` said."""
     folder = tmp_path_factory.mktemp("lane-drive")
-    paths = write_drive(folder, DRIVE, Camera(), frame_times(FRAMES))
-    run("ingest", "ipm", str(paths["frames"]), "--poses", str(paths["poses"]), "--calib",
-        str(paths["calib"]), "--layer", "lane-drive", *GRID_ARGS)
-    road = folder / "road.geojson"
-    road.write_text(json.dumps({"type": "FeatureCollection", "features": [{
-        "type": "Feature", "properties": {"lanes_forward": 1, "lanes_backward": 1},
-        "geometry": {"type": "LineString", "coordinates": centreline(-6.0, 24.0)}}]}))
-    run("ingest", "network", str(road), "--network", "lane-road")
-    return {"output": run("ingest", "lanes", "--layer", "lane-drive", "--network", "lane-road"),
+    return {"output": ingest_drive(folder, DRIVE, FRAMES, "lane", 24.0, 1),
             "folder": str(folder)}
 
 
@@ -596,15 +604,7 @@ def test_the_synthetic_drive_s_turning_lane_opens_along_its_taper(database_url: 
     lanes, then 3+2 from where the taper starts (16 m along the segment, within 1 m), and the
     new lanelet widens with the paint (within 0.25 m at 1, 2, 4, 6 and 12 m into it)."""
     drive = Drive.in_lane(replace(PAINT, stop_at_m=None, turn_at_m=10.0, turn_taper_m=8.0), 1)
-    paths = write_drive(tmp_path, drive, Camera(), frame_times(16))
-    run("ingest", "ipm", str(paths["frames"]), "--poses", str(paths["poses"]), "--calib",
-        str(paths["calib"]), "--layer", "turn-drive", *GRID_ARGS)
-    road = tmp_path / "road.geojson"
-    road.write_text(json.dumps({"type": "FeatureCollection", "features": [{
-        "type": "Feature", "properties": {"lanes_forward": 2, "lanes_backward": 2},
-        "geometry": {"type": "LineString", "coordinates": centreline(-6.0, 30.0)}}]}))
-    run("ingest", "network", str(road), "--network", "turn-road")
-    said = run("ingest", "lanes", "--layer", "turn-drive", "--network", "turn-road")
+    said = ingest_drive(tmp_path, drive, 16, "turn", 30.0, 2)
     assert "1 opening or ending along a painted taper" in said, said
     ranges, _ = stored("turn-road")
     assert [(r.lanes_forward, r.lanes_backward) for r in ranges] == [(2, 2), (3, 2)]

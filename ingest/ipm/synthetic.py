@@ -3,8 +3,9 @@
 A vehicle drives at constant speed along a circular arc (a right-hand bend) on a textured
 ground plane: grass, a 7 m road with edge lines and a dashed centre line, and coloured
 discs (markers) at known lon/lat. With :class:`LanePaint` the road is a multi-lane one (lanes of
-their own widths each way, edge lines, a solid centre line, dashed lane lines, a stop line) and
-:meth:`Drive.truth` is the painted truth the lane-marking extraction is scored against.
+their own widths each way, edge lines, a solid centre line, dashed lane lines, a stop line, and
+optionally a zebra crossing and a turning lane opening along a taper) and :meth:`Drive.truth`
+is the painted truth the lane-marking extraction is scored against.
 Its roof-mounted panoramic camera (a lever arm and a tilted mount) sees the ground and the car's
 red roof. The renderer deliberately shares no code with the IPM pipeline: it builds the camera
 rotation with SciPy's Euler angles from the documented composition order, follows each pixel's

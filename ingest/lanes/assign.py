@@ -156,7 +156,7 @@ def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[Lan
     with the taper, the widening edge was no boundary (too far from the new lane's offset)
     and the new lane was as wide as painted from its first metre. A taper is a stretch of one
     line whose offset runs steadily from the new boundary of the range with more lanes to
-    the level of a boundary of the other (within :data:`MATCH_M` of it), over
+    a level nearer the other range's boundary beside it than halfway, over
     :data:`TAPER_MIN_M` to :data:`MAX_TAPER_M` (:func:`_taper`), leaving that level no
     further than 1 m into the range with more lanes. The range with fewer lanes is then
     measured again without the taper (its lane there up to twice as wide: with the taper
@@ -192,12 +192,12 @@ def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[Lan
             pairs = sorted(zip(station[samples].round(3).tolist(),
                                offset[samples].round(3).tolist(), strict=True))
             many = replace(many, taper=(new, tuple(pairs)))
-            if opening:
-                few = _range_of(cuts, few.station_from_m, t, few.forward, few.backward)
-                many = replace(many, station_from_m=t)
-            else:
-                few = _range_of(cuts, t, few.station_to_m, few.forward, few.backward)
-                many = replace(many, station_to_m=t)
+            lo, hi = (few.station_from_m, t) if opening else (t, few.station_to_m)
+            few = _range_of(cuts, lo, hi, few.forward, few.backward) if any(
+                lo <= c.station_m <= hi and len(c.offsets) == len(few.offsets) for c in cuts
+            ) else replace(few, station_from_m=lo, station_to_m=hi)
+            many = replace(many, station_from_m=t) if opening else \
+                replace(many, station_to_m=t)
             out[i], out[i + 1] = (few, many) if opening else (many, few)
             break
     return out

@@ -164,20 +164,21 @@ class _Placed:
 
 
 def _laterals(n: np.ndarray, width: np.ndarray, slot_offsets: np.ndarray, pieces: Pieces,
-              cut: np.ndarray) -> np.ndarray:
-    """(2, slots): how far left of its line each bound starts and ends: lanes side by side
-    centred on the line, as the stored range places them where it has lanes, or where the
-    paint is at the cut stations."""
+              cut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(2, slots) twice: how far left of its line each bound starts and ends: lanes side by
+    side centred on the line, as the stored range places them where it has lanes, or where
+    the paint is at the cut stations; and the same as the ranges alone place them."""
     seg = np.repeat(np.arange(len(n)), n + 1)
     k = np.arange(slot_offsets[-1]) - slot_offsets[seg]
-    out = np.tile((n[seg] / 2.0 - k) * width[seg], (2, 1))
+    stored = np.tile((n[seg] / 2.0 - k) * width[seg], (2, 1))
     for s, lateral in pieces.laterals.items():
         if len(lateral) == n[s] + 1:
-            out[:, slot_offsets[s]:slot_offsets[s + 1]] = lateral
+            stored[:, slot_offsets[s]:slot_offsets[s + 1]] = lateral
+    out = stored.copy()
     for (s, slot_k), slot in pieces.slots.items():
         out[0, slot_offsets[s] + slot_k] = slot.offset_at(float(cut[0, s]))
         out[1, slot_offsets[s] + slot_k] = slot.offset_at(float(cut[1, s]))
-    return out
+    return out, stored
 
 
 def _place(arms: topo.Arms, xy: np.ndarray, offsets: np.ndarray, n: np.ndarray,
@@ -191,7 +192,7 @@ def _place(arms: topo.Arms, xy: np.ndarray, offsets: np.ndarray, n: np.ndarray,
     lines get straight bounds, parallel to their chord (painted ones keep their paint)."""
     cxy, coff = cut_lines(xy, offsets, arms.cut_m[0::2], arms.cut_m[1::2])
     cut = np.stack([arms.cut_m[0::2], line_lengths(xy, offsets) - arms.cut_m[1::2]])
-    lateral = _laterals(n, width, slot_offsets, pieces, cut)
+    lateral, stored = _laterals(n, width, slot_offsets, pieces, cut)
     normals = vertex_normals(cxy, coff)
     first_dir, last_dir = end_directions(cxy, coff)
     seg = np.repeat(np.arange(len(n)), n + 1)
@@ -217,7 +218,6 @@ def _place(arms: topo.Arms, xy: np.ndarray, offsets: np.ndarray, n: np.ndarray,
                                end_xy)
     # A painted bound that lies off its range's offset at its end runs over to it from
     # there: the paint's own taper of a lane that opens (or ends).
-    stored = _laterals(n, width, slot_offsets, Pieces(laterals=pieces.laterals), cut)
     opened_a, opened_b, unmatched, tapers = _open(arms, lateral, cxy, coff, first_dir, last_dir,
                                                   slot_offsets, end_xy,
                                                   np.abs(lateral - stored) > OPEN_MATCH_M)

@@ -284,19 +284,19 @@ class Drive:
                 rgb[bar & (along <= lanes.zebra_length_m / 2)] = PAINT_RGB["white"]
         along = self.along_m(azimuth)
         out = lanes.turn_out_m(along)
+
+        def line(radius: float | np.ndarray, dashed: bool) -> np.ndarray:
+            on = (np.abs(r - radius) < lanes.line_width_m / 2) & clear
+            return on & (np.mod(azimuth * radius, sum(lanes.dash_m)) < lanes.dash_m[0]) \
+                if dashed else on
+
         for i, offset in enumerate(lanes.boundaries_m()):
             kind, colour = lanes.line_kind(i)
             radius = self._line_radius(float(offset)) - (out if i == 0 else 0.0)
-            on = (np.abs(r - radius) < lanes.line_width_m / 2) & clear
-            if kind == "dashed":
-                on &= np.mod(azimuth * radius, sum(lanes.dash_m)) < lanes.dash_m[0]
-            rgb[on] = PAINT_RGB[colour]
+            rgb[line(radius, kind == "dashed")] = PAINT_RGB[colour]
         if lanes.turn_at_m is not None:  # the line parting the turning lane, once it is wide
-            radius = self._line_radius(0.0)
-            rgb[(np.abs(r - radius) < lanes.line_width_m / 2) & clear
-                & (along >= lanes.turn_at_m + lanes.turn_taper_m)
-                & (np.mod(azimuth * radius, sum(lanes.dash_m)) < lanes.dash_m[0])] = \
-                PAINT_RGB["white"]
+            rgb[line(self._line_radius(0.0), True)
+                & (along >= lanes.turn_at_m + lanes.turn_taper_m)] = PAINT_RGB["white"]
         if lanes.stop_at_m is not None:
             stop = self.stop_line()
             rgb[shapely.dwithin(stop, shapely.points(east, north), lanes.stop_width_m / 2)] = \

@@ -130,8 +130,11 @@ def lane_ranges(reference: shapely.LineString, paint: list[Paint],
               for start, stop, (f, b) in _runs(counts, step_m) if f + b]
     # Before the merge, so that a range whose lane a taper widens is not read as a line
     # unseen; after it too, where a short misread range between them hid the taper's range.
-    ranges = _unseen_lines_merged(_tapered(reference, paint, ranges, cuts))
-    return _tapered(reference, paint, _cover(ranges, reference.length), cuts)
+    if len(ranges) < 2:
+        return _cover(ranges, reference.length)
+    lines = [station_offset(reference, _samples(p.line)) for p in paint if p.kind in BOUNDING]
+    ranges = _unseen_lines_merged(_tapered(lines, ranges, cuts))
+    return _tapered(lines, _cover(ranges, reference.length), cuts)
 
 
 def _range_of(cuts: list[Section], lo: float, hi: float, forward: int, backward: int
@@ -145,7 +148,7 @@ def _range_of(cuts: list[Section], lo: float, hi: float, forward: int, backward:
                      round(len(full) / max(len(inside), 1), 3))
 
 
-def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[LaneRange],
+def _tapered(lines: list[tuple[np.ndarray, np.ndarray]], ranges: list[LaneRange],
              cuts: list[Section]) -> list[LaneRange]:
     """The ranges with each lane that opens (or ends) along a painted taper starting (or
     ending) where the taper does, and the taper kept on the range with more lanes.
@@ -160,11 +163,8 @@ def _tapered(reference: shapely.LineString, paint: list[Paint], ranges: list[Lan
     :data:`TAPER_MIN_M` to :data:`MAX_TAPER_M` (:func:`_taper`), leaving that level no
     further than 1 m into the range with more lanes. The range with fewer lanes is then
     measured again without the taper (its lane there up to twice as wide: with the taper
-    much of it, the range read as a line unseen, :func:`_unseen_lines_merged`)."""
-    if len(ranges) < 2:
-        return ranges
-    lines = [station_offset(reference, _samples(p.line)) for p in paint
-             if p.kind in BOUNDING]
+    much of it, the range read as a line unseen, :func:`_unseen_lines_merged`). ``lines``:
+    each marking line's (stations, offsets) along the segment."""
     out = list(ranges)
     for i in range(len(out) - 1):
         a, b = out[i], out[i + 1]
